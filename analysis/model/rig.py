@@ -1,0 +1,171 @@
+"""A test rig built from its config: structure, placed sensors and hammer, and a ready simulator."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from analysis.model.forces import HalfSine
+from analysis.model.guyan import GuyanModel, guyan_reduce
+from analysis.model.modal import Modes, structure_modes
+from analysis.model.simulate import ImpactSimulator
+from analysis.model.structure import ModalDamping, Structure, build_beam, build_lumped
+from daq.config.loader import load_config
+from daq.config.rig import BeamSpec, RigConfig, SensorProps
+
+UNITS = {"acceleration": "m/s^2", "velocity": "m/s", "displacement": "m", "force": "N"}
+
+
+@dataclass(frozen=True)
+class PlacedChannel:
+    """A sensor (or the hammer's force cell) snapped onto a model DOF."""
+
+    name: str
+    quantity: str
+    dof: int
+    dof_name: str
+    x_requested: float | None
+    x_model: float | None
+    props: SensorProps
+
+    @property
+    def unit(self) -> str:
+        return UNITS[self.quantity]
+
+
+@dataclass(frozen=True)
+class Rig:
+    config: RigConfig
+    structure: Structure
+    sensors: tuple[PlacedChannel, ...]
+    hammer: PlacedChannel
+    path: str = "<config>"
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    @property
+    def sample_rate(self) -> float:
+        return self.config.daq.sample_rate
+
+    @property
+    def sensor_dofs(self) -> list[int]:
+        return [s.dof for s in self.sensors]
+
+    @cached_property
+    def modes(self) -> Modes:
+        return structure_modes(self.structure)
+
+    def limit_structure(self, limit: str = "low") -> Structure:
+        """``low``: the underlying linear structure; ``high``: nonlinear springs replaced by pins."""
+        if limit == "low":
+            return self.structure.linear()
+        if limit == "high":
+            return self.structure.high_energy_limit()
+        raise ValueError("limit must be 'low' or 'high'")
+
+    def master_dofs(self) -> list[int]:
+        """Distinct sensor DOFs in order along the structure (the seed's Guyan masters, L1367)."""
+        return sorted(set(self.sensor_dofs))
+
+    def guyan(self, masters: list[int] | None = None) -> GuyanModel:
+        return guyan_reduce(self.structure.M, self.structure.K, masters if masters is not None else self.master_dofs())
+
+    def hammer_force(self, peak: float | None = None) -> HalfSine:
+        h = self.config.hammer
+        return HalfSine(peak=h.peak_force if peak is None else float(peak), duration=h.pulse_duration)
+
+    @cached_property
+    def simulator(self) -> ImpactSimulator:
+        sim = self.config.simulation
+        return ImpactSimulator(
+            self.structure,
+            self.hammer.dof,
+            self.sensor_dofs,
+            cutoff_hz=sim.modal_cutoff_hz,
+            residual_vectors=sim.residual_vectors,
+            max_omega_dt=sim.max_omega_dt,
+            modes=self.modes,
+        )
+
+
+def _place(
+    structure: Structure, cfg: RigConfig, name: str, quantity: str, x: float | None, dof: str | None, props: SensorProps
+) -> PlacedChannel:
+    if isinstance(cfg.structure, BeamSpec):
+        assert structure.mesh is not None and x is not None
+        node, _ = structure.mesh.snap(x)
+        dof_name = f"w{node}"
+        try:
+            idx = structure.dof_index(dof_name)
+        except KeyError:
+            raise ValueError(f"{name} at x = {x:g} m sits on a constrained DOF (a support)") from None
+        return PlacedChannel(name, quantity, idx, dof_name, x, float(structure.mesh.node_x[node]), props)
+    assert dof is not None
+    return PlacedChannel(name, quantity, structure.dof_index(dof), dof, None, None, props)
+
+
+def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
+    damping = ModalDamping(zeta=tuple(cfg.damping.zeta), zeta_rest=cfg.damping.zeta_rest, factor2=cfg.damping.factor2)
+    s = cfg.structure
+    if isinstance(s, BeamSpec):
+        structure = build_beam(
+            length=s.length,
+            width=s.width,
+            height=s.height,
+            E=s.youngs_modulus,
+            rho=s.density,
+            n_elements=s.elements,
+            left=s.left,
+            right=s.right,
+            point_masses=[(p.x, p.mass) for p in cfg.point_masses],
+            springs=[(p.x, p.k) for p in cfg.springs],
+            nonlinear_springs=[(p.x, p.law, p.coefficient, p.exponent) for p in cfg.nonlinear_springs],
+            damping=damping,
+        )
+    else:
+        names = s.names
+        idx = {n: i for i, n in enumerate(names)}
+        springs = [(idx[sp.i], None if sp.j is None else idx[sp.j], sp.k) for sp in s.springs]
+        springs += [(idx[p.dof], None, p.k) for p in cfg.springs]
+        masses = list(s.masses)
+        for p in cfg.point_masses:
+            masses[idx[p.dof]] += p.mass
+        structure = build_lumped(
+            masses=masses,
+            springs=springs,
+            nonlinear_springs=[(idx[p.dof], p.law, p.coefficient, p.exponent) for p in cfg.nonlinear_springs],
+            names=names,
+            damping=damping,
+        )
+    sensors = tuple(_place(structure, cfg, sn.name, sn.quantity, sn.x, sn.dof, sn) for sn in cfg.all_sensors)
+    h = cfg.hammer
+    hprops = SensorProps(
+        quantity="force", sensitivity_mv_per_unit=h.sensitivity_mv_per_unit, range=h.range, noise_rms=h.noise_rms, model=h.model
+    )
+    hammer = _place(structure, cfg, "hammer", "force", h.x, h.dof, hprops)
+    return Rig(config=cfg, structure=structure, sensors=sensors, hammer=hammer, path=str(path))
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Load and build a rig; raises :class:`daq.config.ConfigError` (one line) on a bad file."""
+    from daq.config.loader import ConfigError
+
+    cfg = load_config(RigConfig, path)
+    try:
+        return build_rig(cfg, path)
+    except ValueError as exc:  # e.g. a sensor snapped onto a support
+        raise ConfigError(path, None, str(exc)) from None
+
+
+def channel_signals(rig: Rig, result, index: int = 0) -> tuple[list[PlacedChannel], np.ndarray]:
+    """Physical signals (n_samples, 1 + n_sensors) for the hammer then each sensor, SI units."""
+    cols = [result.force[index]]
+    for k, s in enumerate(rig.sensors):
+        arr = {"acceleration": result.acceleration, "velocity": result.velocity, "displacement": result.displacement}[s.quantity]
+        cols.append(arr[index, :, k])
+    return [rig.hammer, *rig.sensors], np.stack(cols, axis=1)

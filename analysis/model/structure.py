@@ -1,0 +1,190 @@
+"""A linear structure (mass, stiffness, named DOFs) with grounded nonlinear springs and modal damping.
+
+The model layer is not beam-only: :func:`build_beam` assembles Euler–Bernoulli beams with point
+masses and grounded springs, :func:`build_lumped` spring–mass chains such as the seed's 2-DOF system
+(eq. 2.1, L131–L134). Both produce a :class:`Structure`, which is what modal analysis, Guyan
+reduction and the transient simulator consume.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from analysis.model.beam import BeamMesh, FloatArray, assemble_beam
+from analysis.model.nonlinear import NonlinearSpring
+
+EndCondition = Literal["clamped", "pinned", "free"]
+
+
+@dataclass(frozen=True)
+class Dof:
+    """One degree of freedom of a structure.
+
+    ``kind`` is ``"w"`` (transverse displacement) or ``"theta"`` (rotation) for beams and ``"x"``
+    for lumped masses; ``x`` is the position along the beam in metres (None for lumped DOFs).
+    """
+
+    name: str
+    kind: str
+    node: int | None = None
+    x: float | None = None
+
+    @property
+    def translational(self) -> bool:
+        return self.kind in ("w", "x")
+
+
+@dataclass(frozen=True)
+class ModalDamping:
+    """Per-mode viscous damping ratios.
+
+    ``zeta[r]`` applies to mode r+1 and ``zeta_rest`` to all higher modes (the seed's Table 4.1
+    plus "0.001 for higher modes", L1207). ``factor2=True`` is the standard ``2 zeta omega``
+    modal damping; ``False`` reproduces the seed's printed eq. 3.14 (L885–L892), which drops the 2.
+    """
+
+    zeta: tuple[float, ...] = ()
+    zeta_rest: float = 0.0
+    factor2: bool = True
+
+    def ratios(self, n_modes: int) -> FloatArray:
+        z = np.full(n_modes, self.zeta_rest, dtype=float)
+        k = min(n_modes, len(self.zeta))
+        z[:k] = self.zeta[:k]
+        return z
+
+    def modal_coefficients(self, omega: FloatArray) -> FloatArray:
+        """Diagonal of the modal damping matrix for mass-normalised modes: ``2 zeta_r omega_r``."""
+        return (2.0 if self.factor2 else 1.0) * self.ratios(len(omega)) * omega
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Mass and stiffness over the free (unconstrained) DOFs, plus nonlinear springs and damping."""
+
+    M: FloatArray
+    K: FloatArray
+    dofs: tuple[Dof, ...]
+    nonlinear: tuple[NonlinearSpring, ...] = ()
+    damping: ModalDamping = field(default_factory=ModalDamping)
+    mesh: BeamMesh | None = None
+
+    @property
+    def n_dof(self) -> int:
+        return len(self.dofs)
+
+    def dof_index(self, name: str) -> int:
+        for i, d in enumerate(self.dofs):
+            if d.name == name:
+                return i
+        raise KeyError(f"no DOF named {name!r}; this structure has e.g. {[d.name for d in self.dofs[:4]]}")
+
+    def translational_dofs(self) -> list[int]:
+        return [i for i, d in enumerate(self.dofs) if d.translational]
+
+    def without_dofs(self, removed: Sequence[int]) -> Structure:
+        """The structure with the given DOFs held at zero (pinned) and removed.
+
+        Nonlinear springs on removed DOFs disappear (a pinned point carries no spring force).
+        """
+        removed_set = set(int(i) for i in removed)
+        keep = [i for i in range(self.n_dof) if i not in removed_set]
+        new_index = {old: new for new, old in enumerate(keep)}
+        springs = tuple(s.moved_to(new_index[s.dof]) for s in self.nonlinear if s.dof in new_index)
+        return replace(
+            self,
+            M=self.M[np.ix_(keep, keep)],
+            K=self.K[np.ix_(keep, keep)],
+            dofs=tuple(self.dofs[i] for i in keep),
+            nonlinear=springs,
+        )
+
+    def high_energy_limit(self) -> Structure:
+        """The seed's high-energy linear limit: every nonlinear spring replaced by a pin (L1244)."""
+        return self.without_dofs([s.dof for s in self.nonlinear])
+
+    def linear(self) -> Structure:
+        """The underlying linear structure (nonlinear springs removed: the low-energy limit)."""
+        return replace(self, nonlinear=())
+
+
+def _end_dofs(condition: EndCondition, node: int) -> list[int]:
+    if condition == "clamped":
+        return [2 * node, 2 * node + 1]
+    if condition == "pinned":
+        return [2 * node]
+    return []
+
+
+def build_beam(
+    *,
+    length: float,
+    width: float,
+    height: float,
+    E: float,
+    rho: float,
+    n_elements: int,
+    left: EndCondition = "clamped",
+    right: EndCondition = "free",
+    point_masses: Sequence[tuple[float, float]] = (),
+    springs: Sequence[tuple[float, float]] = (),
+    nonlinear_springs: Sequence[tuple[float, str, float, float]] = (),
+    damping: ModalDamping | None = None,
+) -> Structure:
+    """Assemble a uniform Euler–Bernoulli beam with attachments.
+
+    ``point_masses`` are ``(x, mass_kg)``; ``springs`` are grounded linear springs ``(x, k_N_per_m)``;
+    ``nonlinear_springs`` are ``(x, law, coefficient, exponent)``. Every position is snapped to the
+    nearest node (an error beyond half an element off the beam).
+    """
+    mesh = BeamMesh(length=length, n_elements=n_elements)
+    M, K = assemble_beam(E, rho, width, height, mesh)
+    for x, m in point_masses:
+        node, _ = mesh.snap(x)
+        M[2 * node, 2 * node] += m
+    for x, k in springs:
+        node, _ = mesh.snap(x)
+        K[2 * node, 2 * node] += k
+    xs = mesh.node_x
+    dofs: list[Dof] = []
+    for n in range(n_elements + 1):
+        dofs.append(Dof(name=f"w{n}", kind="w", node=n, x=float(xs[n])))
+        dofs.append(Dof(name=f"theta{n}", kind="theta", node=n, x=float(xs[n])))
+    nl = []
+    for x, law, coef, expo in nonlinear_springs:
+        node, _ = mesh.snap(x)
+        nl.append(NonlinearSpring(dof=2 * node, law=law, coefficient=coef, exponent=expo))  # type: ignore[arg-type]
+    full = Structure(M=M, K=K, dofs=tuple(dofs), nonlinear=tuple(nl), damping=damping or ModalDamping(), mesh=mesh)
+    removed = _end_dofs(left, 0) + _end_dofs(right, n_elements)
+    for s in full.nonlinear:
+        if s.dof in removed:
+            raise ValueError(f"a nonlinear spring sits on a constrained DOF ({full.dofs[s.dof].name})")
+    return full.without_dofs(removed)
+
+
+def build_lumped(
+    *,
+    masses: Sequence[float],
+    springs: Sequence[tuple[int, int | None, float]],
+    nonlinear_springs: Sequence[tuple[int, str, float, float]] = (),
+    names: Sequence[str] | None = None,
+    damping: ModalDamping | None = None,
+) -> Structure:
+    """A spring–mass system: ``springs`` are ``(i, j, k)`` between DOFs i and j, ``j=None`` to ground."""
+    n = len(masses)
+    names = list(names) if names is not None else [f"x{i + 1}" for i in range(n)]
+    M = np.diag(np.asarray(masses, dtype=float))
+    K = np.zeros((n, n))
+    for i, j, k in springs:
+        K[i, i] += k
+        if j is not None:
+            K[j, j] += k
+            K[i, j] -= k
+            K[j, i] -= k
+    nl = tuple(NonlinearSpring(dof=i, law=law, coefficient=c, exponent=e) for i, law, c, e in nonlinear_springs)  # type: ignore[arg-type]
+    dofs = tuple(Dof(name=nm, kind="x") for nm in names)
+    return Structure(M=M, K=K, dofs=dofs, nonlinear=nl, damping=damping or ModalDamping())

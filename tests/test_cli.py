@@ -1,0 +1,79 @@
+"""The gvt command line, run as a user runs it (a subprocess of the installed console script)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from .conftest import gvt_command
+
+TABLE_3_1 = [3.794, 23.78, 66.60, 130.6, 216.2, 323.9, 454.5, 608.9, 787.3, 978.7]
+
+
+def run(*args, timeout=300):
+    return subprocess.run([*gvt_command(), *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_model_modes_json_prints_the_table_3_1_numbers():
+    p = run("model", "modes", "beam_ch3", "--json")
+    assert p.returncode == 0, p.stderr
+    rep = json.loads(p.stdout)
+    f = np.array([m["frequency_hz"] for m in rep["modes"]])
+    assert np.all(np.abs(f / TABLE_3_1 - 1) < 1e-3)
+
+
+def test_model_modes_high_limit():
+    p = run("model", "modes", "configs/rigs/beam_ch4_sim.toml", "--json", "--limit", "high", "--count", "4")
+    assert p.returncode == 0, p.stderr
+    f = np.array([m["frequency_hz"] for m in json.loads(p.stdout)["modes"]])
+    assert np.all(np.abs(f / [16.70, 54.11, 112.89, 193.05] - 1) < 5e-3)
+
+
+def test_model_modes_table_and_bad_limit():
+    p = run("model", "modes", "beam_ch4_exp")
+    assert p.returncode == 0 and "20.80" in p.stdout and "Guyan" in p.stdout
+    bad = run("model", "modes", "beam_ch4_exp", "--limit", "middle")
+    assert bad.returncode == 2 and "--limit" in bad.stderr
+
+
+def test_simulate_writes_npz_with_ground_truth(tmp_path):
+    out = tmp_path / "hit.npz"
+    p = run("simulate", "beam_ch4_exp", "--force", "200", "--duration", "0.5", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    assert "wrote" in p.stdout and out.exists()
+    with np.load(out) as z:
+        assert z["measured"].shape == (8192, 15) and z["measured"].dtype == np.float32
+        assert list(z["channel_names"][:2]) == ["hammer", "a01"]
+        assert z["modal_q"].shape[0] == 8192
+        closure = (
+            z["energy_input_work"]
+            - z["energy_dissipated"]
+            - (z["energy_kinetic"] + z["energy_potential_linear"] + z["energy_potential_nonlinear"])
+        )
+        assert np.max(np.abs(closure)) < 1e-6 * z["energy_input_work"][-1]
+        # measured = true through the sensor model: within noise + quantisation
+        err = np.abs(z["measured"][:, 1:] - z["true"][:, 1:]).max()
+        assert err < 0.2  # m/s^2: 0.02 rms noise, 5 sigma << 0.2
+
+
+def test_simulate_rejects_bad_output_path(tmp_path):
+    p = run("simulate", "two_dof", "--out", str(tmp_path / "x.csv"))
+    assert p.returncode == 2 and ".npz" in p.stderr
+    p = run("simulate", "two_dof", "--out", str(tmp_path / "missing" / "x.npz"))
+    assert p.returncode == 2 and "does not exist" in p.stderr
+
+
+def test_demo_runs_and_shows_nnm1_moving_with_energy():
+    p = run("demo", "--duration", "2.0")
+    assert p.returncode == 0, p.stderr
+    assert "NNM1 frequency" in p.stdout and "strong" in p.stdout and "weak" in p.stdout
+
+
+@pytest.mark.parametrize("args", [["model"], ["frobnicate"]])
+def test_usage_errors_exit_2(args):
+    p = run(*args)
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr

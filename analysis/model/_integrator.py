@@ -123,7 +123,7 @@ def _integrate(
     kc,
     pe,
     fmean,
-    dt,
+    dts,
     n_sub,
     n_samples,
     q_out,
@@ -135,12 +135,22 @@ def _integrate(
     sum_qq,
     record,
 ):
-    """Run one amplitude. Writes state at every output sample (``record``) or only moments."""
+    """Run one amplitude. Writes state at every output sample (``record``) or only moments.
+
+    Each sub-step is a composition of ``len(dts)`` midpoint stages of signed lengths ``dts``
+    (one stage: the plain 2nd-order rule; three: Yoshida's 4th-order triple jump). ``fmean`` holds
+    the mean unit force over every stage, in order.
+    """
     n_r = omega2.shape[0]
     s = B.shape[0]
-    d = 2.0 / (dt * dt) + cdamp / dt + 0.5 * omega2
-    dinv = 1.0 / d
-    S = (B * dinv[None, :]) @ B.T
+    n_stage = dts.shape[0]
+    dinv_all = np.empty((n_stage, n_r))
+    S_all = np.empty((n_stage, s, s))
+    for j in range(n_stage):
+        h = dts[j]
+        for i in range(n_r):
+            dinv_all[j, i] = 1.0 / (2.0 / (h * h) + cdamp[i] / h + 0.5 * omega2[i])
+        S_all[j] = (B * dinv_all[j][None, :]) @ B.T
     q = np.zeros(n_r)
     v = np.zeros(n_r)
     w = np.zeros(s)
@@ -149,40 +159,41 @@ def _integrate(
     diss = 0.0
     r = np.empty(n_r)
     u = np.empty(n_r)
-    step = 0
+    stage = 0
     for n in range(n_samples):
         if n > 0:
             for _ in range(n_sub):
-                F = amp * fmean[step]
-                step += 1
-                for i in range(n_r):
-                    r[i] = phi_f[i] * F - omega2[i] * q[i] + 2.0 * v[i] / dt
-                    u[i] = dinv[i] * r[i]
-                if s > 0:
-                    a = w + B @ u
-                    guess = 2.0 * w - w_prev
-                    if s == 1:
-                        w1, g1 = _solve_scalar(S[0, 0], a[0], w[0], guess[0], law[0], kc[0], pe[0])
-                        wn = np.empty(1)
-                        wn[0] = w1
-                        g = np.empty(1)
-                        g[0] = g1
-                    else:
-                        wn, g = _solve_vector(S, a, w, guess, law, kc, pe)
-                    corr = B.T @ g
+                for j in range(n_stage):
+                    dt = dts[j]
+                    dinv = dinv_all[j]
+                    F = amp * fmean[stage]
+                    stage += 1
                     for i in range(n_r):
-                        u[i] -= dinv[i] * corr[i]
-                    w_prev = w
-                    w = B @ (q + u)  # recomputed from q to stay consistent with the state
-                w_in = 0.0
-                dd = 0.0
-                for i in range(n_r):
-                    w_in += phi_f[i] * u[i]
-                    dd += cdamp[i] * u[i] * u[i]
-                    q[i] += u[i]
-                    v[i] = 2.0 * u[i] / dt - v[i]
-                work += F * w_in
-                diss += dd / dt
+                        r[i] = phi_f[i] * F - omega2[i] * q[i] + 2.0 * v[i] / dt
+                        u[i] = dinv[i] * r[i]
+                    if s > 0:
+                        a = w + B @ u
+                        guess = w + (w - w_prev) * (dt / dts[j - 1] if j > 0 else dt / dts[n_stage - 1])
+                        if s == 1:
+                            _w1, g1 = _solve_scalar(S_all[j, 0, 0], a[0], w[0], guess[0], law[0], kc[0], pe[0])
+                            g = np.empty(1)
+                            g[0] = g1
+                        else:
+                            _wn, g = _solve_vector(S_all[j], a, w, guess, law, kc, pe)
+                        corr = B.T @ g
+                        for i in range(n_r):
+                            u[i] -= dinv[i] * corr[i]
+                        w_prev = w
+                        w = B @ (q + u)  # recomputed from q to stay consistent with the state
+                    w_in = 0.0
+                    dd = 0.0
+                    for i in range(n_r):
+                        w_in += phi_f[i] * u[i]
+                        dd += cdamp[i] * u[i] * u[i]
+                        q[i] += u[i]
+                        v[i] = 2.0 * u[i] / dt - v[i]
+                    work += F * w_in
+                    diss += dd / dt
         if record:
             for i in range(n_r):
                 q_out[n, i] = q[i]
@@ -202,7 +213,7 @@ def _integrate(
 
 
 @njit(cache=True, parallel=True)
-def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt, n_sub, n_samples):
+def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dts, n_sub, n_samples):
     n_b = amps.shape[0]
     n_r = omega2.shape[0]
     s = B.shape[0]
@@ -224,7 +235,7 @@ def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt
             kc,
             pe,
             fmean,
-            dt,
+            dts,
             n_sub,
             n_samples,
             q_out[b],
@@ -240,7 +251,7 @@ def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt
 
 
 @njit(cache=True, parallel=True)
-def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt, n_sub, n_samples):
+def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dts, n_sub, n_samples):
     """Per amplitude: sum of q and of q q^T over the output samples, input work, dissipated energy."""
     n_b = amps.shape[0]
     n_r = omega2.shape[0]
@@ -263,7 +274,7 @@ def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, d
             kc,
             pe,
             fmean,
-            dt,
+            dts,
             n_sub,
             n_samples,
             d2,

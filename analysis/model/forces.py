@@ -31,16 +31,15 @@ class HalfSine:
         inside = (tau >= 0.0) & (tau <= 1.0)
         return np.where(inside, np.sin(np.pi * np.clip(tau, 0.0, 1.0)), 0.0)
 
+    def antiderivative(self, t: FloatArray) -> FloatArray:
+        """Integral of the unit-peak pulse from -inf to ``t``."""
+        T = self.duration
+        a = np.clip(np.asarray(t, dtype=float), self.start, self.start + T)
+        return (T / np.pi) * (1.0 - np.cos(np.pi * (a - self.start) / T))
+
     def shape_step_means(self, dt: float, n_steps: int) -> FloatArray:
         """Exact mean of the unit-peak pulse over each step ``[k dt, (k+1) dt]``."""
-        t0 = np.arange(n_steps) * dt
-        t1 = t0 + dt
-        a = np.clip(t0, self.start, self.start + self.duration)
-        b = np.clip(t1, self.start, self.start + self.duration)
-        T = self.duration
-        # integral of sin(pi (t - start)/T) from a to b
-        integ = (T / np.pi) * (np.cos(np.pi * (a - self.start) / T) - np.cos(np.pi * (b - self.start) / T))
-        return integ / dt
+        return interval_means(self, np.arange(n_steps) * dt, np.arange(1, n_steps + 1) * dt)
 
     @property
     def end(self) -> float:
@@ -65,22 +64,20 @@ class ForceSeries:
     def shape_at(self, t: FloatArray) -> FloatArray:
         return np.interp(np.asarray(t, dtype=float), self.t, np.asarray(self.force, dtype=float), left=0.0, right=0.0)
 
-    def shape_step_means(self, dt: float, n_steps: int) -> FloatArray:
-        # Exact mean of the piecewise-linear interpolant over each step: integrate the cumulative
-        # trapezoid of the series evaluated at the step edges.
+    def antiderivative(self, t: FloatArray) -> FloatArray:
+        """Exact integral of the piecewise-linear interpolant from ``t[0]`` to ``t``."""
         tt = np.asarray(self.t, dtype=float)
         ff = np.asarray(self.force, dtype=float)
         cum = np.concatenate([[0.0], np.cumsum(0.5 * (ff[1:] + ff[:-1]) * np.diff(tt))])
+        x = np.clip(np.asarray(t, dtype=float), tt[0], tt[-1])
+        i = np.clip(np.searchsorted(tt, x, side="right") - 1, 0, len(tt) - 2)
+        frac = x - tt[i]
+        slope = (ff[i + 1] - ff[i]) / (tt[i + 1] - tt[i])
+        return cum[i] + ff[i] * frac + 0.5 * slope * frac**2
 
-        def integral_to(x: FloatArray) -> FloatArray:
-            x = np.clip(x, tt[0], tt[-1])
-            i = np.clip(np.searchsorted(tt, x, side="right") - 1, 0, len(tt) - 2)
-            frac = x - tt[i]
-            slope = (ff[i + 1] - ff[i]) / (tt[i + 1] - tt[i])
-            return cum[i] + ff[i] * frac + 0.5 * slope * frac**2
-
-        edges = np.arange(n_steps + 1) * dt
-        return np.diff(integral_to(edges)) / dt
+    def shape_step_means(self, dt: float, n_steps: int) -> FloatArray:
+        """Exact mean of the interpolant over each step ``[k dt, (k+1) dt]``."""
+        return interval_means(self, np.arange(n_steps) * dt, np.arange(1, n_steps + 1) * dt)
 
     @property
     def end(self) -> float:
@@ -88,3 +85,14 @@ class ForceSeries:
 
 
 Force = HalfSine | ForceSeries
+
+
+def interval_means(force: Force, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Mean unit force over each interval from ``a`` to ``b`` (``b < a`` allowed: a backward stage).
+
+    Exact for both force kinds (analytic / piecewise-linear antiderivative), so impulses and the
+    input work do not depend on where integration stages fall on the pulse.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return (force.antiderivative(b) - force.antiderivative(a)) / (b - a)

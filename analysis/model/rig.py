@@ -89,6 +89,7 @@ class Rig:
             cutoff_hz=sim.modal_cutoff_hz,
             residual_vectors=sim.residual_vectors,
             max_omega_dt=sim.max_omega_dt,
+            order=sim.order,
             modes=self.modes,
         )
 

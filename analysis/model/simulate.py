@@ -26,13 +26,18 @@ import numpy as np
 
 from analysis.model._integrator import integrate_batch_moments, integrate_batch_record
 from analysis.model.beam import FloatArray
-from analysis.model.forces import Force
+from analysis.model.forces import Force, interval_means
 from analysis.model.modal import Modes, structure_modes
 from analysis.model.reduction import ReducedModel, reduce_for_simulation
 from analysis.model.structure import Structure
 
 DEFAULT_CUTOFF_HZ = 5000.0
 DEFAULT_MAX_OMEGA_DT = 0.25
+DEFAULT_ORDER = 2
+
+# Yoshida's triple jump: three midpoint stages of h*g1, h*g2, h*g1 make a symmetric 4th-order step.
+_CBRT2 = 2.0 ** (1.0 / 3.0)
+_YOSHIDA = np.array([1.0 / (2.0 - _CBRT2), -_CBRT2 / (2.0 - _CBRT2), 1.0 / (2.0 - _CBRT2)])
 
 
 @dataclass(frozen=True)
@@ -121,8 +126,12 @@ class ImpactSimulator:
         cutoff_hz: float = DEFAULT_CUTOFF_HZ,
         residual_vectors: bool = True,
         max_omega_dt: float = DEFAULT_MAX_OMEGA_DT,
+        order: int = DEFAULT_ORDER,
         modes: Modes | None = None,
     ) -> None:
+        if order not in (2, 4):
+            raise ValueError("order must be 2 (implicit midpoint) or 4 (its triple-jump composition)")
+        self.order = order
         if not 0 <= force_dof < structure.n_dof:
             raise ValueError(f"force DOF {force_dof} outside the structure's {structure.n_dof} DOFs")
         self.structure = structure
@@ -160,16 +169,22 @@ class ImpactSimulator:
         # A record of D seconds holds D * fs samples at t = k / fs (the DAQ's sample-exact contract).
         n_samples = max(2, round(duration * sample_rate))
         n_sub = self.steps_per_sample(sample_rate)
-        dt = 1.0 / (sample_rate * n_sub)
-        fmean = np.ascontiguousarray(force.shape_step_means(dt, (n_samples - 1) * n_sub))
+        h = 1.0 / (sample_rate * n_sub)
+        gammas = _YOSHIDA if self.order == 4 else np.array([1.0])
+        dts = np.ascontiguousarray(gammas * h)
+        n_steps = (n_samples - 1) * n_sub
+        # Stage boundaries of every step, in order; the force mean over each (signed) stage.
+        offsets = np.concatenate([[0.0], np.cumsum(gammas)])
+        edges = (np.arange(n_steps)[:, None] + offsets[None, :]) * h
+        fmean = np.ascontiguousarray(interval_means(force, edges[:, :-1], edges[:, 1:]).ravel())
         amps = np.atleast_1d(np.asarray([force.peak] if amplitudes is None else amplitudes, dtype=float))
-        return n_samples, n_sub, dt, fmean, amps
+        return n_samples, n_sub, dts, fmean, amps
 
     def run(
         self, force: Force, duration: float, sample_rate: float, amplitudes: Sequence[float] | None = None
     ) -> SimulationResult:
         """Full time histories for each amplitude (``force`` is scaled so its peak is the amplitude)."""
-        n, n_sub, dt, fmean, amps = self._prepare(force, duration, sample_rate, amplitudes)
+        n, n_sub, dts, fmean, amps = self._prepare(force, duration, sample_rate, amplitudes)
         q, v, g, work, diss = integrate_batch_record(
             amps,
             self._omega2,
@@ -180,7 +195,7 @@ class ImpactSimulator:
             self._kc,
             self._pe,
             fmean,
-            dt,
+            dts,
             n_sub,
             n,
         )
@@ -226,7 +241,7 @@ class ImpactSimulator:
         Moments are accumulated in the reduced coordinates (``n_basis`` squared per run) and mapped to
         the outputs at the end: ``cov_x = P cov_q P^T`` is exact for the linear map ``x = P q``.
         """
-        n, n_sub, dt, fmean, amps = self._prepare(force, duration, sample_rate, amplitudes)
+        n, n_sub, dts, fmean, amps = self._prepare(force, duration, sample_rate, amplitudes)
         sq, sqq, work, diss = integrate_batch_moments(
             amps,
             self._omega2,
@@ -237,7 +252,7 @@ class ImpactSimulator:
             self._kc,
             self._pe,
             fmean,
-            dt,
+            dts,
             n_sub,
             n,
         )

@@ -161,6 +161,7 @@ class DaqSpec(_Strict):
 class SimulationSpec(_Strict):
     modal_cutoff_hz: Positive = 5000.0
     max_omega_dt: Annotated[float, Field(gt=0, le=2.0)] = 0.25
+    order: Literal[2, 4] = 2
     residual_vectors: bool = True
     seed: int = 0
 

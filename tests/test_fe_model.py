@@ -161,3 +161,16 @@ def test_high_energy_limit_removes_the_spring_dof(rigs):
     assert high.n_dof == rig.structure.n_dof - 1
     assert high.nonlinear == ()
     assert "w100" not in [d.name for d in high.dofs]
+
+
+def test_guyan_by_name_with_damping(rigs):
+    from analysis.model.guyan import guyan_reduce_named
+
+    rig = rigs("beam_ch4_exp")
+    names = [s.dof_name for s in rig.sensors]
+    g = guyan_reduce_named(rig.structure, names, with_damping=True)
+    assert g.M.shape == (14, 14) and g.D is not None
+    f = modal_analysis(g.M, g.K).frequencies_hz[:2]
+    assert np.allclose(f, rig.modes.frequencies_hz[:2], rtol=1e-3)
+    with pytest.raises(KeyError):
+        guyan_reduce_named(rig.structure, ["w999"])

@@ -247,3 +247,17 @@ def test_bad_arguments_raise():
         sim.run(HalfSine(1.0, 0.1), 1.0, 0.0)
     with pytest.raises(ValueError):
         ForceSeries(t=np.array([0.0, 0.0]), force=np.array([1.0, 2.0]))
+
+
+def test_substeps_adapt_to_the_spring_stiffness(rigs):
+    """Linear hits use the kept-mode step count; a hit that stiffens the cubic spring takes more."""
+    rig = rigs("beam_ch4_sim")
+    sim = rig.simulator
+    base = sim.steps_per_sample(rig.sample_rate)
+    res = sim.run(rig.hammer_force(), 0.05, rig.sample_rate, amplitudes=[10.0, 1e10])
+    assert res.steps_per_sample[0] == base
+    assert res.steps_per_sample[1] > 2 * base
+    assert np.all(res.substep_cap_hits == 0)
+    capped = ImpactSimulator(rig.structure, rig.hammer.dof, rig.sensor_dofs, max_substeps=base)
+    hit = capped.run(rig.hammer_force(), 0.05, rig.sample_rate, amplitudes=[1e10])
+    assert hit.substep_cap_hits[0] > 0  # reported, not silent

@@ -9,10 +9,10 @@ step satisfies the energy identity exactly::
 
 so an undamped run conserves energy to rounding, the budget of a damped run closes to rounding, and
 the scheme is unconditionally stable however stiff a hardening spring becomes (the seed's sweep runs
-to 1e12 N, where the tip is effectively pinned). Frequency error of a linear mode is
-``(omega dt)^2 / 12`` (second order), which fixes the sub-step count (see ``simulate.py``).
+to 1e12 N). Stability is not accuracy: the frequency error of a mode is ``(omega dt)^2 / 12``, so the
+step is chosen per output interval from the current tangent stiffness of the springs (``_integrate``).
 
-Per step the linear part is diagonal, so only an s-by-s system for the s spring displacements is
+Per stage the linear part is diagonal, so only an s-by-s system for the s spring displacements is
 solved (Newton; for one spring a safeguarded scalar Newton on a strictly increasing function).
 """
 
@@ -113,6 +113,33 @@ def _force_nl(law, k, p, w):
 
 
 @njit(cache=True)
+def _antiderivative(kind, start, duration, tt, ff, cum, t):
+    """Integral of the unit force up to ``t``: half-sine (kind 0, analytic) or piecewise-linear series."""
+    if kind == 0:
+        a = min(max(t, start), start + duration)
+        return duration / np.pi * (1.0 - np.cos(np.pi * (a - start) / duration))
+    x = min(max(t, tt[0]), tt[-1])
+    i = np.searchsorted(tt, x, side="right") - 1
+    if i < 0:
+        i = 0
+    if i > tt.shape[0] - 2:
+        i = tt.shape[0] - 2
+    frac = x - tt[i]
+    slope = (ff[i + 1] - ff[i]) / (tt[i + 1] - tt[i])
+    return cum[i] + ff[i] * frac + 0.5 * slope * frac * frac
+
+
+@njit(cache=True)
+def _tangent(law, k, p, w):
+    aw = abs(w)
+    if law == 0:
+        return 3.0 * k * aw * aw
+    if p >= 1.0:
+        return k * p * aw ** (p - 1.0)
+    return 0.0  # softening at the origin: no extra resolution requested (see simulate.py)
+
+
+@njit(cache=True)
 def _integrate(
     amp,
     omega2,
@@ -122,9 +149,18 @@ def _integrate(
     law,
     kc,
     pe,
-    fmean,
-    dts,
-    n_sub,
+    fkind,
+    fstart,
+    fdur,
+    ftt,
+    fff,
+    fcum,
+    gammas,
+    dt_out,
+    n_min,
+    n_max,
+    om_base2,
+    theta,
     n_samples,
     q_out,
     v_out,
@@ -137,20 +173,26 @@ def _integrate(
 ):
     """Run one amplitude. Writes state at every output sample (``record``) or only moments.
 
-    Each sub-step is a composition of ``len(dts)`` midpoint stages of signed lengths ``dts``
-    (one stage: the plain 2nd-order rule; three: Yoshida's 4th-order triple jump). ``fmean`` holds
-    the mean unit force over every stage, in order.
+    Each output interval is split into ``n_sub`` steps, chosen per interval so that
+    ``omega_eff * h <= theta`` where ``omega_eff^2 = om_base2 + sum_s k_t(w_s) |b_s|^2`` bounds the
+    top frequency of the linearised system at the current spring deflection (plus one interval of
+    its motion). Each step is a composition of ``len(gammas)`` midpoint stages of signed lengths
+    ``gammas * h`` (one: the 2nd-order rule; three: Yoshida's 4th-order triple jump). Returns
+    ``(input work, dissipated, total steps, intervals that hit n_max)``.
     """
     n_r = omega2.shape[0]
     s = B.shape[0]
-    n_stage = dts.shape[0]
+    n_stage = gammas.shape[0]
+    offsets = np.zeros(n_stage + 1)
+    for j in range(n_stage):
+        offsets[j + 1] = offsets[j] + gammas[j]
+    bb = np.zeros(s)
+    for i in range(s):
+        for k in range(n_r):
+            bb[i] += B[i, k] * B[i, k]
     dinv_all = np.empty((n_stage, n_r))
     S_all = np.empty((n_stage, s, s))
-    for j in range(n_stage):
-        h = dts[j]
-        for i in range(n_r):
-            dinv_all[j, i] = 1.0 / (2.0 / (h * h) + cdamp[i] / h + 0.5 * omega2[i])
-        S_all[j] = (B * dinv_all[j][None, :]) @ B.T
+    dts = np.empty(n_stage)
     q = np.zeros(n_r)
     v = np.zeros(n_r)
     w = np.zeros(s)
@@ -159,15 +201,41 @@ def _integrate(
     diss = 0.0
     r = np.empty(n_r)
     u = np.empty(n_r)
-    stage = 0
+    n_cur = -1
+    steps = 0
+    capped = 0
     for n in range(n_samples):
         if n > 0:
-            for _ in range(n_sub):
+            om2 = om_base2
+            if s > 0:
+                wdot = B @ v
+                for i in range(s):
+                    om2 += _tangent(law[i], kc[i], pe[i], abs(w[i]) + abs(wdot[i]) * dt_out) * bb[i]
+            n_sub = int(np.ceil(np.sqrt(om2) * dt_out / theta))
+            if n_sub < n_min:
+                n_sub = n_min
+            if n_sub > n_max:
+                n_sub = n_max
+                capped += 1
+            if n_sub != n_cur:
+                n_cur = n_sub
+                h = dt_out / n_sub
+                for j in range(n_stage):
+                    dts[j] = gammas[j] * h
+                    for i in range(n_r):
+                        dinv_all[j, i] = 1.0 / (2.0 / (dts[j] * dts[j]) + cdamp[i] / dts[j] + 0.5 * omega2[i])
+                    S_all[j] = (B * dinv_all[j][None, :]) @ B.T
+            h = dt_out / n_cur
+            t0 = (n - 1) * dt_out
+            for k in range(n_cur):
+                tb = t0 + k * h
+                i_prev = _antiderivative(fkind, fstart, fdur, ftt, fff, fcum, tb)
                 for j in range(n_stage):
                     dt = dts[j]
                     dinv = dinv_all[j]
-                    F = amp * fmean[stage]
-                    stage += 1
+                    i_next = _antiderivative(fkind, fstart, fdur, ftt, fff, fcum, tb + offsets[j + 1] * h)
+                    F = amp * (i_next - i_prev) / dt
+                    i_prev = i_next
                     for i in range(n_r):
                         r[i] = phi_f[i] * F - omega2[i] * q[i] + 2.0 * v[i] / dt
                         u[i] = dinv[i] * r[i]
@@ -194,6 +262,7 @@ def _integrate(
                         v[i] = 2.0 * u[i] / dt - v[i]
                     work += F * w_in
                     diss += dd / dt
+                steps += 1
         if record:
             for i in range(n_r):
                 q_out[n, i] = q[i]
@@ -209,11 +278,15 @@ def _integrate(
                 sum_q[i] += q[i]
                 for j in range(n_r):
                     sum_qq[i, j] += q[i] * q[j]
-    return work, diss
+    return work, diss, steps, capped
 
 
 @njit(cache=True, parallel=True)
-def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dts, n_sub, n_samples):
+def integrate_batch_record(amps, model, force, stepping, n_samples):
+    """Full state at every output sample for each amplitude (see ``_integrate``)."""
+    omega2, cdamp, phi_f, B, law, kc, pe = model
+    fkind, fstart, fdur, ftt, fff, fcum = force
+    gammas, dt_out, n_min, n_max, om_base2, theta = stepping
     n_b = amps.shape[0]
     n_r = omega2.shape[0]
     s = B.shape[0]
@@ -222,10 +295,12 @@ def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt
     g_out = np.zeros((n_b, n_samples, s))
     work_out = np.zeros((n_b, n_samples))
     diss_out = np.zeros((n_b, n_samples))
+    steps = np.zeros(n_b, dtype=np.int64)
+    capped = np.zeros(n_b, dtype=np.int64)
     dummy1 = np.zeros(1)
     dummy2 = np.zeros((1, 1))
     for b in prange(n_b):
-        _integrate(
+        _w, _d, steps[b], capped[b] = _integrate(
             amps[b],
             omega2,
             cdamp,
@@ -234,9 +309,18 @@ def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt
             law,
             kc,
             pe,
-            fmean,
-            dts,
-            n_sub,
+            fkind,
+            fstart,
+            fdur,
+            ftt,
+            fff,
+            fcum,
+            gammas,
+            dt_out,
+            n_min,
+            n_max,
+            om_base2,
+            theta,
             n_samples,
             q_out[b],
             v_out[b],
@@ -247,12 +331,15 @@ def integrate_batch_record(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dt
             dummy2,
             True,
         )
-    return q_out, v_out, g_out, work_out, diss_out
+    return q_out, v_out, g_out, work_out, diss_out, steps, capped
 
 
 @njit(cache=True, parallel=True)
-def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, dts, n_sub, n_samples):
-    """Per amplitude: sum of q and of q q^T over the output samples, input work, dissipated energy."""
+def integrate_batch_moments(amps, model, force, stepping, n_samples):
+    """Per amplitude: sums of q and q q^T over the output samples, input work, dissipation, step counts."""
+    omega2, cdamp, phi_f, B, law, kc, pe = model
+    fkind, fstart, fdur, ftt, fff, fcum = force
+    gammas, dt_out, n_min, n_max, om_base2, theta = stepping
     n_b = amps.shape[0]
     n_r = omega2.shape[0]
     s = B.shape[0]
@@ -260,11 +347,13 @@ def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, d
     sum_qq = np.zeros((n_b, n_r, n_r))
     work = np.zeros(n_b)
     diss = np.zeros(n_b)
+    steps = np.zeros(n_b, dtype=np.int64)
+    capped = np.zeros(n_b, dtype=np.int64)
     d2 = np.zeros((1, 1))
     d3 = np.zeros((1, max(s, 1)))
     d1 = np.zeros(1)
     for b in prange(n_b):
-        work[b], diss[b] = _integrate(
+        work[b], diss[b], steps[b], capped[b] = _integrate(
             amps[b],
             omega2,
             cdamp,
@@ -273,9 +362,18 @@ def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, d
             law,
             kc,
             pe,
-            fmean,
-            dts,
-            n_sub,
+            fkind,
+            fstart,
+            fdur,
+            ftt,
+            fff,
+            fcum,
+            gammas,
+            dt_out,
+            n_min,
+            n_max,
+            om_base2,
+            theta,
             n_samples,
             d2,
             d2,
@@ -286,4 +384,4 @@ def integrate_batch_moments(amps, omega2, cdamp, phi_f, B, law, kc, pe, fmean, d
             sum_qq[b],
             False,
         )
-    return sum_q, sum_qq, work, diss
+    return sum_q, sum_qq, work, diss, steps, capped

@@ -52,3 +52,17 @@ def guyan_reduce(M: FloatArray, K: FloatArray, masters: Sequence[int], D: FloatA
         K=0.5 * (Km + Km.T),
         D=None if Dm is None else 0.5 * (Dm + Dm.T),
     )
+
+
+def guyan_reduce_named(structure, masters: Sequence[str | int], with_damping: bool = False) -> GuyanModel:
+    """Guyan-reduce a :class:`~analysis.model.structure.Structure` to master DOFs given by name or index.
+
+    ``with_damping`` also reduces the modal damping matrix (eq. 2.22's ``D_m``).
+    """
+    idx = [m if isinstance(m, int) else structure.dof_index(m) for m in masters]
+    D = None
+    if with_damping:
+        from analysis.model.modal import modal_damping_matrix, structure_modes
+
+        D = modal_damping_matrix(structure.M, structure_modes(structure), structure.damping)
+    return guyan_reduce(structure.M, structure.K, idx, D)

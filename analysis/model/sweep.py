@@ -35,6 +35,8 @@ def _concat(parts: Sequence[MomentResult]) -> MomentResult:
         dissipated=np.concatenate([p.dissipated for p in parts]),
         n_samples=parts[0].n_samples,
         output_names=parts[0].output_names,
+        steps_per_sample=np.concatenate([p.steps_per_sample for p in parts]),
+        substep_cap_hits=np.concatenate([p.substep_cap_hits for p in parts]),
     )
 
 

@@ -99,9 +99,31 @@ def _open(rig: str):
         fail(str(exc))
 
 
-def main() -> None:
+def _click_exceptions():
+    """The click exception module typer is using (typer >= 0.2x vendors its own copy of click)."""
     try:
-        app()
+        from typer._click import exceptions
+    except ImportError:  # older typer: plain click
+        from click import exceptions
+    return exceptions
+
+
+def main() -> None:
+    cx = _click_exceptions()
+    try:
+        code = app(standalone_mode=False)
+        sys.exit(code if isinstance(code, int) else 0)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except cx.UsageError as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError":  # the help text has been printed already
+            sys.exit(2)
+        cmd = exc.ctx.command_path if exc.ctx is not None else "gvt"
+        err.print(f"gvt: error: {exc.format_message()} (see '{cmd} --help')", markup=False, soft_wrap=True)
+        sys.exit(2)
+    except typer.Abort:
+        err.print("gvt: aborted", markup=False)
+        sys.exit(130)
     except ConfigError as exc:
         err.print(f"gvt: error: {exc}", markup=False, soft_wrap=True)
         sys.exit(2)

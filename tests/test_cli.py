@@ -77,3 +77,22 @@ def test_usage_errors_exit_2(args):
     p = run(*args)
     assert p.returncode == 2
     assert "Traceback" not in p.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "text"),
+    [
+        (["simulate", "two_dof", "--force", "-5"], "--force"),
+        (["model", "modes", "beam_ch3", "--count", "0"], "--count"),
+        (["frobnicate"], "No such command"),
+    ],
+)
+def test_bad_values_give_one_line(args, text):
+    p = run(*args)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and len(lines) == 1 and text in lines[0] and p.stdout == ""
+
+
+def test_help_exits_zero():
+    p = run("model", "modes", "--help")
+    assert p.returncode == 0 and "--limit" in p.stdout

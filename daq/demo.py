@@ -34,6 +34,11 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None) -> dict:
     high = modes_report(rig, "high", 6)
     print_modes(console, low)
     print_modes(console, high)
+    t0 = time.perf_counter()
+    rig.simulator.run(rig.hammer_force(), 4.0 / rig.sample_rate, rig.sample_rate)  # JIT warm-up
+    compile_s = time.perf_counter() - t0
+    if compile_s > 1.0:
+        console.print(f"  compiled the simulator kernels in {compile_s:.1f} s (numba; cached for later runs)")
     strong = rig.config.hammer.peak_force
     hits = {"strong": strong, "weak": strong * WEAK_FRACTION}
     centres = np.array([0.05, 0.25, 0.5, 1.0, 1.5, 1.95]) * dur / 2.0

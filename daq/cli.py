@@ -25,6 +25,9 @@ app = typer.Typer(
 )
 model_app = typer.Typer(no_args_is_help=True, help="Structural model of a rig: modes, limits.")
 app.add_typer(model_app, name="model")
+from daq.log_cli import log_app  # noqa: E402 - after app exists, keeps `gvt --help` listing in order
+
+app.add_typer(log_app, name="log")
 
 out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)
@@ -60,23 +63,85 @@ def model_modes(
 @app.command()
 def simulate(
     rig: RigArg,
-    force: Annotated[float | None, typer.Option(min=0.0, help="Peak hammer force, N (default: the rig's nominal hit).")] = None,
-    duration: Annotated[
-        float | None, typer.Option(min=1e-6, help="Seconds to simulate (default: the rig's record length).")
+    force: Annotated[
+        float | None, typer.Option(min=0.0, help="Peak hammer force, N (one hit; default: the rig's nominal).")
     ] = None,
-    out_path: Annotated[Path, typer.Option("--out", help="Output .npz file.")] = Path("simulation.npz"),
+    duration: Annotated[
+        float | None, typer.Option(min=1e-6, help="Seconds to simulate (one hit; default: record length).")
+    ] = None,
+    out_path: Annotated[Path, typer.Option("--out", help="Output file: .mcap for a session log, .npz for one hit.")] = Path(
+        "session.mcap"
+    ),
+    hits: Annotated[int, typer.Option(min=1, max=1000, help="Hits in a session (.mcap): rising force to the nominal.")] = 1,
+    forces: Annotated[str | None, typer.Option(help="Comma-separated peak forces, N, one per hit (overrides --hits).")] = None,
+    spacing: Annotated[float | None, typer.Option(min=0.01, help="Seconds between hits (default: record length).")] = None,
     seed: Annotated[int | None, typer.Option(help="Noise seed (default: the rig's).")] = None,
 ) -> None:
-    """Simulate one hammer hit and write measured channels plus ground truth to an .npz file."""
-    from daq.simulate_cmd import simulate_to_npz
-
+    """Simulate hammer hits: a session log (.mcap) with ground truth, or one hit as .npz."""
     r = _open(rig)
-    if out_path.suffix != ".npz":
-        fail(f"--out {out_path}: only .npz is written for now (the log format comes with MCAP sessions)")
     if out_path.parent and not out_path.parent.exists():
         fail(f"--out {out_path}: directory {out_path.parent} does not exist")
-    summary = simulate_to_npz(r, out_path, force=force, duration=duration, seed=seed)
-    out.print(summary)
+    if out_path.suffix == ".npz":
+        from daq.simulate_cmd import simulate_to_npz
+
+        out.print(simulate_to_npz(r, out_path, force=force, duration=duration, seed=seed))
+        return
+    if out_path.suffix != ".mcap":
+        fail(f"--out {out_path}: use .mcap (session log) or .npz (one hit)")
+    from daq.sim_session import SessionPlan, default_forces, simulate_session
+
+    if forces:
+        try:
+            peaks = tuple(float(x) for x in forces.split(",") if x.strip())
+        except ValueError:
+            fail(f"--forces {forces!r}: expected comma-separated numbers, e.g. 30,1583")
+        if not peaks or min(peaks) < 0:
+            fail("--forces: give at least one non-negative force")
+    elif force is not None:
+        peaks = (force,) * hits
+    else:
+        peaks = default_forces(r, hits)
+    rec = r.config.daq.record_length
+    plan = SessionPlan(forces=peaks, pre_trigger=0.1, spacing=spacing or rec, tail=duration or rec, block_size=1024)
+    with _progress(out) as report:
+        summary = simulate_session(r, out_path, plan, seed=seed, progress=report)
+    clip = ", ".join(f"{k}: {v}" for k, v in summary["clipped"].items()) or "none"
+    out.print(
+        f"wrote {out_path}: {summary['hits']} hits, {summary['samples']} samples x {summary['channels']} channels "
+        f"({summary['duration_s']:.2f} s); input energies {', '.join(f'{x:.3g}' for x in summary['energies_J'])} J; "
+        f"clipped: {clip}",
+        markup=False,
+    )
+
+
+class _progress:
+    """Rich progress bar on a terminal, plain lines otherwise (architecture.md, CLI verbs)."""
+
+    def __init__(self, console: Console) -> None:
+        self.console = console
+        self.last = ("", -1.0)
+
+    def __enter__(self):
+        if self.console.is_terminal:
+            from rich.progress import Progress
+
+            self.bar = Progress(console=self.console, transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task("simulating", total=1.0)
+        else:
+            self.bar = None
+        return self.report
+
+    def report(self, stage: str, fraction: float) -> None:
+        if self.bar is not None:
+            self.bar.update(self.task, description=stage, completed=fraction)
+        elif stage != self.last[0] or fraction - self.last[1] >= 0.25 or fraction >= 1.0 > self.last[1]:
+            self.console.print(f"{stage}: {100 * fraction:.0f} %", markup=False)
+            self.last = (stage, fraction)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.stop()
 
 
 @app.command()
@@ -88,6 +153,51 @@ def demo(
     from daq.demo import run_demo
 
     run_demo(out, _open(rig), duration=duration)
+
+
+@app.command()
+def replay(
+    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    speed: Annotated[float, typer.Option(min=0.0, help="1 = real time, 2 = twice as fast, 0 = full speed.")] = 0.0,
+) -> None:
+    """Feed a log through the live fan-out, keeping block boundaries and sample indices."""
+    import threading
+
+    from daq.fanout import END, FanOut
+    from daq.log.reader import LogReadError
+    from daq.replay import Replayer
+
+    fan = FanOut()
+    sub = fan.subscribe("summary", maxsize=1024)
+    counted = {"blocks": 0}
+
+    def consume() -> None:
+        while sub.get() is not END:
+            counted["blocks"] += 1
+
+    try:
+        rep = Replayer(log, fan, speed=speed or None)
+    except LogReadError as exc:
+        fail(str(exc))
+    t = threading.Thread(target=consume, daemon=True)
+    t.start()
+    try:
+        stats = rep.run()
+    except KeyboardInterrupt:
+        rep.stop()
+        raise
+    t.join()
+    health = "" if rep.reader.report.complete else f" (damaged log: {rep.reader.report.messages} messages salvaged)"
+    for stream, n in stats.samples.items():
+        gaps = stats.gaps.get(stream, [])
+        out.print(
+            f"replayed {stream}: {n} samples, {len(gaps)} gaps ({sum(b - a for a, b in gaps)} samples missing)", markup=False
+        )
+    out.print(
+        f"{stats.blocks} blocks, {stats.log_seconds:.3f} s of data in {stats.wall_seconds:.3f} s wall; subscriber received "
+        f"{counted['blocks']}, dropped {sub.dropped_blocks}{health}",
+        markup=False,
+    )
 
 
 def _open(rig: str):

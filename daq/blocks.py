@@ -1,0 +1,53 @@
+"""The SampleBlock contract (architecture.md): what crosses every boundary between drivers, session,
+log, analysis and viewers. Blocks, never single samples.
+
+Time of sample i of a block = stream t0 + (first_index + i) / sample_rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntFlag
+
+import numpy as np
+
+
+class BlockStatus(IntFlag):
+    """Per-block status flags; the details of each go to ``/daq/events``."""
+
+    OK = 0
+    GAP_BEFORE = 1  # samples are missing between the previous block of this stream and this one
+    CRC_ERROR = 2  # frames of this block's span failed their CRC and were dropped
+    OVERRUN = 4  # a queue overflowed in this block's span
+    TIMEOUT = 8
+    RECONNECT = 16  # the link reconnected just before this block
+    CLIPPED = 32  # at least one sample reached a channel's range
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    stream: str
+    first_index: int
+    sample_rate: float
+    channels: tuple[str, ...]
+    data: np.ndarray  # float32 (n_samples, n_channels), SI units
+    status: BlockStatus = BlockStatus.OK
+    extra: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        d = self.data
+        if not isinstance(d, np.ndarray) or d.dtype != np.float32 or d.ndim != 2:
+            raise ValueError("SampleBlock.data must be a float32 array of shape (n_samples, n_channels)")
+        if d.shape[1] != len(self.channels):
+            raise ValueError(f"SampleBlock: {d.shape[1]} data columns but {len(self.channels)} channel names")
+        if self.sample_rate <= 0:
+            raise ValueError("SampleBlock.sample_rate must be positive")
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def end_index(self) -> int:
+        """One past the last sample index of this block."""
+        return self.first_index + self.n_samples

@@ -1,0 +1,1 @@
+"""Session logs: MCAP layout, writer thread, readers, recovery and export (docs/log-format.md)."""

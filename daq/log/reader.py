@@ -1,0 +1,315 @@
+"""Read session logs: a fast indexed path to numpy, and a tolerant linear scan for broken files.
+
+``open_log`` tries the indexed (seeking) reader first; when the footer or summary is missing or broken
+— a recorder that was killed, a copy cut short — it falls back to a linear scan that yields every
+message of every complete chunk and says what it salvaged (``SalvageReport``). Nothing here raises on
+a damaged file except :class:`LogReadError`, whose message is one line for the user.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from daq.log import layout
+from daq.log.proto import BlockDecodeError, decode_block
+
+
+class LogReadError(Exception):
+    """The file cannot be read as a gvtlink log; ``str()`` is one line for the user."""
+
+
+@dataclass
+class SalvageReport:
+    """What a read of the file found. ``complete`` means footer and summary were intact."""
+
+    complete: bool
+    messages: int = 0
+    chunks_ok: int = 0
+    chunks_bad: int = 0
+    bytes_scanned: int = 0
+    file_size: int = 0
+    stopped_because: str | None = None
+    expected_messages: int | None = None  # from the summary, when there is one
+
+    @property
+    def data_lost(self) -> bool:
+        if self.expected_messages is not None:
+            return self.messages < self.expected_messages
+        return not self.complete or self.chunks_bad > 0
+
+
+@dataclass
+class StreamInfo:
+    stream: str
+    topic: str
+    sample_rate: float
+    t0_ns: int
+    channels: list[str]
+    units: list[str]
+
+
+@dataclass
+class StreamData:
+    """Samples of one stream in index order; ``index`` are device sample indices (int64)."""
+
+    info: StreamInfo
+    channels: list[str]
+    index: np.ndarray
+    data: np.ndarray  # float32 (n, n_channels)
+    block_first_index: np.ndarray
+    block_status: np.ndarray
+    gaps: list[tuple[int, int]] = field(default_factory=list)  # [start, end) missing sample ranges
+
+    @property
+    def t(self) -> np.ndarray:
+        """Seconds since the stream's t0."""
+        return self.index / self.info.sample_rate
+
+
+_EXPECTED_ERRORS = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, MemoryError, OverflowError)
+
+
+class LogReader:
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            self.file_size = os.path.getsize(self.path)
+        except FileNotFoundError:
+            raise LogReadError(f"{self.path}: file not found") from None
+        except OSError as exc:
+            raise LogReadError(f"{self.path}: cannot read: {exc.strerror}") from None
+        if self.file_size == 0:
+            raise LogReadError(f"{self.path}: empty file, not an MCAP log")
+        with open(self.path, "rb") as f:
+            if f.read(8) != b"\x89MCAP0\r\n":
+                raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
+        self.summary = None
+        self._indexed = False
+        try:
+            with open(self.path, "rb") as f:
+                summary = make_reader(f).get_summary()
+            if summary is not None and summary.statistics is not None:
+                self.summary = summary
+                self._indexed = True
+        except _EXPECTED_ERRORS:
+            pass
+        self.report = SalvageReport(complete=self._indexed, file_size=self.file_size)
+        self._scan_cache: dict[str, Any] | None = None
+        if self._indexed:
+            self.report.expected_messages = int(self.summary.statistics.message_count)
+            self.report.messages = self.report.expected_messages
+            self.report.chunks_ok = int(self.summary.statistics.chunk_count)
+            self.report.bytes_scanned = self.file_size
+        else:
+            self._scan()
+
+    @property
+    def indexed(self) -> bool:
+        return self._indexed
+
+    # --- tolerant path -----------------------------------------------------------------------
+    def _scan(self) -> dict[str, Any]:
+        """Linear scan of everything readable; cached. Fills ``self.report``."""
+        if self._scan_cache is not None:
+            return self._scan_cache
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        messages: list[Message] = []
+        metadata: list[Metadata] = []
+        attachments: list[Attachment] = []
+        rep = self.report
+        with open(self.path, "rb") as f:
+            reader = StreamReader(f, emit_chunks=True, record_size_limit=max(self.file_size, 1 << 20))
+            it = reader.records
+            while True:
+                try:
+                    rec = next(it)
+                except StopIteration:
+                    break
+                except _EXPECTED_ERRORS as exc:
+                    rep.stopped_because = _describe(exc)
+                    break
+                rep.bytes_scanned = f.tell()
+                if isinstance(rec, Chunk):
+                    try:
+                        inner = breakup_chunk(rec, validate_crc=True)
+                    except _EXPECTED_ERRORS:
+                        rep.chunks_bad += 1
+                        continue
+                    rep.chunks_ok += 1
+                    for r in inner:
+                        if isinstance(r, Schema):
+                            schemas[r.id] = r
+                        elif isinstance(r, Channel):
+                            channels[r.id] = r
+                        elif isinstance(r, Message):
+                            messages.append(r)
+                elif isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                elif isinstance(rec, Message):
+                    messages.append(rec)
+                elif isinstance(rec, Metadata):
+                    metadata.append(rec)
+                elif isinstance(rec, Attachment):
+                    attachments.append(rec)
+                elif isinstance(rec, DataEnd | Footer):
+                    pass
+        rep.messages = len(messages)
+        if rep.stopped_because is None and rep.bytes_scanned < self.file_size - 8:
+            rep.stopped_because = "footer or summary unreadable"
+        self._scan_cache = {
+            "schemas": schemas,
+            "channels": channels,
+            "messages": messages,
+            "metadata": metadata,
+            "attachments": attachments,
+        }
+        return self._scan_cache
+
+    # --- common API --------------------------------------------------------------------------
+    def channels(self) -> list[Channel]:
+        if self._indexed:
+            return list(self.summary.channels.values())
+        return list(self._scan()["channels"].values())
+
+    def streams(self) -> dict[str, StreamInfo]:
+        out = {}
+        for ch in self.channels():
+            stream = layout.stream_of(ch.topic)
+            if stream is None:
+                continue
+            md = ch.metadata
+            try:
+                out[stream] = StreamInfo(
+                    stream,
+                    ch.topic,
+                    float(md["sample_rate"]),
+                    int(md["t0_ns"]),
+                    json.loads(md["channels"]),
+                    json.loads(md.get("units", "[]")),
+                )
+            except (KeyError, ValueError) as exc:
+                raise LogReadError(f"{self.path}: channel {ch.topic} lacks valid stream metadata ({exc})") from None
+        return out
+
+    def iter_messages(
+        self, topics: Sequence[str] | None = None, start_ns: int | None = None, end_ns: int | None = None
+    ) -> Iterator[tuple[Channel, Message]]:
+        """Messages in file order (log order within a stream), optionally filtered."""
+        if self._indexed:
+            with open(self.path, "rb") as f:
+                r = make_reader(f)
+                try:
+                    for _schema, ch, msg in r.iter_messages(
+                        topics=topics, starting_at=start_ns, ending_before=end_ns, log_time_order=False
+                    ):
+                        yield ch, msg
+                except _EXPECTED_ERRORS as exc:
+                    raise LogReadError(f"{self.path}: {_describe(exc)}") from None
+            return
+        scan = self._scan()
+        chans = scan["channels"]
+        want = set(topics) if topics else None
+        for msg in scan["messages"]:
+            ch = chans.get(msg.channel_id)
+            if ch is None or (want is not None and ch.topic not in want):
+                continue
+            if start_ns is not None and msg.log_time < start_ns:
+                continue
+            if end_ns is not None and msg.log_time >= end_ns:
+                continue
+            yield ch, msg
+
+    def metadata(self) -> dict[str, dict[str, str]]:
+        if self._indexed:
+            with open(self.path, "rb") as f:
+                return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+        return {m.name: dict(m.metadata) for m in self._scan()["metadata"]}
+
+    def attachments(self) -> dict[str, tuple[str, bytes]]:
+        if self._indexed:
+            with open(self.path, "rb") as f:
+                return {a.name: (a.media_type, bytes(a.data)) for a in make_reader(f).iter_attachments()}
+        return {a.name: (a.media_type, bytes(a.data)) for a in self._scan()["attachments"]}
+
+    def json_messages(self, topic: str) -> list[dict[str, Any]]:
+        out = []
+        for _ch, msg in self.iter_messages([topic]):
+            try:
+                out.append(json.loads(msg.data))
+            except ValueError:
+                out.append({"kind": "undecodable", "raw_bytes": len(msg.data)})
+        return out
+
+    def read_stream(
+        self, stream: str, channels: Sequence[str] | None = None, start: float | None = None, end: float | None = None
+    ) -> StreamData:
+        """All samples of ``stream`` (optionally some channels, and ``start <= t < end`` seconds)."""
+        infos = self.streams()
+        if stream not in infos:
+            raise LogReadError(f"{self.path}: no stream {stream!r}; streams: {sorted(infos)}")
+        info = infos[stream]
+        if channels:
+            missing = [c for c in channels if c not in info.channels]
+            if missing:
+                raise LogReadError(f"{self.path}: stream {stream!r} has no channel(s) {missing}; it has {info.channels}")
+            sel = [info.channels.index(c) for c in channels]
+        else:
+            sel = list(range(len(info.channels)))
+        start_ns = None if start is None else info.t0_ns + int(np.floor(start * 1e9)) - int(1e9 * 65536 / info.sample_rate)
+        end_ns = None if end is None else info.t0_ns + int(np.ceil(end * 1e9)) + 1
+        parts, firsts, statuses = [], [], []
+        for _ch, msg in self.iter_messages([info.topic], start_ns, end_ns):
+            try:
+                b = decode_block(msg.data)
+            except BlockDecodeError as exc:
+                raise LogReadError(f"{self.path}: bad sample block in {info.topic} (sequence {msg.sequence}): {exc}") from None
+            if b.data.shape[1] != len(info.channels):
+                raise LogReadError(f"{self.path}: block with {b.data.shape[1]} channels in a {len(info.channels)}-channel stream")
+            parts.append(b.data[:, sel] if len(sel) != b.data.shape[1] else b.data)
+            firsts.append(b.first_index)
+            statuses.append(b.status)
+        if not parts:
+            empty = np.zeros((0, len(sel)), np.float32)
+            return StreamData(
+                info, [info.channels[i] for i in sel], np.zeros(0, np.int64), empty, np.zeros(0, np.int64), np.zeros(0, np.uint32)
+            )
+        order = np.argsort(np.asarray(firsts, dtype=np.int64), kind="stable")
+        parts = [parts[i] for i in order]
+        first = np.asarray(firsts, dtype=np.int64)[order]
+        lengths = np.array([p.shape[0] for p in parts], dtype=np.int64)
+        data = np.concatenate(parts) if len(parts) > 1 else np.array(parts[0])
+        index = np.repeat(first, lengths) + (np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths))
+        ends = first + lengths
+        gaps = [(int(ends[i]), int(first[i + 1])) for i in range(len(first) - 1) if first[i + 1] > ends[i]]
+        if start is not None or end is not None:
+            t = index / info.sample_rate
+            m = np.ones(len(index), bool)
+            if start is not None:
+                m &= t >= start
+            if end is not None:
+                m &= t < end
+            index, data = index[m], data[m]
+        return StreamData(info, [info.channels[i] for i in sel], index, data, first, np.asarray(statuses, np.uint32)[order], gaps)
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}"[:200] if text else type(exc).__name__
+
+
+def open_log(path: str | Path) -> LogReader:
+    return LogReader(path)

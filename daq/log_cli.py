@@ -1,0 +1,86 @@
+"""``gvt log info|recover|export``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from daq.log.reader import LogReadError
+
+log_app = typer.Typer(no_args_is_help=True, help="Inspect, repair and export session logs (MCAP).")
+out = Console(highlight=False, soft_wrap=True)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def _fail(msg: str, code: int = 2) -> None:
+    err.print(f"gvt: error: {msg}", markup=False)
+    raise typer.Exit(code)
+
+
+@log_app.command("info")
+def info_cmd(
+    file: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    json_out: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Streams, channels, rates, durations, sample counts, gaps, hits, events and file health."""
+    from daq.log.tools import info_json, info_text, log_info
+
+    try:
+        info = log_info(file)
+    except LogReadError as exc:
+        _fail(str(exc))
+    if json_out:
+        print(info_json(info))
+    else:
+        out.print(info_text(info), markup=False)
+
+
+@log_app.command("recover")
+def recover_cmd(
+    src: Annotated[Path, typer.Argument(help="Damaged (or any) log.")],
+    dst: Annotated[Path, typer.Argument(help="New, fully indexed log.")],
+) -> None:
+    """Rewrite everything readable; exit 0 when nothing was lost, 3 when data was lost."""
+    from daq.log.tools import recover
+
+    try:
+        rep = recover(src, dst)
+    except LogReadError as exc:
+        _fail(str(exc))
+    if rep.data_lost:
+        why = f" ({rep.stopped_because})" if rep.stopped_because else ""
+        err.print(
+            f"gvt: recovered {rep.messages} messages from {rep.chunks_ok} complete chunks into {dst}; data was lost"
+            f"{why}: read {rep.bytes_scanned} of {rep.file_size} bytes",
+            markup=False,
+        )
+        raise typer.Exit(3)
+    out.print(f"recovered {rep.messages} messages into {dst}; nothing lost", markup=False)
+
+
+@log_app.command("export")
+def export_cmd(
+    file: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    fmt: Annotated[str, typer.Option("--format", help="npz or csv.")] = "npz",
+    out_path: Annotated[Path | None, typer.Option("--out", help="Output file (default: FILE with the format's suffix).")] = None,
+    channels: Annotated[str | None, typer.Option(help="Comma-separated channel names.")] = None,
+    start: Annotated[float | None, typer.Option(help="Start time, s since the stream's t0.")] = None,
+    end: Annotated[float | None, typer.Option(help="End time, s since the stream's t0.")] = None,
+    stream: Annotated[str | None, typer.Option(help="Only this stream (required for csv with several).")] = None,
+) -> None:
+    """Export samples to npz or csv, optionally by channel and time range."""
+    from daq.log.tools import export
+
+    if fmt not in ("npz", "csv"):
+        _fail(f"--format must be npz or csv, got {fmt!r}")
+    if start is not None and end is not None and end <= start:
+        _fail("--end must be after --start")
+    target = out_path or file.with_suffix(f".{fmt}")
+    chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
+    try:
+        out.print(export(file, target, fmt, chans, start, end, stream), markup=False)
+    except LogReadError as exc:
+        _fail(str(exc))

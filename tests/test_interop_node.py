@@ -1,0 +1,120 @@
+"""Interoperability: a gvtlink MCAP log is read by the TypeScript MCAP implementation (``@mcap/core`` under node).
+
+The node side (``tests/interop/read_block.mjs``) decompresses the zstd chunks with ``fzstd`` and decodes the
+first sample block with ``protobufjs``, using only the FileDescriptorSet stored in the log — no hand-written
+.proto. Needs ``node`` and ``npm``; the npm packages (pinned in ``tests/interop/package-lock.json``) are
+installed once into ``tests/interop/node_modules``. Skipped when node/npm are missing or the registry is
+unreachable.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daq.blocks import SampleBlock
+from daq.log.proto import SCHEMA_NAME
+from daq.log.writer import ChannelInfo, LogWriter
+
+INTEROP = Path(__file__).resolve().parent / "interop"
+NODE_MODULES = INTEROP / "node_modules"
+NPM_TIMEOUT = 180
+NODE_TIMEOUT = 60
+_NETWORK_ERRORS = (
+    "ENOTFOUND",
+    "EAI_AGAIN",
+    "ECONNREFUSED",
+    "ECONNRESET",
+    "ETIMEDOUT",
+    "ENETUNREACH",
+    "EHOSTUNREACH",
+    "network",
+    "proxy",
+    "socket hang up",
+)
+
+N_SAMPLES, N_CHANNELS = 100, 3
+FIRST_INDEX = 2**33 + 7  # exercises int64 beyond 32 bits
+SAMPLE_RATE = 1651.5
+
+
+def _block_data(k: int) -> np.ndarray:
+    """A deterministic float32 block (not exactly representable decimals, non-zero mean)."""
+    i = np.arange(N_SAMPLES * N_CHANNELS, dtype=np.float64).reshape(N_SAMPLES, N_CHANNELS)
+    return (1.5 + np.sin(0.037 * i + k) + 0.01 * (k + 1) * np.arange(N_CHANNELS)).astype(np.float32)
+
+
+def _installed() -> bool:
+    deps = json.loads((INTEROP / "package.json").read_text())["dependencies"]
+    return all((NODE_MODULES / name / "package.json").is_file() for name in deps)
+
+
+@pytest.fixture(scope="module")
+def node_reader() -> list[str]:
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip(f"interop test needs node and npm on PATH (node={node}, npm={npm})")
+    if not _installed():
+        cmd = [
+            npm,
+            "ci" if (INTEROP / "package-lock.json").is_file() else "install",
+            "--no-audit",
+            "--no-fund",
+            "--no-update-notifier",
+            "--loglevel=error",
+        ]
+        try:
+            res = subprocess.run(cmd, cwd=INTEROP, capture_output=True, text=True, timeout=NPM_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            pytest.skip(f"`npm {cmd[1]}` timed out after {NPM_TIMEOUT} s (npm registry unreachable?)")
+        out = res.stdout + res.stderr
+        if res.returncode != 0:
+            hits = [ln.strip() for ln in out.splitlines() if any(e.lower() in ln.lower() for e in _NETWORK_ERRORS)]
+            if hits:
+                pytest.skip(f"npm registry unreachable, cannot install tests/interop packages: {hits[0][:300]}")
+            pytest.fail(f"{' '.join(cmd)} failed (exit {res.returncode}):\n{out[-4000:]}")
+        assert _installed(), f"npm finished but packages are missing in {NODE_MODULES}:\n{out[-2000:]}"
+    return [node, str(INTEROP / "read_block.mjs")]
+
+
+@pytest.mark.interop
+def test_node_mcap_reads_gvtlink_log(node_reader: list[str], tmp_path: Path) -> None:
+    path = tmp_path / "interop.mcap"
+    names = tuple(f"a{i}" for i in range(N_CHANNELS))
+    chs = [ChannelInfo(n, "acceleration", "m/s^2", 1.02) for n in names]
+    blocks = [_block_data(0), _block_data(1)]
+    with LogWriter(path) as w:
+        w.add_stream("dev0", chs, SAMPLE_RATE, t0_ns=0)
+        for k, d in enumerate(blocks):
+            assert w.write_block(SampleBlock("dev0", FIRST_INDEX + k * N_SAMPLES, SAMPLE_RATE, names, d))
+
+    topic = "/daq/dev0/samples"
+    res = subprocess.run([*node_reader, str(path), topic], capture_output=True, text=True, timeout=NODE_TIMEOUT)
+    assert res.returncode == 0, f"node reader failed (exit {res.returncode}):\n{res.stderr[-4000:]}"
+    lines = res.stdout.strip().splitlines()
+    assert len(lines) == 1, res.stdout
+    got = json.loads(lines[0])
+
+    assert got["schema"] == SCHEMA_NAME
+    assert got["schema_encoding"] == "protobuf"
+    assert got["encoding"] == "protobuf"
+    assert "zstd" in got["chunk_compression"]  # the node side really decompressed zstd chunks
+    assert got["messages"] == len(blocks)
+
+    first, d0 = got["first"], blocks[0]
+    assert first["stream"] == "dev0"
+    assert int(first["first_index"]) == FIRST_INDEX
+    assert first["sample_rate"] == SAMPLE_RATE
+    assert first["n_channels"] == N_CHANNELS
+    assert first["n_samples"] == N_SAMPLES
+    assert first["n_data"] == d0.size
+    # float32 values widened to double are exact, so the first floats must match bit for bit
+    assert first["data"] == [float(x) for x in d0.ravel()[:6]]
+    expected_sum = math.fsum(float(x) for x in d0.ravel())
+    assert got["sum"] == pytest.approx(expected_sum, rel=1e-6)

@@ -31,7 +31,6 @@ import argparse
 import json
 import os
 import platform
-import queue
 import resource
 import tempfile
 import time
@@ -116,11 +115,6 @@ def block(pool: list[np.ndarray], i: int) -> SampleBlock:
     return SampleBlock(STREAM, i * BLOCK, FS, _NAMES, pool[i % POOL])
 
 
-def _private_queue(w: LogWriter) -> queue.Queue | None:
-    q = getattr(w, "_queue", None)
-    return q if isinstance(q, queue.Queue) else None
-
-
 def _cpu_row(name: str, n_blocks: int, wall: float, cpu: float, cpu_producer: float, path: Path) -> dict:
     data_s = n_blocks * BLOCK / FS
     return {
@@ -154,22 +148,15 @@ def run_logwriter(path: Path, pool: list[np.ndarray], n_blocks: int, mode: str, 
     c0, p0 = time.process_time(), time.thread_time()
     w = LogWriter(path, **kwargs)
     w.add_stream(STREAM, channels(), FS, t0_ns=T0_NS)
-    q = _private_queue(w)
-    if mode == "backpressure" and q is None:
-        raise RuntimeError("LogWriter has no _queue to peek at: cannot run the back-pressured variant")
     overruns = 0
     start = time.perf_counter()
     for i in range(n_blocks):
-        if mode == "backpressure":
-            while q.full():
-                time.sleep(0.0002)
-        elif mode == "paced":
+        if mode == "paced":
             delay = start + (i + 1) * dt - time.perf_counter()  # block i is complete at (i + 1) * dt
             if delay > 0:
                 time.sleep(delay)
-            if q is not None:
-                max_depth = max(max_depth, q.qsize())
-        if not w.write_block(block(pool, i)):
+            max_depth = max(max_depth, w.queue_depth)
+        if not w.write_block(block(pool, i), wait=(mode == "backpressure")):
             overruns += 1
     t_pushed = time.perf_counter()
     stats = w.close()
@@ -188,7 +175,7 @@ def run_logwriter(path: Path, pool: list[np.ndarray], n_blocks: int, mode: str, 
     )
     if mode == "paced":
         row["max_queue_depth"] = max_depth
-        row["queue_size"] = q.maxsize if q is not None else None
+        row["queue_size"] = w.queue_size
     return _finish_row(row, stats.samples_written * N_CH)
 
 

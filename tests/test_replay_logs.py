@@ -45,8 +45,12 @@ def test_strong_log_content():
 
 def test_weak_log_regenerates_to_the_same_samples(tmp_path):
     out = tmp_path / "weak.mcap"
-    p = subprocess.run([*gvt_command(), "simulate", "beam_ch4_exp", "--forces", "30", "--duration", "2.0", "--seed", "12",
-                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [*gvt_command(), "simulate", "beam_ch4_exp", "--forces", "30", "--duration", "2.0", "--seed", "12", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 0, p.stderr
     a = LogReader(LOGS / "beam_ch4_exp_weak.mcap").read_stream("dev0").data
     b = LogReader(out).read_stream("dev0").data

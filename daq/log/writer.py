@@ -122,6 +122,15 @@ class LogWriter:
         self._thread.start()
 
     # --- producer side -----------------------------------------------------------------------
+    @property
+    def queue_depth(self) -> int:
+        """Items waiting for the writer thread now (for live status and benchmarks)."""
+        return self._queue.qsize()
+
+    @property
+    def queue_size(self) -> int:
+        return self._queue.maxsize
+
     def add_stream(self, stream: str, channels: Sequence[ChannelInfo], sample_rate: float, t0_ns: int | None = None) -> None:
         spec = {
             "stream": stream,

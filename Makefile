@@ -32,7 +32,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_log.py
 
 fuzz: $(VENV)/.installed-dev
-	HYPOTHESIS_PROFILE=fuzz $(BIN)/python -m pytest tests -k "fuzz or property"
+	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"
 
 clean:
 	rm -rf $(VENV) .numba_cache .pytest_cache bench/results

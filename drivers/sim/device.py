@@ -1,0 +1,104 @@
+"""The simulated DAQ device: the foundation's simulator plus sensor model behind a sample-exact clock.
+
+The device's physics is computed ahead for ``duration`` seconds (one continuous simulation under the
+scheduled hammer pulses, through the sensor/DAQ model); after that it keeps producing the sensor
+noise floor of a structure at rest, so it runs for ever. Its clock is sample-exact: at device time t
+exactly ``floor(t * fs)`` samples exist — no drift, no rounding accumulation — and block k holds
+samples ``[k * block_size, (k + 1) * block_size)``. Transports (serial, CAN, Modbus) read blocks from
+here and apply their own encoding and fault knobs.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.model.rig import Rig, channel_signals
+from drivers.sim.sensor_model import AdcModel, ChannelModel, channel_models_for, measure
+
+
+@dataclass(frozen=True)
+class HitSchedule:
+    times_s: tuple[float, ...]
+    forces_n: tuple[float, ...]
+
+    @classmethod
+    def every(cls, period: float, forces: Sequence[float], first: float = 0.2) -> HitSchedule:
+        return cls(tuple(first + k * period for k in range(len(forces))), tuple(float(f) for f in forces))
+
+
+class SimulatedDevice:
+    def __init__(self, rig: Rig, schedule: HitSchedule, duration: float, *, block_size: int = 256, seed: int = 0) -> None:
+        from daq.sim_session import pulse_train
+
+        self.rig = rig
+        self.fs = rig.sample_rate
+        self.block_size = int(block_size)
+        self.schedule = schedule
+        self.seed = seed
+        n = max(1, round(duration * self.fs))
+        if schedule.times_s:
+            force = pulse_train(schedule.times_s, schedule.forces_n, rig.config.hammer.pulse_duration)
+            res = rig.simulator.run(force, n / self.fs, self.fs, amplitudes=[1.0])
+            placed, physical = channel_signals(rig, res)
+        else:
+            placed = [rig.hammer, *rig.sensors]
+            physical = np.zeros((n, len(placed)))
+        self.channel_models: list[ChannelModel] = channel_models_for(placed)
+        self.channels = tuple(m.name for m in self.channel_models)
+        self.units = tuple(m.unit for m in self.channel_models)
+        self.adc = AdcModel(bits=rig.config.daq.adc_bits, input_range_volts=rig.config.daq.input_range_volts)
+        self._rng = np.random.default_rng(seed)
+        meas = measure(physical, self.channel_models, self.adc, self._rng)
+        self._data = meas.data
+        self._lock = threading.Lock()
+        self._t0: float | None = None
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channels)
+
+    def samples(self, start: int, stop: int) -> np.ndarray:
+        """Samples ``[start, stop)`` (float32, SI units); deterministic for the same seed."""
+        n_pre = self._data.shape[0]
+        out = np.empty((stop - start, self.n_channels), np.float32)
+        a, b = max(start, 0), min(stop, n_pre)
+        if b > a:
+            out[a - start : b - start] = self._data[a:b]
+        if stop > n_pre:
+            lo = max(start, n_pre)
+            # At rest after the simulated span: the noise floor, generated in whole aligned blocks seeded by
+            # the block number, so any request for the same samples returns the same values.
+            bs = self.block_size
+            for j in range(lo // bs, (stop - 1) // bs + 1):
+                rng = np.random.default_rng([self.seed, j])
+                noise = measure(np.zeros((bs, self.n_channels)), self.channel_models, self.adc, rng).data
+                a0, a1 = max(lo, j * bs), min(stop, (j + 1) * bs)
+                out[a0 - start : a1 - start] = noise[a0 - j * bs : a1 - j * bs]
+        return out
+
+    def block(self, k: int) -> np.ndarray:
+        return self.samples(k * self.block_size, (k + 1) * self.block_size)
+
+    # --- the clock --------------------------------------------------------------------------
+    def start_clock(self, t0: float | None = None) -> None:
+        self._t0 = time.monotonic() if t0 is None else t0
+
+    def samples_available(self, now: float | None = None) -> int:
+        """Samples that exist at device time ``now``: exactly floor(t * fs)."""
+        if self._t0 is None:
+            raise RuntimeError("start_clock() first")
+        t = (time.monotonic() if now is None else now) - self._t0
+        return max(0, int(np.floor(t * self.fs + 1e-9)))
+
+    def blocks_available(self, now: float | None = None) -> int:
+        return self.samples_available(now) // self.block_size
+
+    def time_of_block(self, k: int) -> float:
+        """Monotonic time at which block k is complete."""
+        assert self._t0 is not None
+        return self._t0 + (k + 1) * self.block_size / self.fs

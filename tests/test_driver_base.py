@@ -1,0 +1,102 @@
+"""Driver base: exact gap accounting, a dying thread is reported, bounded queues, link budget, device clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from daq.blocks import BlockStatus, SampleBlock
+from drivers.base import Driver, DriverConfig, DriverError, LinkBudget, LinkBudgetError
+from drivers.sim.device import HitSchedule, SimulatedDevice
+from drivers.sim.faults import Faults
+
+
+class ListDriver(Driver):
+    """A driver whose 'link' is a list of (first_index, n) blocks, optionally failing at the end."""
+
+    name = "list"
+
+    def __init__(self, config, blocks, fail_with=None, budget=(1.0, 10.0)):
+        super().__init__(config)
+        self._items = blocks
+        self._fail = fail_with
+        self._budget = budget
+
+    def link_budget(self):
+        return LinkBudget(self._budget[0], self._budget[1], "B/s", "test link")
+
+    def _connect(self):
+        pass
+
+    def _run(self):
+        for first, n in self._items:
+            self._emit(SampleBlock("d", first, 100.0, ("a",), np.full((n, 1), first, np.float32)))
+        if self._fail is not None:
+            raise self._fail
+
+
+def test_gaps_are_reported_exactly_and_flagged():
+    drv = ListDriver(DriverConfig(), [(0, 10), (10, 10), (25, 5), (30, 10), (50, 1)])
+    with drv:
+        got = list(drv.blocks(timeout=5))
+    assert [b.first_index for b in got] == [0, 10, 25, 30, 50]
+    assert [bool(b.status & BlockStatus.GAP_BEFORE) for b in got] == [False, False, True, False, True]
+    assert drv.stats.gaps == [(20, 25), (40, 50)] and drv.stats.lost_samples == 15
+    gaps = [e for e in drv.drain_events() if e.kind == "gap"]
+    assert [(e.start_index, e.end_index, e.count) for e in gaps] == [(20, 25, 5), (40, 50, 10)]
+
+
+def test_a_block_going_back_in_time_is_dropped_and_counted():
+    drv = ListDriver(DriverConfig(), [(0, 10), (5, 10), (10, 10)])
+    with drv:
+        got = list(drv.blocks(timeout=5))
+    assert [b.first_index for b in got] == [0, 10]
+    assert drv.stats.frames_bad == 1
+
+
+def test_a_dying_driver_thread_is_reported_to_the_owner_after_its_blocks():
+    drv = ListDriver(DriverConfig(), [(0, 10), (10, 10)], fail_with=OSError("device unplugged"))
+    drv.open()
+    seen = []
+    with pytest.raises(DriverError, match="device unplugged"):
+        for b in drv.blocks(timeout=5):
+            seen.append(b.first_index)
+    assert seen == [0, 10]
+    drv.close()
+
+
+def test_owner_not_reading_is_an_overrun_not_unbounded_memory():
+    drv = ListDriver(DriverConfig(queue_blocks=4), [(k * 10, 10) for k in range(20)])
+    drv.open()
+    drv._thread.join(timeout=5)
+    got = list(drv.blocks(timeout=1))
+    drv.close()
+    assert drv.stats.overruns > 0 and len(got) + drv.stats.overruns == 20
+    over = [e for e in drv.drain_events() if e.kind == "overrun"]
+    assert sum(e.count for e in over) == 10 * drv.stats.overruns
+
+
+def test_link_budget_refuses_with_the_numbers():
+    drv = ListDriver(DriverConfig(), [], budget=(950.0, 1000.0))
+    with pytest.raises(LinkBudgetError, match=r"needs 950 B/s, the link carries 1,000 B/s \(95 % > 90 %\)"):
+        drv.open()
+
+
+def test_device_clock_is_sample_exact_and_deterministic(rigs):
+    rig = rigs("beam_ch4_exp")
+    dev = SimulatedDevice(rig, HitSchedule.every(1.0, [100.0]), duration=0.5, block_size=128, seed=5)
+    dev.start_clock(t0=1000.0)
+    for t in (0.0, 0.5, 1.0, 10.0, 3600.0):
+        assert dev.samples_available(1000.0 + t) == int(t * 16384)  # after N s exactly N * fs samples
+    a = dev.samples(8000, 9000)  # spans the end of the simulated 0.5 s and the rest noise after it
+    b = SimulatedDevice(rig, HitSchedule.every(1.0, [100.0]), duration=0.5, block_size=128, seed=5).samples(8000, 9000)
+    assert np.array_equal(a, b) and a.dtype == np.float32 and a.shape == (1000, 15)
+    assert np.array_equal(dev.samples(8500, 8700), a[500:700])
+
+
+def test_faults_count_merged_injections():
+    f = Faults(seed=1)
+    f.record(0, 10)
+    f.record(5, 20)
+    f.record(30, 31)
+    assert f.injected_samples() == 21

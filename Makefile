@@ -30,6 +30,9 @@ lint: $(VENV)/.installed-dev
 bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_simulator.py
 	$(BIN)/python bench/bench_log.py
+	$(BIN)/python bench/bench_serial.py
+	$(BIN)/python bench/bench_can.py
+	$(BIN)/python bench/bench_modbus.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

@@ -28,6 +28,9 @@ app.add_typer(model_app, name="model")
 from daq.log_cli import log_app  # noqa: E402 - after app exists, keeps `gvt --help` listing in order
 
 app.add_typer(log_app, name="log")
+from daq.device_cli import device_app  # noqa: E402
+
+app.add_typer(device_app, name="device")
 
 out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)

@@ -46,6 +46,9 @@ class DriverConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     stream: str = "dev0"
     queue_blocks: int = 256
+    # Set when the session starts the device itself (its first sample is this index): loss before the
+    # first block that arrives is then a reported gap too. None when joining a device that already runs.
+    expect_first_index: int | None = None
 
 
 @dataclass(frozen=True)
@@ -194,7 +197,7 @@ class Driver(ABC):
 
     def _emit(self, block: SampleBlock, cause: str = "link") -> None:
         """Hand a block to the owner, detecting and reporting any gap before it."""
-        expected = self._next_index.get(block.stream)
+        expected = self._next_index.get(block.stream, self.config.expect_first_index)
         status = block.status
         if expected is not None and block.first_index > expected:
             gap = (expected, block.first_index)

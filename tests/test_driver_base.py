@@ -100,3 +100,14 @@ def test_faults_count_merged_injections():
     f.record(5, 20)
     f.record(30, 31)
     assert f.injected_samples() == 21
+
+
+def test_loss_before_the_first_block_is_reported_when_the_start_index_is_known():
+    drv = ListDriver(DriverConfig(expect_first_index=0), [(30, 10), (40, 10)])
+    with drv:
+        got = list(drv.blocks(timeout=5))
+    assert [b.first_index for b in got] == [30, 40] and drv.stats.gaps == [(0, 30)]
+    joining = ListDriver(DriverConfig(), [(30, 10)])
+    with joining:
+        list(joining.blocks(timeout=5))
+    assert joining.stats.gaps == []  # joining a running device: no bogus gap from 0

@@ -1,0 +1,374 @@
+"""Modbus driver (pymodbus client, TCP or RTU): block-FIFO acquisition, polled slow channels, device control.
+
+* **Register map** in TOML (:mod:`drivers.modbus.register_map`): addresses, types, scales, word order.
+* **Block FIFO** (``mode = "fifo"``): one FC 23 read/write request per frame writes ``ack`` = the next
+  sample index wanted and reads a frame (header: first sample index, count, samples buffered, flags; then
+  interleaved int16 samples). Data are addressed by sample index, so a lost response is recovered by
+  sending the same request again: no sample is lost or duplicated by a retry (docs/protocols/modbus.md).
+  Frames are gathered into blocks of ``block_samples``; a jump in the device's first index is a gap,
+  reported exactly by the base class (e.g. the device FIFO overflowed while the link was down).
+* **Polling** (``poll = [...]``, ``poll_hz``): one read spanning the slow registers per tick, emitted as
+  stream ``<stream>.poll`` with the tick number as sample index; a missed tick is a reported gap.
+* **Control**: on open the driver checks the channel mask, writes sample rate / range and ``start``; on
+  close ``stop``. Refusals (Modbus exception responses) are raised as one-line :class:`DriverError`.
+* **Timeouts and retries** are the driver's own (pymodbus ``retries=0``) so they are counted in
+  ``stats``; a dead link is reconnected (counted) until ``reconnect_s`` passes. TCP runs with TCP_NODELAY.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.framer import FramerType
+
+from daq.blocks import BlockStatus, SampleBlock
+from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
+from drivers.modbus.register_map import MAX_READ, RegisterMap, load_register_map
+
+ROOT = Path(__file__).resolve().parents[2]
+_EXC_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure", 6: "device busy"}
+TCP_DEFAULT_CAPACITY = 1000.0  # requests/s; measured ~2-3k on loopback (bench/bench_modbus.py), less on a real network
+RTU_BITS_PER_CHAR = 11  # 8E1: start + 8 data + parity + stop
+
+
+class _Stopping(Exception):
+    pass
+
+
+class ModbusConfig(DriverConfig):
+    transport: Literal["tcp", "rtu"] = "tcp"
+    host: str = "127.0.0.1"
+    port: int = 502
+    serial_port: str = ""
+    baudrate: int = 115200
+    parity: Literal["N", "E", "O"] = "E"
+    stopbits: int = 1
+    device_id: int | None = None  # None: the register map's unit_id
+    register_map: str = "configs/modbus/gvt_sim_device.toml"
+    mode: Literal["fifo", "poll"] = "fifo"
+    channels: list[str] = Field(
+        default_factory=list
+    )  # FIFO channels, as the device acquires them (checked against its channel mask)
+    sample_rate: float | None = None  # fifo: written to the device; also what the link budget is computed for
+    input_range_volts: float | None = None  # written to the device's range register if set
+    control: bool = True  # write start on open and stop on close
+    poll: list[str] = Field(default_factory=list)  # slow channels (register-map [[poll]] names)
+    poll_hz: float = 10.0
+    timeout_s: float = 0.1
+    retries: int = 3
+    reconnect_s: float = 30.0  # give up after this long without a connection
+    capacity_req_s: float | None = None  # measured link capacity; None: TCP default / RTU from the baud rate
+    block_samples: int = 1024
+
+    @model_validator(mode="after")
+    def _check(self) -> ModbusConfig:
+        if self.mode == "fifo" and (not self.channels or self.sample_rate is None):
+            raise ValueError("modbus fifo mode needs channels = [...] and sample_rate")
+        if self.mode == "poll" and not self.poll:
+            raise ValueError("modbus poll mode needs poll = [...] (register-map poll channel names)")
+        if self.transport == "rtu" and not self.serial_port:
+            raise ValueError("modbus rtu needs serial_port")
+        return self
+
+    def map_path(self) -> Path:
+        p = Path(self.register_map)
+        return p if p.is_absolute() or p.exists() else ROOT / p
+
+
+class ModbusDriver(Driver):
+    name = "modbus"
+    config_model = ModbusConfig
+
+    def __init__(self, config: ModbusConfig) -> None:  # type: ignore[override]
+        super().__init__(config)
+        self.cfg = config
+        self.map: RegisterMap = load_register_map(config.map_path())
+        self.unit = config.device_id if config.device_id is not None else self.map.device.unit_id
+        self.wo = self.map.device.word_order
+        self.fs = float(config.sample_rate or 0.0)
+        self._client: ModbusTcpClient | ModbusSerialClient | None = None
+        self._flags = BlockStatus.OK
+        if config.mode == "fifo":
+            if self.map.fifo is None:
+                raise DriverError(f"register map {config.register_map} has no [fifo]; use mode = 'poll'")
+            idx = [self.map.fifo_channel_index(n) for n in config.channels]
+            if idx != sorted(idx):
+                raise DriverError(
+                    f"modbus channels must be in register-map order: {sorted(config.channels, key=self.map.fifo_channel_index)}"
+                )
+            self._mask = sum(1 << i for i in idx)
+            self._scales = np.array([self.map.fifo.channels[i].scale for i in idx], np.float64)
+            self.spf = self.map.fifo.samples_per_frame(len(idx))
+        self._poll_regs = [self.map.poll_channel(n) for n in config.poll]
+        if self._poll_regs:
+            self._poll_lo = min(p.address for p in self._poll_regs)
+            self._poll_n = max(p.end for p in self._poll_regs) - self._poll_lo
+            if self._poll_n > MAX_READ:
+                raise DriverError(f"poll channels span {self._poll_n} registers > {MAX_READ}: split them into two drivers")
+
+    # --- budget ---------------------------------------------------------------------------
+    def link_budget(self) -> LinkBudget:
+        c = self.cfg
+        poll_req = c.poll_hz if self._poll_regs else 0.0
+        if c.transport == "tcp":
+            cap = c.capacity_req_s or TCP_DEFAULT_CAPACITY
+            src = "configured" if c.capacity_req_s else "TCP default"
+        else:
+            # FC23 frame: request 21 chars, response 5 + 2*125; plus 3.5 chars of silence after each
+            chars = 21 + 5 + 2 * MAX_READ + 7
+            cap = c.capacity_req_s or c.baudrate / (RTU_BITS_PER_CHAR * chars)
+            src = f"RTU {c.baudrate} baud, {chars} chars x {RTU_BITS_PER_CHAR} bits per request"
+        if c.mode == "fifo":
+            n = len(c.channels)
+            fifo_req = self.fs / self.spf
+            detail = (
+                f"{n} ch x {self.fs:g} Hz = {n * self.fs:,.0f} int16 values/s at {self.spf * n} per request "
+                f"({self.spf} samples x {n} ch) -> {fifo_req:,.0f} req/s + {poll_req:g} poll req/s vs {cap:,.0f} req/s "
+                f"({src}); select fewer channels or a lower rate"
+            )
+        else:
+            fifo_req = 0.0
+            detail = f"{poll_req:g} poll req/s vs {cap:,.0f} req/s ({src})"
+        return LinkBudget(fifo_req + poll_req, cap, "req/s", detail)
+
+    # --- link -----------------------------------------------------------------------------
+    def _new_client(self) -> ModbusTcpClient | ModbusSerialClient:
+        c = self.cfg
+        if c.transport == "tcp":
+            return ModbusTcpClient(c.host, port=c.port, timeout=c.timeout_s, retries=0, reconnect_delay=0)
+        return ModbusSerialClient(
+            c.serial_port,
+            framer=FramerType.RTU,
+            baudrate=c.baudrate,
+            parity=c.parity,
+            stopbits=c.stopbits,
+            bytesize=8,
+            timeout=c.timeout_s,
+            retries=0,
+        )
+
+    def _open_link(self) -> bool:
+        if self._client is not None:
+            self._client.close()
+        self._client = self._new_client()
+        if not self._client.connect():
+            self._client.close()
+            return False
+        if self.cfg.transport == "tcp":
+            self._client.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # Nagle off
+        return True
+
+    def _reconnect(self) -> None:
+        deadline = time.monotonic() + self.cfg.reconnect_s
+        where = f"{self.cfg.host}:{self.cfg.port}" if self.cfg.transport == "tcp" else self.cfg.serial_port
+        while not self._open_link():
+            if self.stopping:
+                raise _Stopping
+            if time.monotonic() > deadline:
+                raise DriverError(f"modbus: no connection to {where} for {self.cfg.reconnect_s:g} s (is the device on?)")
+            self._stop.wait(0.1)
+        self.stats.reconnects += 1
+        self._flags |= BlockStatus.RECONNECT
+        self._event(DriverEvent("reconnect", self.cfg.stream, message=f"reconnected to {where}"))
+
+    def _drain(self) -> None:
+        """After a timeout, discard a late response still in the socket so it cannot pair with the retry."""
+        sock = getattr(self._client, "socket", None)
+        if sock is None or self.cfg.transport != "tcp":
+            return
+        try:
+            sock.setblocking(False)
+            while sock.recv(4096):
+                pass
+        except OSError:
+            pass
+
+    def _call(self, what: str, fn: Any, *, reconnect: bool = True) -> Any:
+        """One Modbus transaction with counted timeouts/retries and reconnects; returns the response."""
+        attempt = 0
+        while True:
+            if self._client is None or not self._client.connected:
+                if not reconnect:
+                    raise DriverError(f"modbus: {what}: not connected")
+                self._reconnect()
+            try:
+                rr = fn(self._client)
+            except ModbusIOException:
+                self.stats.timeouts += 1
+                self._flags |= BlockStatus.TIMEOUT
+                attempt += 1
+                self._drain()
+                if attempt <= self.cfg.retries:
+                    self.stats.retries += 1
+                    continue
+                self._event(
+                    DriverEvent("timeout", self.cfg.stream, count=attempt, message=f"{what}: no answer after {attempt} tries")
+                )
+                if not reconnect:
+                    raise DriverError(
+                        f"modbus: {what}: no answer after {attempt} tries ({self.cfg.timeout_s:g} s each)"
+                    ) from None
+                self._client.close()  # a device that stopped answering: start over with a fresh connection
+                attempt = 0
+                continue
+            except (ConnectionException, OSError) as exc:
+                if self._client is not None:
+                    self._client.close()
+                if not reconnect:
+                    raise DriverError(f"modbus: {what}: {exc}") from exc
+                if self.stopping:
+                    raise _Stopping from None
+                continue
+            except ModbusException as exc:
+                raise DriverError(f"modbus: {what}: {exc}") from exc
+            if rr.isError():
+                code = getattr(rr, "exception_code", 0)
+                raise DriverError(f"modbus: device refused {what}: exception {code} ({_EXC_NAMES.get(code, 'unknown')})")
+            self.stats.frames_ok += 1
+            self.stats.bytes_in += 9 + 2 * len(getattr(rr, "registers", []) or [])
+            return rr
+
+    def _write(self, reg: Any, raw: int, what: str, reconnect: bool = True) -> None:
+        regs = reg.raw_to_regs(raw, self.wo)
+        self._call(what, lambda c: c.write_registers(reg.address, regs, device_id=self.unit), reconnect=reconnect)
+
+    def _read(self, reg: Any, what: str) -> int | float:
+        rr = self._call(what, lambda c: c.read_holding_registers(reg.address, count=reg.n_registers, device_id=self.unit))
+        return reg.regs_to_raw(rr.registers, self.wo)
+
+    # --- Driver hooks ---------------------------------------------------------------------
+    def _connect(self) -> None:
+        where = f"{self.cfg.host}:{self.cfg.port}" if self.cfg.transport == "tcp" else self.cfg.serial_port
+        if not self._open_link():
+            raise DriverError(f"modbus: cannot connect to {where} (is the device on, the port right?)")
+        try:
+            ctl = self.map.control
+            if self.cfg.mode == "fifo":
+                mask = int(self._read(ctl.channel_mask, "read channel mask"))
+                if mask != self._mask:
+                    have = [ch.name for k, ch in enumerate(self.map.fifo.channels) if mask >> k & 1]
+                    raise DriverError(f"modbus: device acquires channels {have}, config asks for {self.cfg.channels}")
+            if self.cfg.sample_rate is not None:
+                self._write(
+                    ctl.sample_rate, round(self.cfg.sample_rate), f"sample_rate = {self.cfg.sample_rate:g} Hz", reconnect=False
+                )
+            if self.cfg.input_range_volts is not None:
+                raw = round(self.cfg.input_range_volts / ctl.range.scale)
+                self._write(ctl.range, raw, f"range = {self.cfg.input_range_volts:g} V", reconnect=False)
+            if self.cfg.mode == "fifo":
+                self.fs = float(self._read(ctl.sample_rate, "read sample rate"))
+            if self.cfg.control:
+                self._write(ctl.command, 1, "start", reconnect=False)
+        except BaseException:
+            self._client.close()
+            raise
+
+    def _disconnect(self) -> None:
+        pass  # the reader thread sends stop and closes the link (it owns the client)
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except _Stopping:
+            pass
+        finally:
+            if self.cfg.control and self._client is not None and self._client.connected:
+                try:
+                    self._write(self.map.control.command, 0, "stop", reconnect=False)
+                except DriverError:
+                    pass
+            if self._client is not None:
+                self._client.close()
+
+    def _loop(self) -> None:
+        c = self.cfg
+        fifo = self.map.fifo
+        fifo_mode = c.mode == "fifo"
+        nch = len(c.channels)
+        next_index: int | None = None
+        chunks: list[np.ndarray] = []
+        chunk_first = 0
+        chunk_n = 0
+        poll_t0 = time.monotonic()
+        poll_k = 0
+        poll_period = 1.0 / c.poll_hz if self._poll_regs else 0.0
+
+        def next_poll() -> float:
+            return poll_t0 + poll_k * poll_period if self._poll_regs else math.inf
+
+        def flush() -> None:
+            nonlocal chunks, chunk_n
+            if chunk_n:
+                data = np.concatenate(chunks).astype(np.float32)
+                status, self._flags = self._flags, BlockStatus.OK
+                self._emit(SampleBlock(c.stream, chunk_first, self.fs, tuple(c.channels), data, status))
+            chunks, chunk_n = [], 0
+
+        while not self.stopping:
+            now = time.monotonic()
+            if now >= next_poll():
+                poll_k = max(poll_k, int((now - poll_t0) * c.poll_hz))  # ticks we were too late for are a gap
+                self._poll_once(poll_k)
+                poll_k += 1
+            if not fifo_mode:
+                self._stop.wait(max(0.0, next_poll() - time.monotonic()))
+                continue
+            assert fifo is not None
+            ack = next_index or 0
+            ack_regs = fifo.ack.raw_to_regs(ack, self.wo)
+            rr = self._call(
+                "FIFO read",
+                lambda cl, a=ack_regs: cl.readwrite_registers(
+                    read_address=fifo.window_address,
+                    read_count=fifo.window_registers,
+                    write_address=fifo.ack.address,
+                    values=a,
+                    device_id=self.unit,
+                ),
+            )
+            regs = rr.registers
+            first, n, buffered, _flags = struct.unpack(">QHIH", struct.pack(">4HH2HH", *regs[: fifo.header_registers]))
+            if n and (next_index is None or first >= next_index):
+                raw = np.array(regs[fifo.header_registers : fifo.header_registers + n * nch], np.uint16).view(np.int16)
+                block = raw.reshape(n, nch) * self._scales
+                if chunk_n and first != chunk_first + chunk_n:
+                    flush()
+                if not chunk_n:
+                    chunk_first = first
+                chunks.append(block)
+                chunk_n += n
+                next_index = first + n
+                if chunk_n >= c.block_samples:
+                    flush()
+            left = buffered - n
+            if left < self.spf:  # less than a frame waiting: sleep until one is (or the next poll tick)
+                wait = (self.spf - left) / self.fs
+                self._stop.wait(min(wait, max(0.0, next_poll() - time.monotonic())))
+        flush()
+
+    def _poll_once(self, k: int) -> None:
+        lo, n = self._poll_lo, self._poll_n
+        try:
+            rr = self._call("poll read", lambda cl: cl.read_holding_registers(lo, count=n, device_id=self.unit))
+        except _Stopping:
+            raise
+        regs = rr.registers
+        vals = [p.decode(regs[p.address - lo : p.end - lo], self.wo) for p in self._poll_regs]
+        data = np.array([vals], np.float32)
+        self._emit(
+            SampleBlock(f"{self.cfg.stream}.poll", k, self.cfg.poll_hz, tuple(self.cfg.poll), data), cause="missed poll tick"
+        )
+
+    # --- helpers for tools/tests -----------------------------------------------------------
+    @property
+    def socket(self) -> socket.socket | None:
+        return getattr(self._client, "socket", None)

@@ -1,0 +1,219 @@
+"""The simulated device served over a pseudo-terminal, speaking docs/protocols/serial.md.
+
+A pty ignores the baud rate, so output is paced by the device clock: the server thread waits on an
+Event until the next block is due (no sleep-polling), then encodes and writes every block that exists.
+Fault knobs (:class:`~drivers.sim.faults.Faults`), each recording exactly the sample ranges it destroys
+(in the *served* stream's index space, i.e. after ``decimate``):
+
+* ``byte_corruption_rate``: per byte, flip one random bit. Binary: the hit frame fails its CRC, so its
+  whole sample range is recorded. ASCII: the hit character is replaced by ``?`` (a line with a bit
+  error that still parses cannot be detected without a checksum; see the protocol doc), so that line's
+  index is recorded.
+* ``frame_drop_rate``: a frame (or line) is not sent at all; its range is recorded.
+* ``stall_every_s`` / ``stall_for_s``: output pauses; the device keeps buffering, nothing is lost.
+* ``disconnect_at_s`` / ``disconnect_for_s``: the link goes dead: nothing is written while the device
+  clock runs on, so every frame due in that window is lost (recorded as one range).
+
+The server keeps its own slave fd open for its whole life, so the tty (and its buffered input) survives
+the driver closing and re-opening the port.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+
+import numpy as np
+
+from drivers.serial.protocol import BITS, FORMATS, encode_frame, encode_lines
+from drivers.sim.device import SimulatedDevice
+from drivers.sim.faults import Faults
+
+
+class SerialSimServer:
+    def __init__(
+        self,
+        device: SimulatedDevice,
+        faults: Faults | None = None,
+        fmt: str = "int24",
+        frame_samples: int = 64,
+        usb: bool = True,
+        *,
+        channels: list[int] | None = None,
+        decimate: int = 1,
+        stream_id: int = 0,
+        pace: bool = True,
+    ) -> None:
+        if fmt != "ascii" and fmt not in FORMATS:
+            raise ValueError(f"fmt must be one of {[*FORMATS, 'ascii']}, not {fmt!r}")
+        self.device = device
+        self.faults = faults or Faults()
+        self.fmt = fmt
+        self.frame_samples = int(frame_samples)
+        self.usb = usb
+        self.channels = list(range(device.n_channels)) if channels is None else list(channels)
+        self.decimate = int(decimate)
+        self.stream_id = stream_id
+        self.pace = pace  # False: write as fast as the pty takes it (benchmark)
+        self.fs = device.fs / self.decimate
+        self.scales = self._scales()
+        self.bytes_out = 0
+        self.frames_out = 0
+        self.next_index = 0  # next served sample index to send
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.path = ""
+
+    def _scales(self) -> np.ndarray:
+        """Per-channel value of one count: the device ADC's own LSB when the format is wide enough."""
+        adc = self.device.adc
+        out = []
+        for c in self.channels:
+            sens = self.device.channel_models[c].sensitivity_v_per_unit
+            bits = BITS.get(FORMATS.get(self.fmt, 3), 32)
+            if bits >= adc.bits:
+                out.append(adc.lsb_volts / sens)
+            else:
+                out.append(adc.input_range_volts / sens / (2 ** (bits - 1) - 1))
+        return np.asarray(out, np.float32)
+
+    def start(self) -> str:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no echo, no line discipline: a clean 8-bit byte pipe
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self.device.start_clock()
+        self._thread = threading.Thread(target=self._main, name="serial-sim", daemon=True)
+        self._thread.start()
+        return f"serial sim: port = {self.path!r} ({self.fmt}, {len(self.channels)} ch @ {self.fs:g} Hz, pty ignores baud)"
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+
+    def __enter__(self) -> SerialSimServer:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # --- the thread --------------------------------------------------------------------------
+    def _due_time(self, served_end: int) -> float:
+        """Monotonic time at which served sample ``served_end - 1`` exists on the device."""
+        t0 = self.device._t0
+        assert t0 is not None
+        return t0 + served_end * self.decimate / self.device.fs
+
+    def _main(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:  # a test reads .error
+            self.error = exc
+
+    def _loop(self) -> None:
+        f = self.faults
+        fsz = self.frame_samples
+        stall_next = f.stall_every_s
+        dis_lo = dis_hi = None
+        if f.disconnect_at_s is not None:
+            dis_lo = int(np.ceil(f.disconnect_at_s * self.fs))
+            dis_hi = int(np.ceil((f.disconnect_at_s + f.disconnect_for_s) * self.fs))
+        dis_recorded = False
+        seq = 0
+        while not self._stop.is_set():
+            end = self.next_index + fsz
+            if self.pace:
+                delay = self._due_time(end) - time.monotonic()
+                if delay > 0 and self._stop.wait(delay):
+                    return
+            dev_t = time.monotonic() - (self.device._t0 or 0.0)
+            if stall_next is not None and dev_t >= stall_next:
+                if self._stop.wait(f.stall_for_s):
+                    return
+                stall_next += f.stall_every_s
+            # every whole frame that exists now (at least the one we waited for)
+            avail = self.device.samples_available() // self.decimate if self.pace else end + 63 * fsz
+            n_frames = max(1, (avail - self.next_index) // fsz)
+            lo = self.next_index
+            hi = lo + n_frames * fsz
+            vals = self.device.samples(lo * self.decimate, hi * self.decimate)[:: self.decimate][:, self.channels]
+            chunks = []
+            for j in range(n_frames):
+                a = lo + j * fsz
+                b = a + fsz
+                if dis_lo is not None and b > dis_lo and a < dis_hi:
+                    if not dis_recorded:  # the whole dead window, whole frames, as one range
+                        f.record(a, -(-dis_hi // fsz) * fsz)  # frames are aligned to frame_samples
+                        dis_recorded = True
+                    seq += 1
+                    continue
+                if f.frame_drop_rate > 0 and f.rng.random() < f.frame_drop_rate:
+                    f.record(a, b)
+                    seq += 1
+                    continue
+                v = vals[j * fsz : (j + 1) * fsz]
+                if self.fmt == "ascii":
+                    chunks.append(self._ascii_with_faults(a, v))
+                else:
+                    fr = encode_frame(a, v, self.fmt, self.scales, seq=seq, stream_id=self.stream_id)
+                    chunks.append(self._corrupt(fr, a, b))
+                seq += 1
+            self.next_index = hi
+            data = b"".join(chunks)
+            self._write_all(data)
+            self.frames_out += n_frames
+
+    def _corrupt(self, fr: bytes, a: int, b: int) -> bytes:
+        f = self.faults
+        if f.byte_corruption_rate <= 0:
+            return fr
+        hits = int(f.rng.binomial(len(fr), f.byte_corruption_rate))
+        if hits == 0:
+            return fr
+        ba = bytearray(fr)
+        for pos in f.rng.integers(0, len(fr), hits):
+            ba[pos] ^= 1 << int(f.rng.integers(0, 8))
+        f.record(a, b)
+        return bytes(ba)
+
+    def _ascii_with_faults(self, a: int, v: np.ndarray) -> bytes:
+        f = self.faults
+        if f.byte_corruption_rate <= 0:
+            return encode_lines(a, v)
+        out = []
+        for i in range(v.shape[0]):
+            line = bytearray(encode_lines(a + i, v[i : i + 1]))
+            hits = int(f.rng.binomial(len(line) - 1, f.byte_corruption_rate))
+            if hits:
+                for pos in f.rng.integers(0, len(line) - 1, hits):
+                    line[pos] = ord("?")
+                f.record(a + i, a + i + 1)
+            out.append(bytes(line))
+        return b"".join(out)
+
+    def _write_all(self, data: bytes) -> None:
+        mv = memoryview(data)
+        while mv and not self._stop.is_set():
+            assert self._master is not None
+            try:
+                n = os.write(self._master, mv)
+            except BlockingIOError:  # pty buffer full (the reader is slow): wait until it drains
+                select.select([], [self._master], [], 0.1)
+                continue
+            mv = mv[n:]
+            self.bytes_out += n

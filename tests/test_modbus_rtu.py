@@ -1,0 +1,137 @@
+"""Modbus RTU: CRC, framing and device -> ModbusRtuSimServer (pty) -> ModbusDriver (transport = rtu) end to end."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import select
+import struct
+import time
+
+import numpy as np
+import pytest
+
+from drivers.base import make_driver
+from drivers.modbus.rtu_server import ModbusRtuSimServer, crc16, request_length, with_crc
+from drivers.sim.device import HitSchedule, SimulatedDevice
+
+FS = 16384
+
+
+@pytest.fixture(scope="module")
+def device(rigs):
+    return SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0]), duration=6.0, block_size=256, seed=2)
+
+
+@pytest.fixture
+def rtu(device):
+    servers: list[ModbusRtuSimServer] = []
+
+    def make(channels, **kw) -> ModbusRtuSimServer:
+        srv = ModbusRtuSimServer(device, None, channels, **kw)
+        servers.append(srv)
+        line = srv.start()
+        assert srv.path.startswith("/dev/") and f"serial_port={srv.path}" in line and "\n" not in line
+        return srv
+
+    yield make
+    for s in servers:
+        s.stop()
+
+
+def test_crc16_modbus_vector():
+    assert crc16(bytes.fromhex("010300000001")) == 0x0A84
+    assert with_crc(bytes.fromhex("010300000001")) == bytes.fromhex("01030000000184 0A".replace(" ", ""))
+    assert crc16(with_crc(b"\x11\x10\x00\x01\x00\x02\x04\x00\x0a\x01\x02")) == 0  # a frame with its CRC checks to 0
+
+
+def test_request_length_by_function_code():
+    assert request_length(b"\x01") is None
+    assert request_length(b"\x01\x03") == request_length(b"\x01\x04") == request_length(b"\x01\x06") == 8
+    assert request_length(b"\x01\x10\x00\x00\x00") is None and request_length(b"\x01\x10\x00\x00\x00\x02\x04") == 13
+    assert request_length(b"\x01\x17" + bytes(8) + b"\x08") == 21
+    assert request_length(b"\x01\x2b") == 0  # unknown: resync
+
+
+def _exchange(fd: int, frame: bytes, timeout: float) -> bytes:
+    os.write(fd, frame)
+    out = b""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        r, _, _ = select.select([fd], [], [], left)
+        if not r:
+            break
+        out += os.read(fd, 4096)
+        if len(out) >= 5 and len(out) >= (5 if out[1] & 0x80 else 5 + out[2]):
+            break
+    return out
+
+
+def test_bad_crc_ignored_next_frame_answered(rtu):
+    srv = rtu(["hammer"])
+    fd = os.open(srv.path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        m = srv.map.control.sample_rate  # uint32 at 2 registers
+        good = with_crc(struct.pack(">BBHH", 1, 3, m.address, m.n_registers))
+        bad = good[:-1] + bytes([good[-1] ^ 0xFF])
+        assert _exchange(fd, bad, 0.3) == b""  # silent, like a real slave
+        assert srv.bad_crc == 1
+        # garbage with an unknown function code is skipped byte by byte, then a good frame is answered
+        resp = _exchange(fd, b"\x01\x2b\x55" + good, 1.0)
+        assert len(resp) == 5 + 2 * m.n_registers and crc16(resp) == 0
+        assert resp[:3] == bytes([1, 3, 2 * m.n_registers])
+        regs = list(struct.unpack(f">{m.n_registers}H", resp[3:-2]))
+        assert m.regs_to_raw(regs, srv.map.device.word_order) == FS
+        # a partial frame followed by silence is dropped, the next frame stands alone
+        assert _exchange(fd, good[:5], 0.2) == b""
+        assert _exchange(fd, good, 1.0)[:3] == bytes([1, 3, 2 * m.n_registers])
+        # an exception answer (FC 3 with count 200: illegal data value) comes back framed too
+        resp = _exchange(fd, with_crc(struct.pack(">BBHH", 1, 3, 0, 200)), 1.0)
+        assert resp == with_crc(bytes([1, 0x83, 3]))
+    finally:
+        os.close(fd)
+
+
+def test_fifo_end_to_end_rtu_over_pty(device, rtu):
+    ch = ["hammer"]
+    srv = rtu(ch)
+    n = 3 * FS
+    # 8N2 (11 bits a character like 8E1): a pty has no parity, and Linux refuses (EINVAL) a re-configuration of
+    # a pty opened with PARENB, which pymodbus does right after opening (inter_byte_timeout)
+    cfg = {"transport": "rtu", "serial_port": srv.path, "baudrate": 921600, "parity": "N", "stopbits": 2}
+    cfg |= {"channels": ch, "sample_rate": FS, "timeout_s": 0.5}
+    drv = make_driver("modbus", cfg)
+    drv.link_budget().check()  # 1 ch x 16384 Hz at 117 samples/frame = 140 req/s vs 296 req/s at 921600 baud
+    blocks = []
+    t0 = time.monotonic()
+    with drv:
+        for b in drv.blocks(timeout=3.0):
+            if b.stream == drv.config.stream:
+                blocks.append(b)
+                if b.end_index >= n:
+                    break
+            assert time.monotonic() - t0 < 15.0, "driver too slow"
+    elapsed = time.monotonic() - t0
+    assert 2.5 < elapsed < 6.0  # the device clock paces the data
+    assert blocks[0].first_index == 0
+    for a, b in itertools.pairwise(blocks):
+        assert b.first_index == a.end_index
+    data = np.concatenate([b.data for b in blocks])
+    assert data.shape == (blocks[-1].end_index, 1) and data.shape[0] >= n
+    ref = device.samples(0, data.shape[0])[:, [device.channels.index("hammer")]]
+    scale = srv.map.fifo.channels[srv.map.fifo_channel_index("hammer")].scale
+    assert np.abs(data - ref).max() <= scale / 2 + 1e-3  # int16 quantisation
+    assert np.abs(ref).max() > 100 * scale  # a hit is in the span: not a trivially flat signal
+    assert drv.stats.lost_samples == 0 and drv.stats.gaps == [] and drv.stats.timeouts == 0
+    assert srv.bad_crc == 0 and srv.discarded_bytes == 0 and not srv.faults.injected
+    assert not srv.running  # the driver sent stop on close
+
+
+def test_stop_is_prompt_and_releases_the_pty(device):
+    srv = ModbusRtuSimServer(device, None, ["hammer"])
+    srv.start()
+    t0 = time.monotonic()
+    srv.stop()
+    assert time.monotonic() - t0 < 0.5
+    assert srv._master is None and srv._slave is None and srv._rtu_thread is None
+    srv.stop()  # idempotent

@@ -80,6 +80,8 @@ class LinkStats:
     retries: int = 0
     reconnects: int = 0
     overruns: int = 0
+    garbage_bytes: int = 0  # byte streams: bytes skipped while hunting for a frame (line noise)
+    resyncs: int = 0
     samples: int = 0
     lost_samples: int = 0  # sum of gap lengths (per stream row, not per channel)
     gaps: list[tuple[int, int]] = field(default_factory=list)

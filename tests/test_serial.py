@@ -238,6 +238,7 @@ def test_byte_corruption_drops_and_stalls_loss_reported_exactly(device):
     assert merge(lost_before(drv, end)) == injected
     assert sum(b.n_samples for b in blocks) + sum(b - a for a, b in lost_before(drv, end)) == end - start  # nothing else lost
     assert drv.stats.frames_bad > 0
+    assert drv.stats.resyncs > 0 and drv.stats.garbage_bytes > 0  # line noise is visible to the operator
     check_against_device(device, srv, blocks, "int24")
 
 

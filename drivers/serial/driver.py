@@ -231,6 +231,8 @@ class SerialDriver(Driver):
                     SampleBlock(c.stream, fr.first_index, c.sample_rate, self._channels, fr.data, status, {"seq": fr.seq}), cause
                 )
             self.stats.frames_ok = self.decoder.stats.frames_ok
+            self.stats.garbage_bytes = self.decoder.stats.garbage_bytes
+            self.stats.resyncs = self.decoder.stats.resyncs
         else:
             lines = self.decoder.feed(data)
             got = bool(lines)

@@ -203,6 +203,66 @@ def replay(
     )
 
 
+@app.command()
+def record(
+    session: Annotated[Path, typer.Argument(help="Session config (configs/sessions/*.toml).")],
+    out_path: Annotated[Path | None, typer.Option("--out", help="Output log (default: the config's output).")] = None,
+    duration: Annotated[float | None, typer.Option(min=0.1, help="Seconds to record (default: the config's).")] = None,
+) -> None:
+    """Record a session: device → MCAP log, with the hammer trigger and hit quality gate."""
+    import signal
+    import threading
+
+    from daq.config.loader import load_config
+    from daq.config.session import SessionConfig
+    from daq.session import run_session
+
+    cfg = load_config(SessionConfig, session)
+    if duration is not None:
+        cfg = cfg.model_copy(update={"duration": duration})
+    r = _open(cfg.rig)
+    target = out_path or Path(cfg.output)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+
+    def status(st: dict) -> None:
+        out.print(
+            f"{st['seconds']:6.1f} s  {st['samples']} samples  {st['rate']:.0f} S/s  hits {st['hits']}  lost {st['lost']}",
+            markup=False,
+        )
+
+    try:
+        res = run_session(cfg, r, target, stop=stop, status=status)
+    except KeyboardInterrupt:
+        stop.set()
+        raise
+    from rich.table import Table
+
+    table = Table(title=f"{cfg.name}: {len(res.hits)} hits")
+    for col in ("#", "t [s]", "peak [N]", "width [ms]", "energy [J]", "verdict", "reason"):
+        table.add_column(col)
+    for h in res.hits:
+        e = "—" if h.input_energy_J is None else f"{h.input_energy_J:.3g}"
+        table.add_row(
+            str(h.hit),
+            f"{h.t_s:.3f}",
+            f"{h.peak_force_N:.0f}",
+            f"{1000 * h.pulse_width_s:.2f}",
+            e,
+            h.verdict,
+            "; ".join(h.reasons) or "ok",
+        )
+    out.print(table)
+    lost = f"{res.lost_samples} samples in {len(res.gaps)} gaps" if res.lost_samples else "nothing"
+    out.print(
+        f"wrote {target}: {res.samples} samples in {res.seconds:.1f} s; lost: {lost}; writer overruns: "
+        f"{res.writer_overrun_samples}; suspect channels: {', '.join(res.suspects) or 'none'}",
+        markup=False,
+    )
+    if res.driver_error:
+        fail(f"the driver stopped: {res.driver_error}", code=1)
+
+
 def _open(rig: str):
     from daq.rigs import open_rig
 

@@ -83,14 +83,19 @@ class SerialSimServer:
                 out.append(adc.input_range_volts / sens / (2 ** (bits - 1) - 1))
         return np.asarray(out, np.float32)
 
-    def start(self) -> str:
+    def start(self, hold: bool = False) -> str:
+        """Create the pty and serve. ``hold=True``: the device clock starts only at :meth:`go` — a
+        session opens its driver first, because pyserial flushes the input buffer on open and frames
+        written before that would be lost (and reported as a gap)."""
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line discipline: a clean 8-bit byte pipe
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
-        self.device.start_clock()
+        self._go = threading.Event()
         self._thread = threading.Thread(target=self._main, name="serial-sim", daemon=True)
         self._thread.start()
+        if not hold:
+            self.go()
         return f"serial sim: port = {self.path!r} ({self.fmt}, {len(self.channels)} ch @ {self.fs:g} Hz, pty ignores baud)"
 
     def stop(self) -> None:
@@ -119,8 +124,16 @@ class SerialSimServer:
         assert t0 is not None
         return t0 + served_end * self.decimate / self.device.fs
 
+    def go(self) -> None:
+        """Start the device clock (sample 0 is now)."""
+        self.device.start_clock()
+        self._go.set()
+
     def _main(self) -> None:
         try:
+            while not self._go.wait(0.1):
+                if self._stop.is_set():
+                    return
             self._loop()
         except BaseException as exc:  # a test reads .error
             self.error = exc

@@ -1,0 +1,110 @@
+"""`gvt record`: a simulated 20-hit session over serial, SIGTERM and SIGKILL (issue 5, first part)."""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daq.config.loader import load_config
+from daq.config.session import SessionConfig
+from daq.log.reader import LogReader
+from daq.rigs import open_rig
+from daq.session import run_session
+
+from .conftest import gvt_command
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = ROOT / "configs" / "sessions" / "sim_serial_20hits.toml"
+
+
+@pytest.fixture(scope="module")
+def session20(tmp_path_factory):
+    cfg = load_config(SessionConfig, CFG)
+    out = tmp_path_factory.mktemp("s") / "s20.mcap"
+    return cfg, out, run_session(cfg, open_rig(cfg.rig), out)
+
+
+def test_twenty_hits_found_with_pre_trigger_and_reasons(session20):
+    cfg, _out, res = session20
+    assert len(res.hits) == 20 and res.lost_samples == 0 and res.writer_overrun_samples == 0 and res.driver_error is None
+    fs = 16384.0
+    for k, h in enumerate(res.hits):
+        assert abs(h.t_s - (0.2 + 0.5 * k)) < 0.002  # the k-th scheduled hit, found at its edge
+        n_pre = h.index - h.start_index
+        assert n_pre == round(0.01 * fs)  # pre-trigger intact
+        assert np.all(h.data[:n_pre, 0] < cfg.trigger.level)  # quiet before the edge
+    for k in cfg.device.simulate.double_hits:
+        assert any(r.startswith("double hit") for r in res.hits[k].reasons), res.hits[k].reasons
+    for k, f in enumerate(cfg.device.simulate.forces):
+        if f > 2224:
+            assert "hammer" in res.hits[k].clipped_channels and res.hits[k].verdict == "overload"
+    assert res.suspects == ["a09"]  # clipped on every hit, as the seed's 9th accelerometer
+    assert all("a09" in h.clipped_channels for h in res.hits)
+
+
+def test_the_session_log_holds_hits_events_and_every_sample(session20):
+    _cfg, out, res = session20
+    r = LogReader(out)
+    assert r.report.complete
+    hits = r.json_messages("/daq/hits")
+    assert len(hits) == 20 and [h["verdict"] for h in hits] == [h.verdict for h in res.hits]
+    ev = r.json_messages("/daq/events")
+    assert any(e["kind"] == "suspect_channel" and "a09" in e["message"] for e in ev)
+    d = r.read_stream("dev0")
+    assert d.gaps == [] and len(d.index) == res.samples and d.index[0] == 0
+    assert "gvtlink.config" in r.metadata() and any(a.startswith("rig/") for a in r.attachments())
+
+
+def _record(tmp_path: Path, duration: str) -> tuple[subprocess.Popen, Path]:
+    out = tmp_path / "rec.mcap"
+    proc = subprocess.Popen(
+        [*gvt_command(), "record", str(CFG), "--out", str(out), "--duration", duration],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    return proc, out
+
+
+def _samples_in_status(proc: subprocess.Popen, at_least: int, timeout: float = 30.0) -> int:
+    """Read the once-a-second status lines until they show ``at_least`` samples recorded."""
+    last = 0
+    until = time.monotonic() + timeout
+    while time.monotonic() < until and last < at_least:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        m = re.search(r"s\s+(\d+) samples", line)
+        if m:
+            last = int(m.group(1))
+    return last
+
+
+def test_sigterm_finalises_the_file(tmp_path):
+    proc, out = _record(tmp_path, "30")
+    seen = _samples_in_status(proc, 2 * 16384)
+    proc.send_signal(signal.SIGTERM)
+    _stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0, stderr
+    r = LogReader(out)
+    assert r.report.complete  # a valid, finalised file
+    n = len(r.read_stream("dev0").index)
+    assert n >= seen >= 2 * 16384
+
+
+def test_sigkill_is_recoverable_losing_at_most_about_a_second(tmp_path):
+    proc, out = _record(tmp_path, "30")
+    seen = _samples_in_status(proc, 2 * 16384)
+    proc.kill()
+    proc.wait(timeout=10)
+    rec = tmp_path / "recovered.mcap"
+    p = subprocess.run([*gvt_command(), "log", "recover", str(out), str(rec)], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 3, p.stderr
+    d = LogReader(rec).read_stream("dev0")
+    assert d.gaps == [] and len(d.index) >= seen - 1.2 * 16384  # the status line came before the kill

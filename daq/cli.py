@@ -151,11 +151,12 @@ class _progress:
 def demo(
     rig: RigArg = "beam_ch4_exp",
     duration: Annotated[float | None, typer.Option(min=0.1, help="Seconds per hit (default: the rig's record length).")] = None,
+    session_out: Annotated[Path, typer.Option("--out", help="Where the demo session log goes.")] = Path("demo_session.mcap"),
 ) -> None:
-    """Build the experimental beam rig, show its modes, and simulate a strong and a weak hit."""
+    """The experimental beam rig: modes, a strong and a weak hit, then a recorded session over a real pty."""
     from daq.demo import run_demo
 
-    run_demo(out, _open(rig), duration=duration)
+    run_demo(out, _open(rig), duration=duration, session_out=str(session_out))
 
 
 @app.command()

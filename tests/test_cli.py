@@ -66,10 +66,15 @@ def test_simulate_rejects_bad_output_path(tmp_path):
     assert p.returncode == 2 and "does not exist" in p.stderr
 
 
-def test_demo_runs_and_shows_nnm1_moving_with_energy():
-    p = run("demo", "--duration", "2.0")
+def test_demo_runs_and_shows_nnm1_moving_with_energy_and_a_session(tmp_path):
+    out = tmp_path / "demo.mcap"
+    p = run("demo", "--duration", "2.0", "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert "NNM1 frequency" in p.stdout and "strong" in p.stdout and "weak" in p.stdout
+    assert "hits and verdicts (7 found)" in p.stdout and "double_hit" in p.stdout and "nothing lost" in p.stdout
+    from daq.log.reader import LogReader
+
+    assert LogReader(out).report.complete and len(LogReader(out).json_messages("/daq/hits")) == 7
 
 
 @pytest.mark.parametrize("args", [["model"], ["frobnicate"]])

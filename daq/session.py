@@ -36,6 +36,7 @@ class SessionResult:
     driver_error: str | None = None
     writer_overrun_samples: int = 0
     seconds: float = 0.0
+    files: list[str] = field(default_factory=list)
 
 
 def _start_simulation(cfg: SessionConfig, rig: Rig):
@@ -97,6 +98,12 @@ def run_session(
         if cfg.device.driver == "serial":
             dconf.setdefault("channels", list(device.channels))
         dconf["expect_first_index"] = 0  # we started the device: loss before the first block counts
+    if cfg.device.driver == "sim":  # the in-process simulated device: it is the rig itself
+        dconf.setdefault("rig", rig.path)
+        dconf.setdefault("sample_rate", rig.sample_rate)
+        dconf.setdefault("channels", [p.name for p in [rig.hammer, *rig.sensors]])
+        dconf.setdefault("duration", cfg.duration)
+        dconf.setdefault("expect_first_index", 0)
     by_name = {c.name: c for c in infos}
     driver: Driver = make_driver(cfg.device.driver, dconf)
     channels = tuple(driver.config.channels)
@@ -114,11 +121,17 @@ def run_session(
                         suspect_after=t.suspect_after),
         channels, fs, ranges,
     )  # fmt: skip
-    block_guess = 64 if cfg.device.driver == "serial" else 39
+    block_guess = {"serial": 64, "modbus": 39}.get(cfg.device.driver, getattr(driver.config, "block_size", 256))
     queue_size = max(8, int(cfg.queue_seconds * fs / block_guess))
     fan = FanOut()
     sub = fan.subscribe("hits", maxsize=max(64, queue_size))
-    with LogWriter(out, queue_size=queue_size, session_metadata={"session": cfg.name, "rig": rig.name}) as writer:
+    with LogWriter(
+        out,
+        queue_size=queue_size,
+        rotate_bytes=cfg.rotate_bytes,
+        rotate_seconds=cfg.rotate_seconds,
+        session_metadata={"session": cfg.name, "rig": rig.name},
+    ) as writer:
         writer.add_stream(cfg.device.name, [by_name.get(c, ChannelInfo(c, "other", "")) for c in channels], fs, t0_ns=0)
         writer.add_metadata("gvtlink.config", {"session_toml": cfg.model_dump_json()})
         if Path(rig.path).exists():
@@ -142,7 +155,7 @@ def run_session(
                 if server is not None and hasattr(server, "go"):
                     server.go()
                 for blk in driver.blocks(timeout=0.2 if cfg.duration else None):
-                    writer.write_block(blk)  # the recording path first
+                    writer.write_block(blk, wait=not driver.realtime)  # the recording path first
                     fan.publish(blk)
                     result.samples += blk.n_samples
                     for ev in driver.drain_events():
@@ -184,4 +197,5 @@ def run_session(
         result.gaps = list(driver.stats.gaps)
         result.seconds = time.monotonic() - t0
     result.writer_overrun_samples = writer.stats.overrun_samples
+    result.files = list(writer.stats.files)
     return result

@@ -117,6 +117,12 @@ class Driver(ABC):
     name: ClassVar[str] = "base"
     config_model: ClassVar[type[DriverConfig]] = DriverConfig
 
+    @property
+    def realtime(self) -> bool:
+        """True for a live link (the recorder must never wait on it); False for a source that can be
+        paused, such as the simulated device at full speed, which then gets back-pressure instead."""
+        return True
+
     def __init__(self, config: DriverConfig) -> None:
         self.config = config
         self.stats = LinkStats()

@@ -16,7 +16,7 @@ from .conftest import gvt_command
 
 def test_all_transports_are_registered_plugins():
     drivers = available_drivers()
-    assert {"serial", "can", "modbus"} <= set(drivers)
+    assert {"serial", "can", "modbus", "sim"} <= set(drivers)
     for name, cls in drivers.items():
         assert cls.name == name
 

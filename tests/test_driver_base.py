@@ -111,3 +111,29 @@ def test_loss_before_the_first_block_is_reported_when_the_start_index_is_known()
     with joining:
         list(joining.blocks(timeout=5))
     assert joining.stats.gaps == []  # joining a running device: no bogus gap from 0
+
+
+def test_sim_driver_paced_follows_the_device_clock():
+    import time
+
+    from drivers.base import make_driver
+
+    drv = make_driver(
+        "sim",
+        {
+            "rig": "beam_ch4_exp",
+            "paced": True,
+            "duration": 0.5,
+            "block_size": 512,
+            "channels": ["hammer", "a13"],
+            "physics_seconds": 0.6,
+        },
+    )
+    assert drv.realtime
+    with drv:
+        t0 = time.monotonic()
+        blocks = list(drv.blocks(timeout=2))
+        took = time.monotonic() - t0
+    assert sum(b.n_samples for b in blocks) == 8192 and blocks[0].data.shape[1] == 2
+    assert 0.4 <= took <= 1.5  # real time, not full speed
+    assert not make_driver("sim", {"rig": "beam_ch4_exp"}).realtime

@@ -29,7 +29,7 @@ class SimulateSpec(_Strict):
 
 class DeviceSpec(_Strict):
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = "dev0"
-    driver: Literal["serial", "modbus", "can"]
+    driver: Literal["serial", "modbus", "can", "sim"]
     config: dict[str, Any] = {}  # the driver's own config table (drivers/<kind>/driver.py)
     simulate: SimulateSpec | None = None
 
@@ -51,6 +51,8 @@ class SessionConfig(_Strict):
     output: str = "session.mcap"
     duration: Positive | None = None  # seconds; None = until Ctrl-C / SIGTERM
     queue_seconds: Positive = 0.5
+    rotate_bytes: Annotated[int, Field(gt=0)] | None = None  # start a new file past this size
+    rotate_seconds: Positive | None = None  # or after this many seconds of wall time
     device: DeviceSpec
     trigger: TriggerSpec
 

@@ -226,14 +226,11 @@ def record(
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
-    def status(st: dict) -> None:
-        out.print(
-            f"{st['seconds']:6.1f} s  {st['samples']} samples  {st['rate']:.0f} S/s  hits {st['hits']}  lost {st['lost']}",
-            markup=False,
-        )
+    from daq.live_status import LiveStatus
 
     try:
-        res = run_session(cfg, r, target, stop=stop, status=status)
+        with LiveStatus(out, cfg.name) as live:
+            res = run_session(cfg, r, target, stop=stop, status=live.update)
     except KeyboardInterrupt:
         stop.set()
         raise

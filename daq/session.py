@@ -150,6 +150,9 @@ def run_session(
         worker.start()
         t0 = time.monotonic()
         last_status = t0
+        import numpy as np
+
+        levels = np.zeros(len(channels), np.float32)  # per-channel peak |value| since the last status
         try:
             with driver:
                 if server is not None and hasattr(server, "go"):
@@ -158,20 +161,27 @@ def run_session(
                     writer.write_block(blk, wait=not driver.realtime)  # the recording path first
                     fan.publish(blk)
                     result.samples += blk.n_samples
+                    if status is not None:
+                        np.maximum(levels, np.max(np.abs(blk.data), axis=0), out=levels)
                     for ev in driver.drain_events():
                         writer.write_event(ev.kind, **{k: v for k, v in ev.as_dict().items() if k != "kind"})
                         result.events[ev.kind] = result.events.get(ev.kind, 0) + 1
                     now = time.monotonic()
                     if status and now - last_status >= 1.0:
-                        status(
-                            {
-                                "seconds": now - t0,
-                                "samples": result.samples,
-                                "rate": result.samples / (now - t0),
-                                "hits": len(result.hits),
-                                "lost": driver.stats.lost_samples,
-                            }
-                        )
+                        verdicts: dict[str, int] = {}
+                        for h in list(result.hits):
+                            verdicts[h.verdict] = verdicts.get(h.verdict, 0) + 1
+                        current = writer.stats.files[-1] if writer.stats.files else None
+                        status({
+                            "seconds": now - t0, "samples": result.samples, "rate": result.samples / (now - t0),
+                            "hits": len(result.hits), "lost": driver.stats.lost_samples, "verdicts": verdicts,
+                            "levels": dict(zip(channels, levels.tolist(), strict=True)),
+                            "ranges": {c: ranges.get(c) for c in channels},
+                            "crc_errors": driver.stats.frames_bad, "reconnects": driver.stats.reconnects,
+                            "writer_overruns": writer.stats.overrun_samples,
+                            "file_bytes": Path(current).stat().st_size if current and Path(current).exists() else 0,
+                        })  # fmt: skip
+                        levels[:] = 0
                         last_status = now
                     if stop.is_set() or (cfg.duration is not None and result.samples >= cfg.duration * fs):
                         break

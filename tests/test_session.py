@@ -108,3 +108,29 @@ def test_sigkill_is_recoverable_losing_at_most_about_a_second(tmp_path):
     assert p.returncode == 3, p.stderr
     d = LogReader(rec).read_stream("dev0")
     assert d.gaps == [] and len(d.index) >= seen - 1.2 * 16384  # the status line came before the kill
+
+
+def test_live_status_renders_levels_against_range_and_plain_lines():
+    from io import StringIO
+
+    from rich.console import Console
+
+    from daq.live_status import plain_line, status_table
+
+    st = {
+        "seconds": 3.0,
+        "samples": 49152,
+        "rate": 16384.0,
+        "hits": 2,
+        "lost": 0,
+        "verdicts": {"overload": 2},
+        "levels": {"hammer": 500.0, "a09": 2.0},
+        "ranges": {"hammer": 2224.0, "a09": 2.0},
+        "file_bytes": 2_000_000,
+    }
+    buf = StringIO()
+    Console(file=buf, width=100, force_terminal=False).print(status_table("s", st))
+    text = buf.getvalue()
+    assert "a09" in text and "100 %" in text and "22 %" in text and "overload: 2" in text
+    line = plain_line(st)
+    assert "49152 samples" in line and "hits 2 (overload 2)" in line and "file 2.0 MB" in line

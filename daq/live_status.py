@@ -1,0 +1,57 @@
+"""Live status of a recording session: a rich table on a terminal, one plain line a second otherwise."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+
+def plain_line(st: dict) -> str:
+    v = ", ".join(f"{k} {n}" for k, n in sorted(st.get("verdicts", {}).items())) or "none"
+    return (
+        f"{st['seconds']:6.1f} s  {st['samples']} samples  {st['rate']:.0f} S/s  hits {st['hits']} ({v})  "
+        f"lost {st['lost']}  crc {st.get('crc_errors', 0)}  reconnects {st.get('reconnects', 0)}  "
+        f"file {st.get('file_bytes', 0) / 1e6:.1f} MB"
+    )
+
+
+def status_table(title: str, st: dict) -> Table:
+    t = Table(title=f"{title} — {st['seconds']:.0f} s, {st['rate']:.0f} S/s, file {st.get('file_bytes', 0) / 1e6:.1f} MB")
+    t.add_column("channel")
+    t.add_column("peak (last s)", justify="right")
+    t.add_column("of range", justify="right")
+    for ch, lvl in st.get("levels", {}).items():
+        rng = st.get("ranges", {}).get(ch)
+        frac = f"{100 * lvl / rng:.0f} %" if rng else "—"
+        style = "bold red" if rng and lvl >= 0.999 * rng else ("yellow" if rng and lvl >= 0.8 * rng else "")
+        t.add_row(ch, f"{lvl:.4g}", frac, style=style)
+    v = ", ".join(f"{k}: {n}" for k, n in sorted(st.get("verdicts", {}).items())) or "none"
+    t.caption = (
+        f"hits {st['hits']} ({v}) · lost samples {st['lost']} · CRC/frame errors {st.get('crc_errors', 0)} · "
+        f"reconnects {st.get('reconnects', 0)} · writer overruns {st.get('writer_overruns', 0)}"
+    )
+    return t
+
+
+class LiveStatus:
+    def __init__(self, console: Console, title: str) -> None:
+        self.console = console
+        self.title = title
+        self.live: Live | None = None
+
+    def __enter__(self) -> LiveStatus:
+        if self.console.is_terminal:
+            self.live = Live(console=self.console, refresh_per_second=2, transient=False)
+            self.live.start()
+        return self
+
+    def update(self, st: dict) -> None:
+        if self.live is not None:
+            self.live.update(status_table(self.title, st))
+        else:
+            self.console.print(plain_line(st), markup=False)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.live is not None:
+            self.live.stop()

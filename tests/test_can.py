@@ -20,6 +20,7 @@ from drivers.can.driver import DEFAULT_DBC, CanConfig, CanDriver, budget_frames_
 from drivers.can.sim_node import CanSimNode
 from drivers.sim.device import HitSchedule, SimulatedDevice
 from drivers.sim.faults import Faults
+from drivers.sim.faults import merge_ranges as merged
 
 FUZZ_EXAMPLES = int(os.environ.get("GVT_FUZZ_EXAMPLES", 10000))
 _bus_names = (f"gvt-test-{i}" for i in itertools.count())
@@ -28,16 +29,6 @@ _bus_names = (f"gvt-test-{i}" for i in itertools.count())
 @pytest.fixture(scope="module")
 def device(rigs):
     return SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0, 800.0]), duration=12.0, block_size=256, seed=1)
-
-
-def merged(ranges):
-    out: list[list[int]] = []
-    for a, b in sorted(ranges):
-        if out and a <= out[-1][1]:
-            out[-1][1] = max(out[-1][1], b)
-        else:
-            out.append([a, b])
-    return [tuple(r) for r in out]
 
 
 def run_link(device, message: str, seconds: float, faults: Faults | None = None, **cfg):

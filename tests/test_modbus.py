@@ -16,6 +16,7 @@ from drivers.modbus.register_map import Register, RegisterMap, load_register_map
 from drivers.modbus.sim_server import ModbusSimServer
 from drivers.sim.device import HitSchedule, SimulatedDevice
 from drivers.sim.faults import Faults
+from drivers.sim.faults import merge_ranges as merged
 
 ROOT = Path(__file__).resolve().parents[1]
 MAP = ROOT / "configs" / "modbus" / "gvt_sim_device.toml"
@@ -63,16 +64,6 @@ def check_data(device, blocks, channels, map_: RegisterMap) -> None:
         ref = device.samples(b.first_index, b.end_index)[:, idx]
         err = np.abs(b.data - ref)
         assert (err <= scales / 2 + 1e-3).all(), f"block at {b.first_index}: error {err.max(0)} > half an int16 count"
-
-
-def merged(ranges):
-    out: list[list[int]] = []
-    for a, b in sorted(ranges):
-        if out and a <= out[-1][1]:
-            out[-1][1] = max(out[-1][1], b)
-        else:
-            out.append([a, b])
-    return [tuple(r) for r in out]
 
 
 # --- register map -----------------------------------------------------------------------------

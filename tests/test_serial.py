@@ -23,18 +23,9 @@ from drivers.serial.protocol import (
     frame_length,
 )
 from drivers.sim.faults import Faults
+from drivers.sim.faults import merge_ranges as merge
 
 FUZZ = int(os.environ.get("GVT_FUZZ_EXAMPLES", 5000))  # per fuzz test; two tests: >= 10k examples by default
-
-
-def merge(ranges):
-    out: list[list[int]] = []
-    for a, b in sorted(ranges):
-        if out and a <= out[-1][1]:
-            out[-1][1] = max(out[-1][1], b)
-        else:
-            out.append([a, b])
-    return [tuple(r) for r in out]
 
 
 @pytest.fixture(scope="module")

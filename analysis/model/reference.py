@@ -37,13 +37,15 @@ def _integrate(rhs, jac, y0, force: HalfSine, t_eval: FloatArray, method: str, r
     for a, b in _segments(force, duration):
         sel = (t_eval >= a) & ((t_eval < b) | (b == duration))
         kw = {"jac": jac} if jac is not None and method in ("Radau", "BDF", "LSODA") else {}
+        ts = t_eval[sel]
+        with_end = ts.size == 0 or ts[-1] != b  # one pass gives the samples and the state at the segment end
         sol = scipy.integrate.solve_ivp(
-            rhs, (a, b), y, method=method, t_eval=t_eval[sel], rtol=rtol, atol=atol, dense_output=False, **kw
+            rhs, (a, b), y, method=method, t_eval=np.append(ts, b) if with_end else ts, rtol=rtol, atol=atol, **kw
         )
         if not sol.success:
             raise RuntimeError(f"solve_ivp ({method}) failed on [{a}, {b}]: {sol.message}")
-        out[sel] = sol.y.T
-        y = scipy.integrate.solve_ivp(rhs, (a, b), y, method=method, t_eval=[b], rtol=rtol, atol=atol, **kw).y[:, -1]
+        out[sel] = (sol.y[:, :-1] if with_end else sol.y).T
+        y = sol.y[:, -1]
     return out
 
 

@@ -12,6 +12,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+def merge_ranges(ranges) -> list[tuple[int, int]]:
+    """Sorted, overlapping or touching ``[start, end)`` ranges merged into disjoint ones."""
+    out: list[list[int]] = []
+    for a, b in sorted(ranges):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
 @dataclass
 class Faults:
     byte_corruption_rate: float = 0.0  # serial: probability per byte of flipping a random bit
@@ -34,10 +45,4 @@ class Faults:
 
     def injected_samples(self) -> int:
         with self._lock:
-            merged: list[list[int]] = []
-            for a, b in sorted(self.injected):
-                if merged and a <= merged[-1][1]:
-                    merged[-1][1] = max(merged[-1][1], b)
-                else:
-                    merged.append([a, b])
-            return sum(b - a for a, b in merged)
+            return sum(b - a for a, b in merge_ranges(self.injected))

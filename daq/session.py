@@ -1,27 +1,44 @@
-"""The recording session: driver → log writer (the sacred path) and → subscribers (hit gate, analysis, viewer).
+"""The recording session: driver(s) → log writer (the sacred path) and → subscribers (hit gate, analysis, viewer).
 
-The driver's blocks go to the MCAP writer first (never blocked by anyone; its own overrun accounting)
-and then to the in-process fan-out, whose subscribers drop their own input when they fall behind.
-Driver events (gaps, CRC errors, reconnects, overruns) are written to ``/daq/events``; every hit record
-and verdict to ``/daq/hits``; channels that clip on every hit to ``/daq/events`` as ``suspect_channel``.
-SIGTERM or Ctrl-C stop the session cleanly and finalise the file; a dying driver is reported and logged.
+Each device has its own reading thread: its blocks go to the MCAP writer first (never blocked by anyone;
+its own overrun accounting), as the device's own stream on its own sample clock, and then to the
+in-process fan-out, whose subscribers drop their own input when they fall behind. Driver events (gaps,
+CRC errors, reconnects, overruns) are written to ``/daq/events``; every hit record and verdict to
+``/daq/hits``; channels that clip on every hit to ``/daq/events`` as ``suspect_channel``.
+
+With several devices (``[[devices]]``), the hit gate reads the streams through a
+:class:`~daq.timeline.StreamAligner` that puts them on the reference device's sample index (hammer from
+one stream, responses from the others); the clock-offset estimate goes to ``/daq/timeline`` when fixed
+and once per ``timeline.report_s``, and the final one to the ``gvtlink.timeline`` metadata record.
+SIGTERM or Ctrl-C stop the session cleanly and finalise the file; a dying driver stops the session and
+is reported and logged. The main thread only waits, watches ``stop`` and renders the status.
 """
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from analysis.model.rig import Rig
-from daq.config.session import SessionConfig
+from daq.config.loader import ConfigError
+from daq.config.session import DeviceSpec, SessionConfig, TimelineSpec
 from daq.fanout import FanOut
 from daq.hits import HitDetector, HitRecord, TriggerSettings
 from daq.log.writer import ChannelInfo, LogWriter
 from daq.sim_session import channel_infos
+from daq.timeline import StreamAligner
 from drivers.base import Driver, DriverError, make_driver
+
+TIMELINE_TOPIC = "/daq/timeline"
+META_TIMELINE = "gvtlink.timeline"
 
 
 @dataclass
@@ -37,26 +54,44 @@ class SessionResult:
     writer_overrun_samples: int = 0
     seconds: float = 0.0
     files: list[str] = field(default_factory=list)
+    streams: dict[str, int] = field(default_factory=dict)  # samples recorded per device stream
+    stream_gaps: dict[str, list[tuple[int, int]]] = field(default_factory=dict)
+    reference: str = ""  # the stream whose index the hit records use
+    timeline: dict[str, dict] = field(default_factory=dict)  # final offset estimate per other stream
+    aligner_dropped: dict[str, int] = field(default_factory=dict)  # samples the hit gate never saw, per stream
 
 
-def _start_simulation(cfg: SessionConfig, rig: Rig):
-    """Start the simulated device for the session's driver; returns (server, driver config overrides)."""
+def _simulated_rig(rig: Rig, ranges: dict[str, float]) -> Rig:
+    """The rig with sensor ranges overridden (e.g. a channel that clips on every hit)."""
+    if not ranges:
+        return rig
     import tomllib
 
     from analysis.model.rig import build_rig
     from daq.config.loader import validate
     from daq.config.rig import RigConfig
-    from drivers.sim.device import HitSchedule, SimulatedDevice
+
+    data = tomllib.loads(Path(rig.path).read_text())
+    for s in data.get("sensors", []):
+        if s["name"] in ranges:
+            s["range"] = ranges[s["name"]]
+    return build_rig(validate(RigConfig, data, rig.path), rig.path)
+
+
+def _start_simulation(cfg: SessionConfig, rig: Rig) -> tuple[Any, dict[str, tuple[Any, dict[str, Any]]]]:
+    """Start ONE simulated structure and a transport server for every simulated device of the session.
+
+    Returns (device, {device name: (server, driver config overrides)}). Several devices are
+    :class:`~drivers.sim.device.DelayedDeviceView` s of the one structure, each serving its own channels
+    with its clock started ``simulate.start_delay`` after the first's. Serial servers hold their clock
+    until :func:`run_session` has opened the drivers (``go()``)."""
+    from drivers.sim.device import DelayedDeviceView, HitSchedule, SimulatedDevice
     from drivers.sim.faults import Faults
 
-    sim = cfg.device.simulate
+    specs = [d for d in cfg.device_list if d.simulate is not None]
+    sim = specs[0].simulate
     assert sim is not None
-    if sim.ranges:
-        data = tomllib.loads(Path(rig.path).read_text())
-        for s in data.get("sensors", []):
-            if s["name"] in sim.ranges:
-                s["range"] = sim.ranges[s["name"]]
-        rig = build_rig(validate(RigConfig, data, rig.path), rig.path)
+    rig = _simulated_rig(rig, sim.ranges)
     times, forces = [], []
     for k, f in enumerate(sim.forces):
         t = sim.first + k * sim.period
@@ -65,66 +100,135 @@ def _start_simulation(cfg: SessionConfig, rig: Rig):
         if k in sim.double_hits:
             times.append(t + 0.004)
             forces.append(0.6 * f)
-    duration = (cfg.duration or 0) + 1.0
+    delay = max(d.simulate.start_delay for d in specs if d.simulate is not None)
+    duration = (cfg.duration or 0) + 1.0 + delay
     device = SimulatedDevice(rig, HitSchedule(tuple(times), tuple(forces)), duration=duration, seed=sim.seed)
-    faults = Faults(seed=sim.seed)
-    if cfg.device.driver == "serial":
-        from drivers.serial.sim_server import SerialSimServer
+    servers: dict[str, tuple[Any, dict[str, Any]]] = {}
+    for i, d in enumerate(specs):
+        s = d.simulate
+        assert s is not None
+        view = DelayedDeviceView(device, round(s.start_delay * device.fs)) if cfg.multi else device
+        names = d.channel_names()
+        if names is not None:
+            missing = [c for c in names if c not in device.channels]
+            if missing:
+                raise ConfigError(cfg.name, f"{d.name}.channels", f"the rig has no channel {missing[0]!r}")
+        faults = Faults(seed=s.seed + i)
+        if d.driver == "serial":
+            from drivers.serial.sim_server import SerialSimServer
 
-        server = SerialSimServer(device, faults, fmt=sim.format)
-        server.start(hold=True)  # the clock starts once the driver has the port open (run_session)
-        return server, device, {"port": server.path, "usb_cdc": True, "sample_format": sim.format}
-    from drivers.modbus.sim_server import ModbusSimServer
+            idx = None if names is None else [device.channels.index(c) for c in names]
+            server = SerialSimServer(view, faults, fmt=s.format, channels=idx)
+            server.start(hold=True)  # the clock starts once the driver has the port open (run_session)
+            over: dict[str, Any] = {"port": server.path, "usb_cdc": True, "sample_format": s.format}
+            if names is not None:
+                over["channels"] = names
+            servers[d.name] = (server, over)
+        else:
+            from drivers.modbus.sim_server import ModbusSimServer
 
-    chans = cfg.device.config.get("channels", ["hammer", "a01", "a02"])
-    server = ModbusSimServer(device, faults, chans)
-    server.start()
-    return server, device, {"port": server.port}
+            chans = names or d.config.get("channels", ["hammer", "a01", "a02"])
+            server = ModbusSimServer(view, faults, chans)
+            server.start()
+            servers[d.name] = (server, {"port": server.port})
+    return device, servers
 
 
-def run_session(
-    cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None, status: Callable[[dict], None] | None = None
-) -> SessionResult:
-    stop = stop or threading.Event()
-    result = SessionResult(path=out)
-    server = None
-    dconf = dict(cfg.device.config)
-    dconf.setdefault("stream", cfg.device.name)
-    infos: list[ChannelInfo] = channel_infos(rig)
-    if cfg.device.simulate is not None:
-        server, device, overrides = _start_simulation(cfg, rig)
+def _driver_config(d: DeviceSpec, rig: Rig, cfg: SessionConfig, device: Any, overrides: dict[str, Any] | None) -> dict:
+    dconf = dict(d.config)
+    dconf.setdefault("stream", d.name)
+    if overrides is not None:
         dconf.update(overrides)
         dconf.setdefault("sample_rate", device.fs)
-        if cfg.device.driver == "serial":
+        if d.driver == "serial":
             dconf.setdefault("channels", list(device.channels))
         dconf["expect_first_index"] = 0  # we started the device: loss before the first block counts
-    if cfg.device.driver == "sim":  # the in-process simulated device: it is the rig itself
+    if d.driver == "sim":  # the in-process simulated device: it is the rig itself
         dconf.setdefault("rig", rig.path)
         dconf.setdefault("sample_rate", rig.sample_rate)
         dconf.setdefault("channels", [p.name for p in [rig.hammer, *rig.sensors]])
         dconf.setdefault("duration", cfg.duration)
         dconf.setdefault("expect_first_index", 0)
+    return dconf
+
+
+@dataclass
+class _Reader:
+    """One device's reading thread and what it counted."""
+
+    name: str
+    driver: Driver
+    channels: tuple[str, ...]
+    levels: np.ndarray
+    samples: int = 0
+    error: str | None = None
+    thread: threading.Thread | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+def run_session(
+    cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None, status: Callable[[dict], None] | None = None
+) -> SessionResult:
+    """Record the session's device(s) into ``out`` until ``stop``, the duration, or a driver ends."""
+    stop = stop or threading.Event()
+    result = SessionResult(path=out)
+    specs = cfg.device_list
+    device, servers = _start_simulation(cfg, rig) if any(d.simulate is not None for d in specs) else (None, {})
+    try:
+        return _run(cfg, rig, out, stop, status, result, specs, device, servers)
+    finally:
+        for server, _ in servers.values():
+            server.stop()
+
+
+def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> SessionResult:
+    infos: list[ChannelInfo] = channel_infos(rig)
     by_name = {c.name: c for c in infos}
-    driver: Driver = make_driver(cfg.device.driver, dconf)
-    channels = tuple(driver.config.channels)
-    fs = float(driver.config.sample_rate)
+    readers: dict[str, _Reader] = {}
+    for d in specs:
+        over = servers[d.name][1] if d.name in servers else None
+        drv = make_driver(d.driver, _driver_config(d, rig, cfg, device, over))
+        chans = tuple(drv.config.channels)
+        readers[d.name] = _Reader(d.name, drv, chans, np.zeros(len(chans), np.float32))
+    rates = {n: float(r.driver.config.sample_rate) for n, r in readers.items()}
+    fs = next(iter(rates.values()))
+    if len(set(rates.values())) > 1:
+        shown = ", ".join(f"{n} {v:g} Hz" for n, v in rates.items())
+        raise ConfigError(cfg.name, "devices", f"the devices sample at different rates ({shown}); resampling is not supported")
+    ref = cfg.reference_device()
+    result.reference = ref
     ranges = {}
     for p in [rig.hammer, *rig.sensors]:
         if p.props.range is not None:
             ranges[p.name] = p.props.range
-    if cfg.device.simulate is not None:
-        ranges.update(cfg.device.simulate.ranges)
+    for d in specs:
+        if d.simulate is not None:
+            ranges.update(d.simulate.ranges)
+    aligner: StreamAligner | None = None
+    det_channels = readers[ref].channels
+    if cfg.multi:
+        tl = cfg.timeline or TimelineSpec()
+        aligner = StreamAligner(
+            {n: r.channels for n, r in readers.items()}, ref, fs, offsets=tl.offsets, settle_s=tl.settle_s,
+            window_s=tl.window_s, max_buffer_s=tl.max_buffer_s, report_s=tl.report_s,
+        )  # fmt: skip
+        det_channels = aligner.channels
     t = cfg.trigger
     detector = HitDetector(
         TriggerSettings(level=t.level, channel=t.channel, pre_trigger=t.pre_trigger, record_length=t.record_length,
                         hysteresis=t.hysteresis, force_range=t.force_range, driving_point=t.driving_point,
                         suspect_after=t.suspect_after),
-        channels, fs, ranges,
+        det_channels, fs, ranges,
     )  # fmt: skip
-    block_guess = {"serial": 64, "modbus": 39}.get(cfg.device.driver, getattr(driver.config, "block_size", 256))
-    queue_size = max(8, int(cfg.queue_seconds * fs / block_guess))
+    queue_size = 0
+    for d in specs:
+        drv = readers[d.name].driver
+        block_guess = {"serial": 64, "modbus": 39}.get(d.driver, getattr(drv.config, "block_size", 256))
+        queue_size += max(8, int(cfg.queue_seconds * fs / block_guess))
     fan = FanOut()
     sub = fan.subscribe("hits", maxsize=max(64, queue_size))
+    ev_lock = threading.Lock()
+    halt = threading.Event()  # the session ends: stop, duration reached, or a driver ended or died
     with LogWriter(
         out,
         queue_size=queue_size,
@@ -132,70 +236,124 @@ def run_session(
         rotate_seconds=cfg.rotate_seconds,
         session_metadata={"session": cfg.name, "rig": rig.name},
     ) as writer:
-        writer.add_stream(cfg.device.name, [by_name.get(c, ChannelInfo(c, "other", "")) for c in channels], fs, t0_ns=0)
+        for n, r in readers.items():
+            writer.add_stream(n, [by_name.get(c, ChannelInfo(c, "other", "")) for c in r.channels], fs, t0_ns=0)
         writer.add_metadata("gvtlink.config", {"session_toml": cfg.model_dump_json()})
         if Path(rig.path).exists():
             writer.add_attachment(f"rig/{Path(rig.path).name}", Path(rig.path).read_bytes(), "application/toml")
 
-        def hit_worker() -> None:
-            for blk in sub:
+        def write_events(r: _Reader) -> None:
+            for ev in r.driver.drain_events():
+                writer.write_event(ev.kind, **{k: v for k, v in ev.as_dict().items() if k != "kind"})
+                with ev_lock:
+                    result.events[ev.kind] = result.events.get(ev.kind, 0) + 1
+
+        def timeline_messages() -> None:
+            assert aligner is not None
+            for m in aligner.drain_messages():
+                writer.write_json(TIMELINE_TOPIC, m)
+                if m["kind"] == "moved":
+                    writer.write_event(
+                        "timeline_moved", stream=m["stream"],
+                        message=f"clock offset of {m['stream']} to {ref} moved by {m['moved_samples']:.1f} samples "
+                        f"(limit {m['limit_samples']:.1f}); the merged stream keeps {m['applied_samples']}",
+                    )  # fmt: skip
+
+        def hit_gate() -> None:
+            def run(blk) -> None:
                 for h in detector.feed(blk):
                     result.hits.append(h)
                     writer.write_hit(h.summary())
+
+            for blk in sub:
+                if aligner is None:
+                    run(blk)
+                    continue
+                for m in aligner.feed(blk):
+                    run(m)
+                timeline_messages()
+            if aligner is not None:
+                for m in aligner.finish():
+                    run(m)
+                timeline_messages()
             for h in detector.finish():
                 result.hits.append(h)
                 writer.write_hit(h.summary())
 
-        worker = threading.Thread(target=hit_worker, name="hit-gate", daemon=True)
+        timeout = 0.2 if cfg.duration else None
+        # a device may start later than the others (its own power-on, the simulated start_delay)
+        grace = None if timeout is None else timeout if not cfg.multi else 2.0 + max(
+            (d.simulate.start_delay for d in specs if d.simulate is not None), default=0.0
+        )  # fmt: skip
+        need = None if cfg.duration is None else cfg.duration * fs
+
+        def read(r: _Reader) -> None:
+            """The recording path: this device's blocks → log writer first, then the fan-out."""
+            stamp = aligner is not None
+            try:
+                it = r.driver.blocks(timeout=grace)
+                first = next(it, None)
+                if first is None:
+                    return
+                for blk in _chain(first, r.driver.blocks(timeout=timeout)):
+                    if stamp:
+                        blk.extra["t_host"] = time.monotonic()  # arrival: the clock-offset estimate's input
+                    writer.write_block(blk, wait=not r.driver.realtime)  # the recording path first
+                    fan.publish(blk)
+                    r.samples += blk.n_samples
+                    if status is not None:
+                        with r.lock:
+                            np.maximum(r.levels, np.max(np.abs(blk.data), axis=0), out=r.levels)
+                    write_events(r)
+                    if halt.is_set() or stop.is_set():
+                        break
+                    if need is not None and r.name == ref and r.samples >= need:
+                        break
+            except DriverError as exc:
+                r.error = str(exc)
+                writer.write_event("driver_error", stream=r.name, message=str(exc))
+            finally:
+                halt.set()  # one device ending (duration, silence, error) ends the session
+
+        worker = threading.Thread(target=hit_gate, name="hit-gate", daemon=True)
         worker.start()
         t0 = time.monotonic()
         last_status = t0
-        import numpy as np
-
-        levels = np.zeros(len(channels), np.float32)  # per-channel peak |value| since the last status
         try:
-            with driver:
-                if server is not None and hasattr(server, "go"):
-                    server.go()
-                for blk in driver.blocks(timeout=0.2 if cfg.duration else None):
-                    writer.write_block(blk, wait=not driver.realtime)  # the recording path first
-                    fan.publish(blk)
-                    result.samples += blk.n_samples
-                    if status is not None:
-                        np.maximum(levels, np.max(np.abs(blk.data), axis=0), out=levels)
-                    for ev in driver.drain_events():
-                        writer.write_event(ev.kind, **{k: v for k, v in ev.as_dict().items() if k != "kind"})
-                        result.events[ev.kind] = result.events.get(ev.kind, 0) + 1
+            with ExitStack() as stack:
+                try:
+                    for r in readers.values():
+                        stack.enter_context(r.driver)
+                except DriverError as exc:
+                    r.error = str(exc)
+                    writer.write_event("driver_error", stream=r.name, message=str(exc))
+                    halt.set()
+                if not halt.is_set():
+                    for server, _o in servers.values():  # views of one structure: any order keeps their offsets
+                        if hasattr(server, "go"):
+                            server.go()
+                    for r in readers.values():
+                        r.thread = threading.Thread(target=read, args=(r,), name=f"read:{r.name}", daemon=True)
+                        r.thread.start()
+                while not halt.wait(0.05):
+                    if stop.is_set():
+                        halt.set()
                     now = time.monotonic()
-                    if status and now - last_status >= 1.0:
-                        verdicts: dict[str, int] = {}
-                        for h in list(result.hits):
-                            verdicts[h.verdict] = verdicts.get(h.verdict, 0) + 1
-                        current = writer.stats.files[-1] if writer.stats.files else None
-                        status({
-                            "seconds": now - t0, "samples": result.samples, "rate": result.samples / (now - t0),
-                            "hits": len(result.hits), "lost": driver.stats.lost_samples, "verdicts": verdicts,
-                            "levels": dict(zip(channels, levels.tolist(), strict=True)),
-                            "ranges": {c: ranges.get(c) for c in channels},
-                            "crc_errors": driver.stats.frames_bad, "reconnects": driver.stats.reconnects,
-                            "writer_overruns": writer.stats.overrun_samples,
-                            "file_bytes": Path(current).stat().st_size if current and Path(current).exists() else 0,
-                        })  # fmt: skip
-                        levels[:] = 0
+                    if status is not None and now - last_status >= 1.0:
+                        status(_status(result, readers, writer, ranges, now - t0))
                         last_status = now
-                    if stop.is_set() or (cfg.duration is not None and result.samples >= cfg.duration * fs):
-                        break
-        except DriverError as exc:
-            result.driver_error = str(exc)
-            writer.write_event("driver_error", message=str(exc))
+                for r in readers.values():  # readers stop at their next block; a silent one when its driver closes
+                    if r.thread is not None:
+                        r.thread.join(timeout=1.0)
+            for r in readers.values():  # drivers closed
+                if r.thread is not None:
+                    r.thread.join(timeout=10)
         finally:
-            for ev in driver.drain_events():
-                writer.write_event(ev.kind, **{k: v for k, v in ev.as_dict().items() if k != "kind"})
-                result.events[ev.kind] = result.events.get(ev.kind, 0) + 1
+            halt.set()
+            for r in readers.values():
+                write_events(r)
             fan.close()
             worker.join(timeout=30)
-            if server is not None:
-                server.stop()
         result.suspects = detector.suspects()
         for c in result.suspects:
             writer.write_event("suspect_channel", message=f"channel {c} clipped on every one of {detector.health.hits} hits")
@@ -203,9 +361,54 @@ def run_session(
             writer.write_event(
                 "subscriber_overrun", count=sub.dropped_samples, message=f"hit gate fell behind by {sub.dropped_blocks} blocks"
             )
-        result.lost_samples = driver.stats.lost_samples
-        result.gaps = list(driver.stats.gaps)
+        errors = [r for r in readers.values() if r.error]
+        if errors:
+            result.driver_error = errors[0].error if not cfg.multi else "; ".join(f"{r.name}: {r.error}" for r in errors)
+        for n, r in readers.items():
+            result.streams[n] = r.samples
+            result.stream_gaps[n] = list(r.driver.stats.gaps)
+        result.samples = sum(result.streams.values())
+        result.lost_samples = sum(r.driver.stats.lost_samples for r in readers.values())
+        result.gaps = [g for gs in result.stream_gaps.values() for g in gs]
+        if aligner is not None:
+            result.timeline = aligner.current()
+            result.aligner_dropped = dict(aligner.dropped_samples)
+            fixed = {s: {**o.as_dict(), "applied_samples": o.offset_samples} for s, o in aligner.fixed_offsets.items()}
+            writer.add_metadata(
+                META_TIMELINE,
+                {
+                    "reference": ref, "sample_rate": repr(fs), "channels": json.dumps(list(aligner.channels)),
+                    "fixed": json.dumps(fixed), "final": json.dumps(result.timeline),
+                    "dropped_samples": json.dumps(result.aligner_dropped),
+                },
+            )  # fmt: skip
         result.seconds = time.monotonic() - t0
     result.writer_overrun_samples = writer.stats.overrun_samples
     result.files = list(writer.stats.files)
     return result
+
+
+def _chain(first, rest):
+    yield first
+    yield from rest
+
+
+def _status(result: SessionResult, readers: dict[str, _Reader], writer: LogWriter, ranges: dict, seconds: float) -> dict:
+    verdicts: dict[str, int] = {}
+    for h in list(result.hits):
+        verdicts[h.verdict] = verdicts.get(h.verdict, 0) + 1
+    levels: dict[str, float] = {}
+    for r in readers.values():
+        with r.lock:
+            levels.update(zip(r.channels, r.levels.tolist(), strict=True))
+            r.levels[:] = 0
+    samples = sum(r.samples for r in readers.values())
+    current = writer.stats.files[-1] if writer.stats.files else None
+    stats = [r.driver.stats for r in readers.values()]
+    return {
+        "seconds": seconds, "samples": samples, "rate": samples / seconds, "hits": len(result.hits),
+        "lost": sum(s.lost_samples for s in stats), "verdicts": verdicts, "levels": levels,
+        "ranges": {c: ranges.get(c) for c in levels}, "crc_errors": sum(s.frames_bad for s in stats),
+        "reconnects": sum(s.reconnects for s in stats), "writer_overruns": writer.stats.overrun_samples,
+        "file_bytes": Path(current).stat().st_size if current and Path(current).exists() else 0,
+    }  # fmt: skip

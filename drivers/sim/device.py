@@ -102,3 +102,68 @@ class SimulatedDevice:
         """Monotonic time at which block k is complete."""
         assert self._t0 is not None
         return self._t0 + (k + 1) * self.block_size / self.fs
+
+
+class DelayedDeviceView:
+    """A second DAQ device looking at the same simulated structure, its clock started later.
+
+    Why: the seed's Ch. 6 test had the hammer on one acquisition system and the accelerometers on
+    another, with independent sample clocks. Two :class:`SimulatedDevice` objects would simulate two
+    structures; a view shares one. The view's sample ``k`` is the base device's sample
+    ``k + delay_samples``, and its clock is bound to the base's: its sample 0 exists exactly
+    ``delay_samples / fs`` after the base's sample 0. So the true offset between two views is known to
+    the sample (the oracle of the two-device tests), and every transport server works on a view
+    unchanged (same interface as SimulatedDevice: fs, channels, channel_models, adc, samples(),
+    start_clock(), samples_available(), ``_t0`` ...).
+    """
+
+    def __init__(self, device: SimulatedDevice, delay_samples: int) -> None:
+        if delay_samples < 0:
+            raise ValueError("delay_samples must be >= 0 (a view starts at or after its base device)")
+        self.base = device
+        self.delay_samples = int(delay_samples)
+        self.rig = device.rig
+        self.fs = device.fs
+        self.block_size = device.block_size
+        self.schedule = device.schedule
+        self.seed = device.seed
+        self.channel_models = device.channel_models
+        self.channels = device.channels
+        self.units = device.units
+        self.adc = device.adc
+        self._t0: float | None = None
+
+    @property
+    def n_channels(self) -> int:
+        return self.base.n_channels
+
+    @property
+    def delay_s(self) -> float:
+        return self.delay_samples / self.fs
+
+    def samples(self, start: int, stop: int) -> np.ndarray:
+        return self.base.samples(start + self.delay_samples, stop + self.delay_samples)
+
+    def block(self, k: int) -> np.ndarray:
+        return self.samples(k * self.block_size, (k + 1) * self.block_size)
+
+    def start_clock(self, t0: float | None = None) -> None:
+        """Switch this device on. Its sample 0 is ``delay_s`` after the base's sample 0; the base clock is
+        started (at ``t0`` or now) if it is not running yet, and never restarted: several views of one
+        base may be started in any order and keep their exact relative offset."""
+        if self.base._t0 is None:
+            self.base.start_clock(t0)
+        assert self.base._t0 is not None
+        self._t0 = self.base._t0 + self.delay_samples / self.fs
+
+    def samples_available(self, now: float | None = None) -> int:
+        if self._t0 is None:
+            raise RuntimeError("start_clock() first")
+        return max(0, self.base.samples_available(now) - self.delay_samples)
+
+    def blocks_available(self, now: float | None = None) -> int:
+        return self.samples_available(now) // self.block_size
+
+    def time_of_block(self, k: int) -> float:
+        assert self._t0 is not None
+        return self._t0 + (k + 1) * self.block_size / self.fs

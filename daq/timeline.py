@@ -11,10 +11,12 @@ nearly constant, so the lower envelope of ``x`` is the device's clock offset (th
 of NTP, Mills, RFC 5905 §10). We keep one point per ``window_s`` of device time — the window's
 minimum — in a bounded deque; once the points span ``drift_min_span_s`` a least-squares line through
 them, refitted without the points far above it, gives the device clock's rate error against the host
-(drift, ppm). The offset is the lowest detrended point; the uncertainty is the spread (standard
-deviation) of the detrended window minima. The relative offset of a stream to the reference is the
-difference of the two offsets: valid when both links have the same minimum latency (same transport),
-which the estimate cannot check — an asymmetric link biases it by the latency difference.
+(drift, ppm). The offset is the lowest detrended point among the last ``recent_windows`` (NTP's
+minimum filter over a short recent history, so a clock step is followed within ~1 s instead of being
+hidden by an older minimum); the uncertainty is the spread (standard deviation) of those points.
+The relative offset of a stream to the reference is the difference of the two offsets: valid when both
+links have the same minimum latency (same transport), which the estimate cannot check — an asymmetric
+link biases it by the latency difference.
 
 :class:`StreamAligner` — merges the blocks of several streams into blocks on the reference stream's
 sample index. Stream ``s``'s sample ``i`` is reference sample ``i + offset_samples[s]``. It buffers until
@@ -91,10 +93,13 @@ class _Track:
 class ClockOffsetEstimator:
     """Per-stream lower envelope of ``t_arrival − end_index / fs`` (see the module docstring)."""
 
-    def __init__(self, window_s: float = 0.1, max_windows: int = 3000, drift_min_span_s: float = 10.0) -> None:
-        if window_s <= 0 or max_windows < 2 or drift_min_span_s <= 0:
-            raise ValueError("window_s and drift_min_span_s must be > 0, max_windows >= 2")
+    def __init__(
+        self, window_s: float = 0.1, max_windows: int = 3000, drift_min_span_s: float = 10.0, recent_windows: int = 10
+    ) -> None:
+        if window_s <= 0 or max_windows < 2 or drift_min_span_s <= 0 or recent_windows < 2:
+            raise ValueError("window_s and drift_min_span_s must be > 0, max_windows and recent_windows >= 2")
         self.window_s = float(window_s)
+        self.recent_windows = int(recent_windows)
         self.max_windows = int(max_windows)
         self.drift_min_span_s = float(drift_min_span_s)
         self._tracks: dict[str, _Track] = {}
@@ -154,8 +159,8 @@ class ClockOffsetEstimator:
                     break
                 keep = new
             slope = float(np.polyfit(t[keep], x[keep], 1)[0])
-        d = x - slope * (t - t_last)  # detrended to the newest point
-        unc = float(np.std(d[keep])) if keep.sum() >= 2 else math.nan
+        d = (x - slope * (t - t_last))[-self.recent_windows :]  # detrended to the newest point; recent ones
+        unc = float(np.std(d)) if d.size >= 2 else math.nan
         est = ClockEstimate(float(d.min()), t_last, slope * 1e6, unc, int(t.size), span)
         tr.cache = est
         return est

@@ -74,12 +74,19 @@ def _normalise(poms: FloatArray) -> FloatArray:
     return poms / peak
 
 
-def pod(X: FloatArray) -> tuple[FloatArray, FloatArray]:
+def pod(X: FloatArray, method: Literal["eig", "svd"] = "eig") -> tuple[FloatArray, FloatArray]:
     """POMs (n_dof, n_dof) and POVs (n_dof,) of snapshots ``X`` (N_t, n_dof), descending POV.
 
     Columns are normalised to max|ψ| = 1 with the largest entry positive (the SVD sign is arbitrary; the
     RQ does not depend on it, plots and MAC do). POVs are ``s²/N_t``, the eigenvalues of the 1/N_t
     covariance (eq. 2.12). Also accepts a batch (k, N_t, n_dof) → (k, n_dof, n_dof), (k, n_dof).
+
+    ``method="eig"`` (default) takes the eigenvectors of the covariance, as the seed computes them
+    ("eigenvectors of XXᵀ", L251): 0.06–0.14 ms per 14-channel window against 0.2–40 ms for a batched
+    SVD, whose LAPACK path is erratic for some window lengths (38 ms per 819×14 window measured with
+    OpenBLAS under load). It squares the condition number, so POMs whose POV is below ~1e-12 of the
+    largest are numerically arbitrary (they are noise in any measured record). ``method="svd"`` is
+    eq. 2.13 on the centred snapshots, accurate down to ~1e-16 of the largest singular value.
     """
     X = np.asarray(X, dtype=float)
     if X.ndim not in (2, 3):
@@ -88,12 +95,18 @@ def pod(X: FloatArray) -> tuple[FloatArray, FloatArray]:
     if n_t < 2:
         raise ValueError("need at least 2 snapshots")
     Xc = X - X.mean(axis=-2, keepdims=True)
+    if method == "eig":
+        C = np.swapaxes(Xc, -1, -2) @ Xc / n_t  # eq. 2.12
+        lam, vec = np.linalg.eigh(C)  # ascending
+        povs = np.maximum(lam[..., ::-1], 0.0)
+        return _normalise(vec[..., ::-1]), povs
+    if method != "svd":
+        raise ValueError("method must be 'eig' or 'svd'")
     # full_matrices only when there are fewer snapshots than DOFs, so that n_dof POMs always come back.
     _, s, vt = np.linalg.svd(Xc, full_matrices=n_t < n_dof)
     povs = np.zeros((*X.shape[:-2], n_dof))
     povs[..., : s.shape[-1]] = s**2 / n_t
-    poms = _normalise(np.swapaxes(vt, -1, -2))
-    return poms, povs
+    return _normalise(np.swapaxes(vt, -1, -2)), povs
 
 
 def rq_hz(poms: FloatArray, M: FloatArray, K: FloatArray) -> FloatArray:
@@ -188,6 +201,7 @@ class PodRqSettings:
     smooth: bool = False
     keep_partial: bool = False
     poly_powers: tuple[int, ...] = (3, 4, 5, 6)
+    pod_method: Literal["eig", "svd"] = "eig"
 
 
 @dataclass(frozen=True)
@@ -227,7 +241,7 @@ def windowed_pod_rq(
 
     ``fe_shapes`` (n_dof, n_fe): linear mode shapes at the same DOFs, for ``order="mac"`` and the MAC
     outputs. ``x`` (n_dof,): distance of each DOF from the clamp, needed when ``smooth``. Windows of
-    equal length go through one batched SVD.
+    equal length go through one batched eigensolve (or SVD).
     """
     disp = np.asarray(disp, dtype=float)
     if disp.ndim != 2:
@@ -250,7 +264,7 @@ def windowed_pod_rq(
     for length in np.unique(lengths):
         sel = np.flatnonzero(lengths == length)
         idx = b[sel, 0][:, None] + np.arange(length)[None, :]
-        poms_all[sel], povs_all[sel] = pod(disp[idx])
+        poms_all[sel], povs_all[sel] = pod(disp[idx], s.pod_method)
     if s.smooth:
         assert x is not None
         poms_all = smooth_poms(poms_all, x, s.poly_powers)

@@ -170,6 +170,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=RESULTS / "eval_detection.json")
     args = ap.parse_args(argv)
     detectors: dict[str, Detector] = dict(load_detector(s) for s in args.detector)
+    if not detectors:  # default: the seed's literal detector (the baseline) and gvtlink's, both paths
+        from analysis.evaluation.detectors import DETECTORS
+
+        detectors = dict(DETECTORS)
     if args.self_check:
         detectors["truth (self-check)"] = truth_detector
     out = run(detectors, window_s=args.window, cache_dir=None if args.no_cache else DEFAULT_CACHE_DIR)

@@ -1,0 +1,312 @@
+"""The streaming analysis operator: sample blocks in, per-window results and IR events out.
+
+One object serves ``gvt record`` (a fan-out subscriber), ``gvt replay`` and ``gvt analyze`` (the log's
+blocks, at full speed): streaming is the batch kernels applied to windows as they complete
+(architecture.md), so live and replay give the same numbers when they see the same blocks. Two lanes
+run on every block, both causal with state carried across blocks:
+
+* **seed lane** (analysis/preprocess.py, analysis/pod.py; seed §4.3): acceleration → displacement
+  (causal Butterworth high-passes, the seed's 18/10 Hz by default), windowed POD + RQ on the base grid
+  (the RQ curves and the RQ-FEP) and on the shifted/stretched grids of analysis/rq_spikes.py (spikes
+  that survive a change of window phase); the seed's literal spike rule on the base grid is kept as
+  the named baseline (``seed_spike`` in each window result).
+* **modal lane** (analysis/modal_filter.py, analysis/exchange.py): the modal filter onto the rig's
+  Guyan modes, windowed modal energies and frequencies, energy-exchange IR events with their m:n,
+  evidence scores and confidence.
+
+Results go to a sink ``emit(topic, obj)``: ``/analysis/rq`` and ``/analysis/modal`` per window,
+``/analysis/events`` per IR event, ``/analysis/rq_spikes`` per window-robust spike interval,
+``/analysis/warnings`` for the seed's assumptions that do not hold. A gap in the stream restarts both
+lanes at the first sample after it (filters and windows cannot bridge missing data); the restart is
+emitted as a warning.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, ModalWindower, WindowFeatures, with_rq_score
+from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
+from analysis.pod import rq_hz
+from analysis.preprocess import CausalPreprocessor, PreprocessSettings
+from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
+from daq.blocks import SampleBlock
+
+Emit = Callable[[str, dict], None]
+
+
+@dataclass(frozen=True)
+class AnalysisSettings:
+    #: RQ base grid and exchange windows; None: 0.45 / f1 of the rig's linear model — just under half a
+    #: period of NNM1 at its lowest (L1371, method-detection §1.6), which gives the seed's 0.0216 s for
+    #: beam_ch4_exp (f1 = 20.81 Hz)
+    window_s: float | None = None
+    n_keep: int = 4  # POMs kept per window (NNMs of interest)
+    n_modes: int = 4  # linear modes in the modal filter
+    preprocess: PreprocessSettings = field(default_factory=lambda: PreprocessSettings(mode="causal"))
+    modal_filter: ModalFilterSettings = field(default_factory=ModalFilterSettings)
+    exchange: ExchangeSettings = field(default_factory=ExchangeSettings)
+    spikes: RobustSpikeSettings = field(default_factory=RobustSpikeSettings)
+    input_level_n: float = 10.0  # hammer force above which a sample counts as input
+    input_jump: float = 3.0  # without a hammer channel: a window whose modal energy jumps this much is input
+    seed_lane: bool = True
+
+    def __post_init__(self) -> None:
+        if (self.window_s is not None and self.window_s <= 0) or self.n_keep < 1 or self.n_modes < 1:
+            raise ValueError("analysis: window_s > 0, n_keep >= 1 and n_modes >= 1 required")
+
+
+@dataclass
+class RigModel:
+    """What the operator needs of the rig: sensor names in model order, Guyan M and K at their DOFs."""
+
+    sensors: tuple[str, ...]
+    hammer: str | None
+    M: np.ndarray
+    K: np.ndarray
+    damping: tuple[float, ...] | None = None
+    x: np.ndarray | None = None
+
+    @classmethod
+    def from_rig(cls, rig) -> RigModel:
+        masters = rig.master_dofs()
+        if len(masters) != len(rig.sensors):
+            raise ValueError("the rig has two sensors on one DOF: the RQ needs one sensor per model DOF (assumption 7, L65)")
+        order = sorted(range(len(rig.sensors)), key=lambda i: masters.index(rig.sensors[i].dof))
+        g = rig.guyan([rig.sensors[i].dof for i in order])
+        z = rig.config.damping
+        zeta = (*z.zeta, *([z.zeta_rest] * 8)) if z is not None else None
+        return cls(
+            sensors=tuple(rig.sensors[i].name for i in order), hammer=rig.hammer.name, M=g.M, K=g.K, damping=zeta,
+            x=np.array([rig.sensors[i].x_model or 0.0 for i in order]),
+        )  # fmt: skip
+
+
+@dataclass
+class OperatorStats:
+    blocks: int = 0
+    samples: int = 0
+    rq_windows: int = 0
+    modal_windows: int = 0
+    events: int = 0
+    restarts: int = 0
+    latencies_s: list[float] = field(default_factory=list)  # per base-grid window: block arrival → result
+
+
+#: POMs carrying less than this fraction of a window's variance are not NNM estimates (numerical noise
+#: directions of noise-free data); they are never among the kept POMs.
+MIN_POV_FRACTION = 1e-12
+
+
+def window_rq(X: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int) -> tuple[np.ndarray, np.ndarray]:
+    """POD + RQ of a stack of windows ``X`` (k, N_t, n_dof): the ``n_keep`` lowest RQ frequencies and their
+    POV fractions, (k, n_keep) each.
+
+    The POMs are the eigenvectors of the 1/N_t covariance (eq. 2.12 — the seed's own formulation; the
+    SVD of eq. 2.13 gives the same vectors, analysis.pod.pod): one batched ``eigh`` of (k, n, n) matrices
+    is ~20× cheaper than batched SVDs of (k, N_t, n), which is what makes the window-robust grids
+    affordable near-live (tests/test_operator.py checks both agree). Sorted by RQ frequency (Ch4 L1251).
+    """
+    Xc = X - X.mean(axis=1, keepdims=True)
+    C = np.matmul(np.swapaxes(Xc, 1, 2), Xc) / X.shape[1]
+    lam, V = np.linalg.eigh(C)
+    lam = np.maximum(lam, 0.0)
+    frac = lam / np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
+    f = rq_hz(V, M, K)
+    f = np.where(frac >= MIN_POV_FRACTION, f, np.inf)
+    order = np.argsort(f, axis=1, kind="stable")[:, :n_keep]
+    return np.take_along_axis(f, order, axis=1), np.take_along_axis(frac, order, axis=1)
+
+
+class _Grid:
+    def __init__(self, offset: int, length: int, first: int, rule: CausalSpikeRule) -> None:
+        self.offset, self.length = offset, length
+        self.next = first + offset
+        self.rule = rule
+        self.flagged: list[tuple[float, float]] = []
+
+
+class AnalysisOperator:
+    """Feed :class:`SampleBlock` s of one stream in index order; results go to ``emit``."""
+
+    def __init__(
+        self, model: RigModel, channels: tuple[str, ...], sample_rate: float, settings: AnalysisSettings | None = None,
+        emit: Emit | None = None,
+    ) -> None:  # fmt: skip
+        self.s = settings or AnalysisSettings()
+        self.model = model
+        self.fs = float(sample_rate)
+        missing = [c for c in model.sensors if c not in channels]
+        if missing:
+            raise ValueError(f"the stream lacks the rig's sensor channels {missing}")
+        self._acc_cols = [channels.index(c) for c in model.sensors]
+        self._ham_col = channels.index(model.hammer) if model.hammer in channels else None
+        self.basis: ModalBasis = modal_basis(model.M, model.K, min(self.s.n_modes, len(model.sensors)))
+        self.window_s = self.s.window_s if self.s.window_s is not None else 0.45 / float(self.basis.freqs_hz[0])
+        self.n_keep = min(self.s.n_keep, len(model.sensors))
+        self.emit = emit or (lambda topic, obj: None)
+        self.stats = OperatorStats()
+        self.events: list[IREvent] = []
+        self._base_len = max(2, round(self.window_s * self.fs))
+        self._warned: set[str] = set()
+        self._check_assumptions()
+        self._next_index: int | None = None
+
+    # --- public -------------------------------------------------------------------------------
+    def feed(self, block: SampleBlock) -> None:
+        t_arrival = time.perf_counter()
+        if self._next_index is None or block.first_index != self._next_index:
+            if self._next_index is not None:
+                self._finish_lanes()
+                self.stats.restarts += 1
+                self._warn("gap", f"data gap before sample {block.first_index}: analysis restarted after it", restart=True)
+            self._start(block.first_index)
+        self._next_index = block.end_index
+        self.stats.blocks += 1
+        self.stats.samples += block.n_samples
+        acc = block.data[:, self._acc_cols].astype(np.float64)
+        inp = None
+        if self._ham_col is not None:
+            inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
+        q, qd = self._tracker.feed(acc)
+        for w in self._windower.feed(q, qd, inp):
+            self._modal_window(w)
+        if self.s.seed_lane:
+            _, disp = self._pre.feed(acc)
+            self._seed_windows(disp, t_arrival)
+
+    def finish(self) -> list[IREvent]:
+        """End of stream: close open events, report robust spikes; returns every event of the run."""
+        if self._next_index is not None:
+            self._finish_lanes()
+        return self.events
+
+    # --- lanes --------------------------------------------------------------------------------
+    def _start(self, first: int) -> None:
+        fs, s = self.fs, self.s
+        self._tracker = ModalStateTracker(self.basis, fs, s.modal_filter)
+        ex = s.exchange if s.exchange.window_s == self.window_s else replace(s.exchange, window_s=self.window_s)
+        self._ex_settings = ex
+        self._windower = ModalWindower(self.basis, fs, round(ex.window_s * fs), max(1, round(ex.hop * fs)), first)
+        self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes)
+        self._prev_total: float | None = None
+        self._pre = CausalPreprocessor(fs, len(self._acc_cols), s.preprocess)
+        self._disp = np.zeros((0, len(self._acc_cols)))
+        self._disp_start = first  # stream index of self._disp[0]
+        self._disp_end = first
+        self._grids = [
+            _Grid(round(o * self._base_len), max(2, round(L * self._base_len)), first, CausalSpikeRule(s.spikes))
+            for L in s.spikes.lengths
+            for o in s.spikes.offsets
+        ]
+        self._base = self._grids[0]  # offset 0, length 1: the seed's grid (RQ curves, RQ-FEP)
+        self._seed_rule = CausalSpikeRule(RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,)))
+
+    def _finish_lanes(self) -> None:
+        if self.s.seed_lane:
+            _, disp = self._pre.flush()
+            self._seed_windows(disp, time.perf_counter())
+        for ev in self._detector.finish():
+            self._event(ev)
+        self._report_spikes()
+
+    def _modal_window(self, w: WindowFeatures) -> None:
+        total = float(w.energy.sum())
+        if self._ham_col is None and self._prev_total is not None and total > self.s.input_jump * self._prev_total:
+            w = WindowFeatures(w.index, w.start, w.stop, w.t_start_s, w.t_end_s, w.energy, w.freq_hz, True)
+        self._prev_total = total
+        self.stats.modal_windows += 1
+        self.emit("/analysis/modal", {
+            "index": w.index, "start": w.start, "stop": w.stop, "t_start_s": w.t_start_s, "t_end_s": w.t_end_s,
+            "modal_energy_J": w.energy.tolist(), "modal_freq_hz": w.freq_hz.tolist(), "input": w.input_active,
+        })  # fmt: skip
+        if w.input_active:
+            self._report_spikes()
+        for ev in self._detector.feed(w):
+            self._event(ev)
+
+    def _event(self, ev: IREvent) -> None:
+        lo, hi = ev.start_s - self.window_s, ev.end_s + self.window_s
+        votes = [any(t1 >= lo and t0 <= hi for t0, t1 in g.flagged) for g in self._grids] if self.s.seed_lane else []
+        ev = with_rq_score(ev, float(np.mean(votes)) if votes else 0.0, self._ex_settings.weights)
+        self.events.append(ev)
+        self.stats.events += 1
+        self.emit("/analysis/events", {"id": len(self.events) - 1, **ev.as_dict()})
+
+    def _seed_windows(self, disp: np.ndarray, t_arrival: float) -> None:
+        if disp.shape[0] == 0:
+            return
+        self._disp = np.concatenate([self._disp, disp]) if self._disp.size else disp
+        self._disp_end += disp.shape[0]
+        ready: list[tuple[_Grid, int]] = []
+        for g in self._grids:
+            while g.next + g.length <= self._disp_end:
+                ready.append((g, g.next))
+                g.next += g.length
+        by_len: dict[int, list[int]] = {}
+        for i, (g, _) in enumerate(ready):
+            by_len.setdefault(g.length, []).append(i)
+        freqs_all: list[np.ndarray | None] = [None] * len(ready)
+        povs_all: list[np.ndarray | None] = [None] * len(ready)
+        for length, idx in by_len.items():
+            X = np.stack([self._disp[start - self._disp_start : start - self._disp_start + length] for _, start in
+                          (ready[i] for i in idx)])  # fmt: skip
+            f, pv = window_rq(X, self.model.M, self.model.K, self.n_keep)
+            for j, i in enumerate(idx):
+                freqs_all[i], povs_all[i] = f[j], pv[j]
+        flags = [False] * len(ready)
+        for g in self._grids:  # the spike rules see each grid's windows in order, vectorised per feed
+            idx = [i for i, (gg, _) in enumerate(ready) if gg is g]
+            if idx:
+                for i, flag in zip(idx, g.rule.feed_many(np.array([freqs_all[i] for i in idx])), strict=True):
+                    flags[i] = bool(flag)
+        base_idx = [i for i, (g, _) in enumerate(ready) if g is self._base]
+        seed = dict(zip(base_idx, self._seed_rule.feed_many(np.array([freqs_all[i] for i in base_idx])), strict=True)) \
+            if base_idx else {}
+        for i, (g, start) in enumerate(ready):
+            t0, t1 = start / self.fs, (start + g.length) / self.fs
+            if flags[i]:
+                g.flagged.append((t0, t1))
+            if g is self._base:
+                self.stats.rq_windows += 1
+                self.emit("/analysis/rq", {
+                    "start": start, "stop": start + g.length, "t_start_s": t0, "t_end_s": t1,
+                    "rq_hz": freqs_all[i].tolist(), "pov_fraction": povs_all[i].tolist(), "seed_spike": bool(seed[i]),
+                })  # fmt: skip
+                self.stats.latencies_s.append(time.perf_counter() - t_arrival)
+                if len(self.stats.latencies_s) > 100_000:
+                    del self.stats.latencies_s[:50_000]
+        keep_from = min(g.next for g in self._grids)
+        drop = keep_from - self._disp_start
+        if drop > 0:
+            self._disp = self._disp[drop:]
+            self._disp_start = keep_from
+
+    def _report_spikes(self) -> None:
+        if not self.s.seed_lane or not any(g.flagged for g in self._grids):
+            return
+        for t0, t1, frac in robust_spike_intervals([g.flagged for g in self._grids], self.s.spikes.min_fraction,
+                                                   0.25 * self.window_s):  # fmt: skip
+            self.emit("/analysis/rq_spikes", {"start_s": t0, "end_s": t1, "agreement": frac})
+        for g in self._grids:
+            g.flagged.clear()
+
+    def _check_assumptions(self) -> None:
+        n_sens = len(self.model.sensors)
+        if n_sens < 2 * self.n_keep:
+            self._warn("sensors", f"{n_sens} sensors for {self.n_keep} NNMs of interest: the seed asks for at least twice "
+                                  "as many sensors as modes (assumption 3, L61)")  # fmt: skip
+        f1 = float(self.basis.freqs_hz[0])
+        if self.window_s < 0.5 / (1.5 * f1):
+            self._warn("window", f"window {self.window_s:g} s is shorter than half a period of NNM1 even 50 % above "
+                                 f"its linear {f1:.1f} Hz (L1371)")  # fmt: skip
+
+    def _warn(self, key: str, message: str, restart: bool = False) -> None:
+        if key in self._warned and not restart:
+            return
+        self._warned.add(key)
+        self.emit("/analysis/warnings", {"kind": key, "message": message})

@@ -1,0 +1,141 @@
+"""``gvt analyze LOG``: the near-live analysis kernels run in batch over a session log.
+
+The log's blocks go through the same :class:`~analysis.operator.AnalysisOperator` a live session runs
+(architecture.md: streaming is batch applied to windows as they complete), so ``gvt analyze`` of a
+session's log reproduces what the session computed live. Consecutive blocks are coalesced into chunks
+of up to ``chunk_s`` seconds before they are fed (the operator's results do not depend on the block
+split, up to rounding), which is what makes replay analysis fast. The rig comes from ``--rig`` or from
+the log's own ``rig/*.toml`` attachment.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.model.rig import Rig
+from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
+from daq.blocks import BlockStatus, SampleBlock
+from daq.log.reader import LogReader, LogReadError
+from daq.replay import iter_log_blocks
+
+
+class AnalyzeError(Exception):
+    """A log that cannot be analysed as asked (one line for the user)."""
+
+
+@dataclass
+class AnalysisRun:
+    stream: str
+    rig: str
+    seconds_of_data: float = 0.0
+    wall_seconds: float = 0.0
+    results: dict[str, list[dict]] = field(default_factory=dict)
+
+    @property
+    def events(self) -> list[dict]:
+        return self.results.get("/analysis/events", [])
+
+    @property
+    def speed(self) -> float:
+        return self.seconds_of_data / self.wall_seconds if self.wall_seconds > 0 else float("inf")
+
+
+def rig_from_log(reader: LogReader) -> Rig:
+    from daq.rigs import open_rig
+
+    rigs = {name: data for name, (_media, data) in reader.attachments().items() if name.startswith("rig/")}
+    if not rigs:
+        raise AnalyzeError(f"{reader.path}: the log carries no rig attachment; give the rig with --rig NAME_OR_TOML")
+    name, data = sorted(rigs.items())[0]
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / Path(name).name
+        p.write_bytes(data)
+        return open_rig(p)
+
+
+def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:
+    streams = reader.streams()
+    if stream is not None:
+        if stream not in streams:
+            raise AnalyzeError(f"{reader.path}: no stream {stream!r}; streams: {sorted(streams)}")
+        return stream
+    for name, info in sorted(streams.items()):
+        if all(c in info.channels for c in model.sensors):
+            return name
+    raise AnalyzeError(
+        f"{reader.path}: no stream holds all the rig's sensor channels {list(model.sensors)}; "
+        f"streams: { {n: list(i.channels) for n, i in streams.items()} }"
+    )
+
+
+def coalesce(blocks: Iterator[SampleBlock], max_samples: int) -> Iterator[SampleBlock]:
+    """Join consecutive, contiguous blocks of one stream into blocks of up to ``max_samples``."""
+    pending: list[SampleBlock] = []
+    n = 0
+    for b in blocks:
+        if pending and (b.first_index != pending[-1].end_index or n + b.n_samples > max_samples):
+            yield _join(pending)
+            pending, n = [], 0
+        pending.append(b)
+        n += b.n_samples
+    if pending:
+        yield _join(pending)
+
+
+def _join(parts: list[SampleBlock]) -> SampleBlock:
+    if len(parts) == 1:
+        return parts[0]
+    status = BlockStatus.OK
+    for p in parts:
+        status |= p.status
+    p0 = parts[0]
+    return SampleBlock(p0.stream, p0.first_index, p0.sample_rate, p0.channels, np.concatenate([p.data for p in parts]), status)
+
+
+def analyze_log(
+    path: str | Path,
+    rig: Rig | None = None,
+    stream: str | None = None,
+    settings: AnalysisSettings | None = None,
+    chunk_s: float = 0.5,
+    progress: Callable[[float], None] | None = None,
+) -> AnalysisRun:
+    try:
+        reader = LogReader(path)
+    except LogReadError as exc:
+        raise AnalyzeError(str(exc)) from None
+    rig = rig if rig is not None else rig_from_log(reader)
+    try:
+        model = RigModel.from_rig(rig)
+    except ValueError as exc:
+        raise AnalyzeError(f"rig {rig.name}: {exc}") from None
+    name = pick_stream(reader, model, stream)
+    info = reader.streams()[name]
+    run = AnalysisRun(stream=name, rig=rig.name)
+
+    def emit(topic: str, obj: dict) -> None:
+        run.results.setdefault(topic, []).append(obj)
+
+    try:
+        op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit)
+    except ValueError as exc:
+        raise AnalyzeError(f"{path}: {exc}") from None
+    blocks = (b for b in iter_log_blocks(reader) if b.stream == name)
+    t0 = time.perf_counter()
+    last = t0
+    for blk in coalesce(blocks, max(1, round(chunk_s * info.sample_rate))):
+        op.feed(blk)
+        run.seconds_of_data += blk.n_samples / info.sample_rate
+        now = time.perf_counter()
+        if progress is not None and now - last > 0.5:
+            progress(run.seconds_of_data)
+            last = now
+    op.finish()
+    run.wall_seconds = time.perf_counter() - t0
+    return run

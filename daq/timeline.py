@@ -13,7 +13,7 @@ minimum — in a bounded deque; once the points span ``drift_min_span_s`` a leas
 them, refitted without the points far above it, gives the device clock's rate error against the host
 (drift, ppm). The offset is the lowest detrended point among the last ``recent_windows`` (NTP's
 minimum filter over a short recent history, so a clock step is followed within ~1 s instead of being
-hidden by an older minimum); the uncertainty is the spread (standard deviation) of those points.
+hidden by an older minimum); the uncertainty is the robust spread (1.4826 × MAD) of those points.
 The relative offset of a stream to the reference is the difference of the two offsets: valid when both
 links have the same minimum latency (same transport), which the estimate cannot check — an asymmetric
 link biases it by the latency difference.
@@ -54,7 +54,7 @@ class ClockEstimate:
     x_s: float  # host time of device sample 0 at minimum latency, as seen at device time ``at_s``
     at_s: float  # device time (end_index / fs) of the newest envelope point
     drift_ppm: float  # device clock rate error against the host (0 until the points span drift_min_span_s)
-    uncertainty_s: float  # spread of the detrended window minima (nan with a single point)
+    uncertainty_s: float  # robust spread of the recent detrended window minima (nan with a single point)
     n_windows: int
     span_s: float  # device time covered by the points
 
@@ -160,7 +160,9 @@ class ClockOffsetEstimator:
                 keep = new
             slope = float(np.polyfit(t[keep], x[keep], 1)[0])
         d = (x - slope * (t - t_last))[-self.recent_windows :]  # detrended to the newest point; recent ones
-        unc = float(np.std(d)) if d.size >= 2 else math.nan
+        # robust spread (1.4826 × MAD = σ for normal scatter): one window in which every block was held up
+        # (a CPU stall) must not inflate it; the minimum itself already ignores that window
+        unc = float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size >= 2 else math.nan
         est = ClockEstimate(float(d.min()), t_last, slope * 1e6, unc, int(t.size), span)
         tr.cache = est
         return est

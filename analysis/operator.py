@@ -23,6 +23,7 @@ emitted as a warning.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -31,7 +32,6 @@ import numpy as np
 
 from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, ModalWindower, WindowFeatures, with_rq_score
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
-from analysis.pod import rq_hz
 from analysis.preprocess import CausalPreprocessor, PreprocessSettings
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
 from daq.blocks import SampleBlock
@@ -102,30 +102,59 @@ class OperatorStats:
 MIN_POV_FRACTION = 1e-12
 
 
-def window_rq(X: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int) -> tuple[np.ndarray, np.ndarray]:
-    """POD + RQ of a stack of windows ``X`` (k, N_t, n_dof): the ``n_keep`` lowest RQ frequencies and their
-    POV fractions, (k, n_keep) each.
+def rq_from_covariance(C: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int) -> tuple[np.ndarray, np.ndarray]:
+    """POD + RQ from window covariances ``C`` (k, n, n): the ``n_keep`` lowest RQ frequencies and their POV
+    fractions, (k, n_keep) each.
 
-    The POMs are the eigenvectors of the 1/N_t covariance (eq. 2.12 — the seed's own formulation; the
-    SVD of eq. 2.13 gives the same vectors, analysis.pod.pod): one batched ``eigh`` of (k, n, n) matrices
-    is ~20× cheaper than batched SVDs of (k, N_t, n), which is what makes the window-robust grids
-    affordable near-live (tests/test_operator.py checks both agree). Sorted by RQ frequency (Ch4 L1251).
+    The POMs are the eigenvectors of the 1/N_t covariance (eq. 2.12 — the seed's own formulation, L251;
+    the SVD of eq. 2.13 gives the same vectors, analysis.pod.pod): one batched ``eigh`` of (k, n, n) is
+    far cheaper than batched SVDs of (k, N_t, n). RQ of every POM (eqs. 2.17–2.18), sorted ascending
+    (Ch4 L1251); POMs with a POV fraction below ``MIN_POV_FRACTION`` are never kept.
     """
-    Xc = X - X.mean(axis=1, keepdims=True)
-    C = np.matmul(np.swapaxes(Xc, 1, 2), Xc) / X.shape[1]
     lam, V = np.linalg.eigh(C)
     lam = np.maximum(lam, 0.0)
     frac = lam / np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
-    f = rq_hz(V, M, K)
+    num = np.sum(V * np.matmul(K, V), axis=-2)
+    den = np.sum(V * np.matmul(M, V), axis=-2)
+    f = np.sqrt(np.maximum(num, 0.0) / den) / (2.0 * np.pi)
     f = np.where(frac >= MIN_POV_FRACTION, f, np.inf)
     order = np.argsort(f, axis=1, kind="stable")[:, :n_keep]
     return np.take_along_axis(f, order, axis=1), np.take_along_axis(frac, order, axis=1)
 
 
+def window_rq(X: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rq_from_covariance` of a stack of windows ``X`` (k, N_t, n_dof)."""
+    Xc = X - X.mean(axis=1, keepdims=True)
+    return rq_from_covariance(np.matmul(np.swapaxes(Xc, 1, 2), Xc) / X.shape[1], M, K, n_keep)
+
+
+def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: np.ndarray) -> np.ndarray:
+    """1/N covariances of ``buf[a:b]`` for every ``(a, b)`` in ``windows`` (indices into ``buf``).
+
+    The window grids overlap (4 offsets × 2 lengths), so each sample would enter ~10 products. Instead
+    the span is cut at ``edges`` — every window edge of every grid, a fixed lattice — and each segment's
+    ``Σx`` and ``Σxxᵀ`` are formed once; a window's covariance is ``(S2 − S1 S1ᵀ/N)/N`` with its
+    segments' sums added in order. Because the lattice does not depend on how the stream was cut into
+    blocks, live and replay add the same numbers in the same order (bit-identical results). The inputs are
+    high-passed displacements with ~zero mean, so the one-pass form loses nothing that matters
+    (tests/test_detection.py compares it with the two-pass SVD POD).
+    """
+    seg_s1 = np.add.reduceat(buf[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
+    seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
+    out = np.empty((len(windows), buf.shape[1], buf.shape[1]))
+    for k, (a, b) in enumerate(windows):
+        i, j = np.searchsorted(edges, a), np.searchsorted(edges, b)
+        s1 = seg_s1[i:j].sum(axis=0)
+        s2 = seg_s2[i:j].sum(axis=0)
+        out[k] = (s2 - np.outer(s1, s1) / (b - a)) / (b - a)
+    return out
+
+
 class _Grid:
     def __init__(self, offset: int, length: int, first: int, rule: CausalSpikeRule) -> None:
         self.offset, self.length = offset, length
-        self.next = first + offset
+        self.origin = first + offset  # the grid's lattice: origin + k·length
+        self.next = self.origin
         self.rule = rule
         self.flagged: list[tuple[float, float]] = []
 
@@ -247,17 +276,19 @@ class AnalysisOperator:
             while g.next + g.length <= self._disp_end:
                 ready.append((g, g.next))
                 g.next += g.length
-        by_len: dict[int, list[int]] = {}
-        for i, (g, _) in enumerate(ready):
-            by_len.setdefault(g.length, []).append(i)
-        freqs_all: list[np.ndarray | None] = [None] * len(ready)
-        povs_all: list[np.ndarray | None] = [None] * len(ready)
-        for length, idx in by_len.items():
-            X = np.stack([self._disp[start - self._disp_start : start - self._disp_start + length] for _, start in
-                          (ready[i] for i in idx)])  # fmt: skip
-            f, pv = window_rq(X, self.model.M, self.model.K, self.n_keep)
-            for j, i in enumerate(idx):
-                freqs_all[i], povs_all[i] = f[j], pv[j]
+        freqs_all: list[np.ndarray] = []
+        povs_all: list[np.ndarray] = []
+        if ready:
+            lo = min(st for _, st in ready)
+            hi = max(st + g.length for g, st in ready)
+            # every grid's edges in [lo, hi]: origin + k·length with k = ceil((lo − origin) / length) onwards
+            lattice = [np.arange(g.origin + max(0, -((g.origin - lo) // g.length)) * g.length, hi + 1, g.length)
+                       for g in self._grids]  # fmt: skip
+            edges = np.unique(np.concatenate(lattice)) - self._disp_start
+            spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
+            C = window_covariances(self._disp, spans, edges)
+            f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
+            freqs_all, povs_all = list(f), list(pv)
         flags = [False] * len(ready)
         for g in self._grids:  # the spike rules see each grid's windows in order, vectorised per feed
             idx = [i for i, (gg, _) in enumerate(ready) if gg is g]

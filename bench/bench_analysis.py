@@ -1,0 +1,125 @@
+"""Near-live analysis benchmark (issue 6). Prints a table, writes bench/results/bench_analysis.json.
+
+1. Per-window latency — from the arrival of the block holding a window's last sample to that window's
+   result (all detectors on: seed lane with 8 window grids, modal lane, exchange events) — p50 / p99,
+   at 14 ch x 16384 Hz (beam_ch4_exp; target p99 <= 50 ms) and 64 ch x 51.2 kHz (bench_64ch), device
+   blocks of 256 / 1024 samples fed at full speed (compute latency; a paced run adds only queueing).
+   A paced run (real time) at 14 ch reports the same percentiles with the blocks arriving as from a DAQ.
+2. Replay analysis as a multiple of real time at 14 ch x 16384 Hz (target >= 100x): ``gvt analyze``'s
+   path (blocks coalesced into 0.5 s chunks) and the live block size, on the same data in the same run.
+   Baseline in the same run: the literal batch seed method (zero-phase preprocessing + SVD POD per
+   window, analysis/pod.py) over the same data.
+
+    python bench/bench_analysis.py [--seconds 20] [--quick]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the gvt CLI does (D19); before numpy is imported
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from analysis.operator import AnalysisOperator, RigModel
+from daq.blocks import SampleBlock
+from daq.rigs import open_rig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _data(rig_name: str, seconds: float, period: float = 2.0, seed: int = 0) -> tuple[np.ndarray, tuple[str, ...], float]:
+    """Hits every ``period`` s at rising force, 1 % noise: (n, 1 + n_sensors) float32 with the hammer first."""
+    rig = open_rig(rig_name)
+    fs = rig.sample_rate
+    res = rig.simulator.run(rig.hammer_force(), period, fs)
+    one = np.column_stack([res.force[0], res.acceleration[0]])
+    n_rep = int(np.ceil(seconds / period))
+    rng = np.random.default_rng(seed)
+    scale = np.linspace(0.3, 1.0, n_rep)
+    data = np.concatenate([one * s for s in scale])[: int(seconds * fs)]
+    data[:, 1:] += rng.standard_normal(data[:, 1:].shape) * 0.01 * one[:, 1:].std(axis=0)
+    chans = (rig.hammer.name, *(s.name for s in rig.sensors))
+    return data.astype(np.float32), chans, fs
+
+
+def _run(model: RigModel, data: np.ndarray, chans, fs: float, block: int, paced: bool = False) -> dict:
+    op = AnalysisOperator(model, chans, fs)
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    for s in range(0, data.shape[0], block):
+        if paced:
+            due = t0 + (s + block) / fs
+            delay = due - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+        op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + block]))
+    op.finish()
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    lat = np.array(op.stats.latencies_s) * 1e3
+    secs = data.shape[0] / fs
+    return {
+        "block": block, "paced": paced, "data_s": secs, "wall_s": wall, "cpu_s": cpu, "x_real_time": secs / wall,
+        "cpu_per_data_s": cpu / secs, "windows": op.stats.rq_windows, "events": op.stats.events,
+        "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)),
+        "latency_ms_max": float(lat.max()),
+    }  # fmt: skip
+
+
+def _seed_batch(model: RigModel, data: np.ndarray, fs: float) -> dict:
+    from analysis.pod import PodRqSettings, windowed_pod_rq
+    from analysis.preprocess import PreprocessSettings, acc_to_disp
+
+    t0 = time.perf_counter()
+    _, disp = acc_to_disp(data[:, 1:].astype(np.float64), fs, PreprocessSettings())
+    r = windowed_pod_rq(disp, fs, model.M, model.K, PodRqSettings(window_s=0.0216, pod_method="svd"))
+    wall = time.perf_counter() - t0
+    return {"data_s": data.shape[0] / fs, "wall_s": wall, "x_real_time": data.shape[0] / fs / wall, "windows": r.n_windows}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--quick", action="store_true", help="6 s of data")
+    args = ap.parse_args()
+    secs = 6.0 if args.quick else args.seconds
+    rows = []
+    out: dict = {"benchmark": "bench_analysis", "python": platform.python_version(), "machine": platform.machine()}
+    d14, ch14, fs14 = _data("beam_ch4_exp", secs)
+    m14 = RigModel.from_rig(open_rig("beam_ch4_exp"))
+    _run(m14, d14[: int(fs14)], ch14, fs14, 256)  # warm-up (imports, caches)
+    for block in (256, 8192):
+        r = _run(m14, d14, ch14, fs14, block)
+        rows.append({"case": "14 ch x 16384 Hz", **r})
+    rows.append({"case": "14 ch x 16384 Hz", **_run(m14, d14[: int(min(secs, 10.0) * fs14)], ch14, fs14, 256, paced=True)})
+    d64, ch64, fs64 = _data("bench_64ch", min(secs, 6.0))
+    m64 = RigModel.from_rig(open_rig("bench_64ch"))
+    rows.append({"case": "64 ch x 51.2 kHz", **_run(m64, d64, ch64, fs64, 1024)})
+    seed = _seed_batch(m14, d14, fs14)
+    out["rows"] = rows
+    out["seed_batch_baseline_14ch"] = seed
+    hdr = f"{'case':18s} {'block':>6s} {'paced':>5s} {'data s':>7s} {'wall s':>7s} {'x RT':>7s} {'cpu/s':>6s} " \
+          f"{'win':>5s} {'p50 ms':>7s} {'p99 ms':>7s} {'max ms':>7s}"  # fmt: skip
+    print(hdr)
+    for r in rows:
+        print(f"{r['case']:18s} {r['block']:6d} {r['paced']!s:>5s} {r['data_s']:7.1f} {r['wall_s']:7.2f} {r['x_real_time']:7.1f} "
+              f"{r['cpu_per_data_s']:6.3f} {r['windows']:5d} {r['latency_ms_p50']:7.2f} {r['latency_ms_p99']:7.2f} "
+              f"{r['latency_ms_max']:7.2f}")  # fmt: skip
+    replay = next(r for r in rows if r["block"] == 8192)
+    print(f"seed method, literal batch (zero-phase + SVD POD, one grid): {seed['x_real_time']:.1f}x real time; "
+          f"gvtlink replay (8 grids + modal lane + events): {replay['x_real_time']:.1f}x "
+          f"({replay['x_real_time'] / seed['x_real_time']:.2f}x the literal batch)")  # fmt: skip
+    dest = ROOT / "bench" / "results" / "bench_analysis.json"
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(json.dumps(out, indent=2))
+    print(f"wrote {dest}")
+
+
+if __name__ == "__main__":
+    main()

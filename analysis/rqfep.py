@@ -1,0 +1,280 @@
+"""POD → Rayleigh quotient → RQ frequency–energy plot (RQ-FEP) kernels for the seed's computational sweep.
+
+Pure numpy: no I/O, no simulator. ``gvt sweep`` (``daq/sweep_cmd.py``) feeds them the per-run output
+covariances of :func:`analysis.model.sweep.sweep_moments`.
+
+* POD of a whole record per run (seed §4.2, L1251) is the eigendecomposition of the 1/n covariance of the
+  mean-removed displacements (eq. 2.12, L234): its eigenvectors are the left singular vectors of the
+  centred data matrix (eq. 2.13, L247–L251), its eigenvalues the POVs ``s_i² / N_t``.
+* Each POM is used on its own as a Rayleigh-quotient trial vector with the Guyan-reduced ``K`` and ``M``
+  (eqs. 2.17–2.18, L286–L294), and the POMs are re-sorted by that frequency, ascending (L1251).
+* Interactions are "non-smooth perturbations (spikes)" of the RQ curves against energy (L1253) that have a
+  partner on another curve (L1393); the m:n label comes from the ratio of the NNM2 and NNM1 frequencies
+  just outside the spike (L1298, L1313). The seed gives no numeric thresholds (method-detection.md
+  §1.10), so they are the named fields of :class:`SpikeSettings`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from analysis.model.beam import FloatArray
+
+# Ratios f2/f1 the labeller chooses from (the seed reports 4:1 and 3:1 in the computation, 5:2 in the
+# experiment, L1255, L1389; the analyst "knows the likely IR ratios", L67).
+DEFAULT_RATIOS: tuple[tuple[int, int], ...] = ((2, 1), (5, 2), (3, 1), (7, 2), (4, 1), (9, 2), (5, 1))
+
+
+def pod_from_covariance(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """POMs and POVs from 1/n covariance matrices, largest POV first.
+
+    ``cov`` is (runs, n, n) or (n, n). Returns ``poms`` (runs, n, n) whose *columns* are the POMs and
+    ``povs`` (runs, n), both ordered by POV descending as an SVD would (eq. 2.13). Rounding can make the
+    smallest eigenvalues slightly negative; they are clipped to 0 (a covariance is positive semidefinite).
+    """
+    c = np.asarray(cov, dtype=float)
+    if c.ndim == 2:
+        c = c[None]
+    if c.ndim != 3 or c.shape[1] != c.shape[2]:
+        raise ValueError(f"covariance must be (runs, n, n) or (n, n), got shape {np.shape(cov)}")
+    lam, vec = np.linalg.eigh(0.5 * (c + np.swapaxes(c, 1, 2)))
+    return vec[:, :, ::-1], np.maximum(lam[:, ::-1], 0.0)
+
+
+def rq_fep(poms: FloatArray, M: FloatArray, K: FloatArray, n_keep: int = 4) -> FloatArray:
+    """RQ frequencies (Hz) of every POM, sorted ascending, the lowest ``n_keep`` per run: (runs, n_keep).
+
+    ``f = sqrt(ψᵀKψ / ψᵀMψ) / 2π`` (eqs. 2.17–2.18) with the Guyan-reduced matrices at the output DOFs;
+    the POMs are orthonormal but not mass-orthogonal, so each is used independently (L290). All POMs are
+    candidates, and "POM j" is the j-th lowest frequency (L1251: "re-sort the POMs based on estimated
+    frequency"), which is the seed's Chapter 4 ordering.
+    """
+    p = np.asarray(poms, dtype=float)
+    if p.ndim == 2:
+        p = p[None]
+    n = p.shape[1]
+    if M.shape != (n, n) or K.shape != (n, n):
+        raise ValueError(f"M and K must be {n}x{n} (the POM length), got {M.shape} and {K.shape}")
+    if not 1 <= n_keep <= p.shape[2]:
+        raise ValueError(f"n_keep must lie in [1, {p.shape[2]}]")
+    num = np.einsum("bij,ik,bkj->bj", p, K, p)
+    den = np.einsum("bij,ik,bkj->bj", p, M, p)
+    f = np.sqrt(np.maximum(num, 0.0) / den) / (2.0 * np.pi)
+    return np.sort(f, axis=1)[:, :n_keep]
+
+
+@dataclass(frozen=True)
+class SpikeSettings:
+    """Thresholds of the spike/partner detector (the seed gives none: method-detection.md §1.10).
+
+    * ``window``: points in the running median that is each curve's smooth baseline (odd). It must be
+      more than twice the widest spike, or a spike "spread out over several points" (L1255) becomes its
+      own baseline.
+    * ``k_mad``: a point deviates when its relative residual exceeds ``k_mad`` robust standard deviations
+      (1.4826·MAD of the curve's relative residuals over the ``scale_window`` points around it; local,
+      because the sweep's strongly nonlinear band is noisy where the linear ends are smooth to 1e-5) …
+    * ``min_rel``: … and at least this fraction of the baseline, per curve (NNM1, NNM2). NNM2's floor is
+      ten times lower: on a spike the NNM1 POM turns into a deformed NNM2 shape and its RQ jumps by tens
+      of percent, while the NNM2 POM stays NNM2-like and its RQ dips by tenths of a percent (measured on
+      ``beam_ch4_sim``, docs/sweep.md) — the partner is small but, against its local noise, clear.
+    * ``partner_gap``: the NNM1 and NNM2 deviations must fall within this many points of each other —
+      the seed's partner criterion (L1393): a spike on one curve alone is not an interaction.
+    * ``converging``: additionally require the partners to move the two curves *toward* each other
+      (NNM1 up, NNM2 down), the signature of "similar POMs" on a spike (L1259): both POMs become the
+      deformed NNM2 shape, so their RQs approach each other. With it, an interaction must also close at
+      least ``min_closure`` of the baseline gap f2 − f1 at its strongest point.
+    * ``n_side``: off-spike points on each side whose median f2/f1 gives the ratios outside the spike.
+    * ``ratios``: the m:n labels to choose from (L67: the analyst knows the likely IR ratios).
+    """
+
+    window: int = 15
+    k_mad: float = 4.0
+    scale_window: int = 41
+    min_rel: tuple[float, float] = (0.02, 0.002)
+    partner_gap: int = 1
+    converging: bool = True
+    min_closure: float = 0.05
+    n_side: int = 2
+    guard: int = 1
+    merge_gap: int = 1
+    ratios: tuple[tuple[int, int], ...] = DEFAULT_RATIOS
+
+
+@dataclass(frozen=True)
+class SweepInteraction:
+    """One flagged NNM1–NNM2 interaction: a run of partnered spikes in the RQ-FEP.
+
+    ``ratio`` is the m:n label (f2/f1 ≈ m/n); ``ratio_left``/``ratio_right`` are the measured f2/f1 just
+    below and above the spike in energy, ``bracketed`` says whether the label lies between them (the
+    ratio passed through m:n across the spike, as the seed reads Fig. 4.5, L1298, L1313). ``score`` is
+    the largest fraction of the baseline gap f2 − f1 that the spike closes (1 = the two RQs meet).
+    """
+
+    i_lo: int
+    i_hi: int
+    i_peak: int
+    p_lo: float
+    p_hi: float
+    energy_lo: float
+    energy_hi: float
+    f1_hz: float
+    f2_hz: float
+    ratio: tuple[int, int]
+    ratio_left: float
+    ratio_right: float
+    bracketed: bool
+    n_points: int
+    score: float
+    kind: str = "partnered"
+
+    @property
+    def label(self) -> str:
+        return f"{self.ratio[0]}:{self.ratio[1]}"
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["ratio"] = self.label
+        return d
+
+
+def running_median(y: FloatArray, window: int) -> FloatArray:
+    """Centred running median, the window shrinking (still centred) at the ends."""
+    if window < 1 or window % 2 == 0:
+        raise ValueError("window must be a positive odd number")
+    y = np.asarray(y, dtype=float)
+    h = window // 2
+    out = np.empty_like(y)
+    n = y.size
+    for i in range(n):
+        r = min(h, i, n - 1 - i)
+        out[i] = np.median(y[i - r : i + r + 1])
+    return out
+
+
+def rolling_mad_sigma(r: FloatArray, window: int) -> FloatArray:
+    """1.4826·MAD of ``r`` in a centred window (the whole curve when ``window`` <= 0 or >= len(r))."""
+    n = r.size
+    if window <= 0 or window >= n:
+        return np.full(n, 1.4826 * np.median(np.abs(r - np.median(r))))
+    h = window // 2
+    out = np.empty(n)
+    for i in range(n):
+        lo = min(max(0, i - h), n - window)
+        seg = r[lo : lo + window]
+        out[i] = 1.4826 * np.median(np.abs(seg - np.median(seg)))
+    return out
+
+
+def deviations(f: FloatArray, settings: SpikeSettings, curve: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(baseline, relative residual, flagged-mask) of one RQ curve ordered by energy."""
+    base = running_median(f, settings.window)
+    rel = (f - base) / base
+    thresh = np.maximum(settings.k_mad * rolling_mad_sigma(rel, settings.scale_window), settings.min_rel[curve])
+    return base, rel, np.abs(rel) > thresh
+
+
+def nearest_ratio(
+    left: float, right: float, ratios: tuple[tuple[int, int], ...] = DEFAULT_RATIOS
+) -> tuple[tuple[int, int], bool]:
+    """The m:n label for a spike whose off-spike f2/f1 are ``left`` and ``right``.
+
+    A candidate between the two (the ratio swept through it across the spike, L1298, L1313) wins, an
+    m:1 one before an m:n one ("start with m:1 before m:n", L1296), then the one nearest the geometric
+    mean of ``left`` and ``right``. When nothing lies between, the candidate nearest the geometric mean.
+    Returns (m, n) and whether it was bracketed.
+    """
+    mid = float(np.sqrt(left * right))
+    lo, hi = min(left, right), max(left, right)
+    inside = [r for r in ratios if lo <= r[0] / r[1] <= hi]
+    pool = [r for r in inside if r[1] == 1] or inside or list(ratios)
+    best = min(pool, key=lambda r: abs(np.log(r[0] / r[1] / mid)))
+    return best, bool(inside)
+
+
+def flag_interactions(
+    energy: FloatArray,
+    freqs: FloatArray,
+    settings: SpikeSettings = SpikeSettings(),
+    amplitudes: FloatArray | None = None,
+) -> list[SweepInteraction]:
+    """Partnered spikes of the NNM1 and NNM2 RQ curves against energy (seed §4.2.2, L1253–L1259).
+
+    ``energy`` (runs,) and ``freqs`` (runs, ≥ 2; columns 0 and 1 are NNM1 and NNM2) are re-ordered by
+    energy (the RQ-FEP's axis, L1251). A point is an interaction candidate when NNM1 deviates from its
+    running-median baseline and NNM2 does too within ``partner_gap`` points (converging, by default);
+    adjacent candidates merge into one interaction (the seed's first spike spans several points, L1255).
+    ``amplitudes`` (the sweep's P, same order as ``energy``) only labels the result. Indices in the
+    result (``i_lo``, ``i_hi``, ``i_peak``: the point that closes the gap most) refer to the input order.
+    """
+    e = np.asarray(energy, dtype=float)
+    f = np.asarray(freqs, dtype=float)
+    if e.ndim != 1 or f.ndim != 2 or f.shape[0] != e.size or f.shape[1] < 2:
+        raise ValueError("energy must be (runs,) and freqs (runs, >= 2)")
+    n = e.size
+    p = np.full(n, np.nan) if amplitudes is None else np.asarray(amplitudes, dtype=float)
+    if n < settings.window:
+        return []
+    order = np.argsort(e, kind="stable")
+    e, f, p = e[order], f[order], p[order]
+    b1, r1, m1 = deviations(f[:, 0], settings, 0)
+    b2, r2, m2 = deviations(f[:, 1], settings, 1)
+    g = settings.partner_gap
+
+    def near(mask: np.ndarray, i: int, sign: float | None) -> bool:
+        lo, hi = max(0, i - g), min(n, i + g + 1)
+        seg = mask[lo:hi] if sign is None else mask[lo:hi] & (np.sign(r2[lo:hi] if mask is m2 else r1[lo:hi]) == sign)
+        return bool(seg.any())
+
+    cand = np.zeros(n, dtype=bool)
+    for i in range(n):
+        if m1[i] and near(m2, i, -np.sign(r1[i]) if settings.converging else None):
+            cand[i] = True
+        elif m2[i] and near(m1, i, -np.sign(r2[i]) if settings.converging else None):
+            cand[i] = True
+    if settings.converging:  # NNM1 up / NNM2 down: the RQs approach each other (similar POMs)
+        for i in np.flatnonzero(cand):
+            if not ((m1[i] and r1[i] > 0) or (m2[i] and r2[i] < 0)):
+                cand[i] = False
+    events: list[tuple[int, int]] = []
+    for i in np.flatnonzero(cand):
+        if events and i - events[-1][1] <= settings.merge_gap:
+            events[-1] = (events[-1][0], i)
+        else:
+            events.append((i, i))
+    off = ~(m1 | m2)
+    out = []
+    for lo, hi in events:
+        left = [j for j in range(lo - 1 - settings.guard, -1, -1) if off[j]][: settings.n_side]
+        right = [j for j in range(hi + 1 + settings.guard, n) if off[j]][: settings.n_side]
+        if not left or not right:
+            continue  # a spike at the edge of the sweep has no "outside" to read the ratio from
+        rl = float(np.median(f[left, 1] / f[left, 0]))
+        rr = float(np.median(f[right, 1] / f[right, 0]))
+        label, bracketed = nearest_ratio(rl, rr, settings.ratios)
+        gap = b2[lo : hi + 1] - b1[lo : hi + 1]
+        closed = ((f[lo : hi + 1, 0] - b1[lo : hi + 1]) - (f[lo : hi + 1, 1] - b2[lo : hi + 1])) / gap
+        k = lo + int(np.argmax(closed))
+        if settings.converging and closed.max() < settings.min_closure:
+            continue
+        out.append(
+            SweepInteraction(
+                i_lo=int(order[lo]),
+                i_hi=int(order[hi]),
+                i_peak=int(order[k]),
+                p_lo=float(np.nanmin(p[lo : hi + 1])) if np.isfinite(p[lo : hi + 1]).any() else float("nan"),
+                p_hi=float(np.nanmax(p[lo : hi + 1])) if np.isfinite(p[lo : hi + 1]).any() else float("nan"),
+                energy_lo=float(e[lo]),
+                energy_hi=float(e[hi]),
+                f1_hz=float(f[k, 0]),
+                f2_hz=float(f[k, 1]),
+                ratio=label,
+                ratio_left=rl,
+                ratio_right=rr,
+                bracketed=bracketed,
+                n_points=hi - lo + 1,
+                score=float(np.max(closed)),
+            )
+        )
+    return out

@@ -233,6 +233,9 @@ class AnalysisOperator:
             for o in s.spikes.offsets
         ]
         self._base = self._grids[0]  # offset 0, length 1: the seed's grid (RQ curves, RQ-FEP)
+        self._max_len = max(g.length for g in self._grids)
+        self._pending: list[IREvent] = []
+        self._spikes_until = first / fs
         self._seed_rule = CausalSpikeRule(RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,)))
 
     def _finish_lanes(self) -> None:
@@ -241,7 +244,7 @@ class AnalysisOperator:
             self._seed_windows(disp, time.perf_counter())
         for ev in self._detector.finish():
             self._event(ev)
-        self._report_spikes()
+        self._settle(float("inf"))
 
     def _modal_window(self, w: WindowFeatures) -> None:
         total = float(w.energy.sum())
@@ -253,18 +256,43 @@ class AnalysisOperator:
             "index": w.index, "start": w.start, "stop": w.stop, "t_start_s": w.t_start_s, "t_end_s": w.t_end_s,
             "modal_energy_J": w.energy.tolist(), "modal_freq_hz": w.freq_hz.tolist(), "input": w.input_active,
         })  # fmt: skip
-        if w.input_active:
-            self._report_spikes()
         for ev in self._detector.feed(w):
             self._event(ev)
 
     def _event(self, ev: IREvent) -> None:
-        lo, hi = ev.start_s - self.window_s, ev.end_s + self.window_s
-        votes = [any(t1 >= lo and t0 <= hi for t0, t1 in g.flagged) for g in self._grids] if self.s.seed_lane else []
-        ev = with_rq_score(ev, float(np.mean(votes)) if votes else 0.0, self._ex_settings.weights)
-        self.events.append(ev)
-        self.stats.events += 1
-        self.emit("/analysis/events", {"id": len(self.events) - 1, **ev.as_dict()})
+        """An event waits until every window grid has passed its end (+ one window), so its ``rq`` score
+        sees the same windows whatever the block split; without the seed lane it goes out at once."""
+        self._pending.append(ev)
+        if not self.s.seed_lane:
+            self._settle(float("inf"))
+
+    def _settle(self, until: float) -> None:
+        """Emit pending events and window-robust spike intervals that lie wholly before ``until`` (s):
+        every grid has computed all windows that overlap them."""
+        keep = []
+        for ev in self._pending:
+            lo, hi = ev.start_s - self.window_s, ev.end_s + self.window_s
+            if hi > until:
+                keep.append(ev)
+                continue
+            votes = [any(t1 >= lo and t0 <= hi for t0, t1 in g.flagged) for g in self._grids] if self.s.seed_lane else []
+            ev = with_rq_score(ev, float(np.mean(votes)) if votes else 0.0, self._ex_settings.weights)
+            self.events.append(ev)
+            self.stats.events += 1
+            self.emit("/analysis/events", {"id": len(self.events) - 1, **ev.as_dict()})
+        self._pending = keep
+        if not self.s.seed_lane:
+            return
+        res = 0.25 * self.window_s
+        for t0, t1, frac in robust_spike_intervals([g.flagged for g in self._grids], self.s.spikes.min_fraction, res):
+            if t1 < until - res and t0 >= self._spikes_until:
+                self.emit("/analysis/rq_spikes", {"start_s": t0, "end_s": t1, "agreement": frac})
+                self._spikes_until = t1 + res
+        # bounded memory: forget flagged windows that no pending event and no future interval can touch
+        horizon = min([until - 4 * self._max_len / self.fs, self._spikes_until - 4 * self._max_len / self.fs,
+                       *[ev.start_s - 2 * self.window_s for ev in self._pending]])  # fmt: skip
+        for g in self._grids:
+            g.flagged = [w for w in g.flagged if w[1] >= horizon]
 
     def _seed_windows(self, disp: np.ndarray, t_arrival: float) -> None:
         if disp.shape[0] == 0:
@@ -312,19 +340,11 @@ class AnalysisOperator:
                 if len(self.stats.latencies_s) > 100_000:
                     del self.stats.latencies_s[:50_000]
         keep_from = min(g.next for g in self._grids)
+        self._settle(keep_from / self.fs)  # every grid has computed all windows ending before this
         drop = keep_from - self._disp_start
         if drop > 0:
             self._disp = self._disp[drop:]
             self._disp_start = keep_from
-
-    def _report_spikes(self) -> None:
-        if not self.s.seed_lane or not any(g.flagged for g in self._grids):
-            return
-        for t0, t1, frac in robust_spike_intervals([g.flagged for g in self._grids], self.s.spikes.min_fraction,
-                                                   0.25 * self.window_s):  # fmt: skip
-            self.emit("/analysis/rq_spikes", {"start_s": t0, "end_s": t1, "agreement": frac})
-        for g in self._grids:
-            g.flagged.clear()
 
     def _check_assumptions(self) -> None:
         n_sens = len(self.model.sensors)

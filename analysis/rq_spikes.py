@@ -87,14 +87,16 @@ def robust_spike_intervals(
 ) -> list[tuple[float, float, float]]:
     """Merge per-grid flagged windows ``[(t0, t1), …]`` into intervals where ≥ ``min_fraction`` agree.
 
-    Returns ``(start, end, fraction)``: time is sampled every ``resolution_s`` and each grid counts once
+    Returns ``(start, end, fraction)``: time is sampled at multiples of ``resolution_s`` and each grid counts once
     at an instant if any of its flagged windows covers it.
     """
     if not flagged or not any(flagged):
         return []
     t_end = max(t1 for grid in flagged for _, t1 in grid)
     t_start = min(t0 for grid in flagged for t0, _ in grid)
-    ts = np.arange(t_start, t_end + resolution_s, resolution_s)
+    # a global lattice k·resolution (not anchored at the first flagged window), so that the same flags give
+    # the same intervals whichever subset of windows a call sees
+    ts = np.arange(np.ceil(t_start / resolution_s), np.floor(t_end / resolution_s) + 1) * resolution_s
     votes = np.zeros(ts.size)
     for grid in flagged:
         cover = np.zeros(ts.size, bool)

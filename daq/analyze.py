@@ -106,6 +106,7 @@ def analyze_log(
     chunk_s: float = 0.5,
     progress: Callable[[float], None] | None = None,
 ) -> AnalysisRun:
+    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second."""
     try:
         reader = LogReader(path)
     except LogReadError as exc:
@@ -126,15 +127,19 @@ def analyze_log(
         op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit)
     except ValueError as exc:
         raise AnalyzeError(f"{path}: {exc}") from None
-    blocks = (b for b in iter_log_blocks(reader) if b.stream == name)
+    # (the replay reader holds a stream's decoded blocks in memory anyway; a streaming reader is future work)
+    blocks = [b for b in iter_log_blocks(reader) if b.stream == name]
+    total = sum(b.n_samples for b in blocks) or 1
     t0 = time.perf_counter()
     last = t0
-    for blk in coalesce(blocks, max(1, round(chunk_s * info.sample_rate))):
+    done = 0
+    for blk in coalesce(iter(blocks), max(1, round(chunk_s * info.sample_rate))):
         op.feed(blk)
+        done += blk.n_samples
         run.seconds_of_data += blk.n_samples / info.sample_rate
         now = time.perf_counter()
         if progress is not None and now - last > 0.5:
-            progress(run.seconds_of_data)
+            progress(done / total)
             last = now
     op.finish()
     run.wall_seconds = time.perf_counter() - t0

@@ -59,6 +59,8 @@ class SessionResult:
     reference: str = ""  # the stream whose index the hit records use
     timeline: dict[str, dict] = field(default_factory=dict)  # final offset estimate per other stream
     aligner_dropped: dict[str, int] = field(default_factory=dict)  # samples the hit gate never saw, per stream
+    analysis_events: list[dict] = field(default_factory=list)  # IR events of the near-live analysis
+    analysis_dropped_samples: int = 0  # samples the analysis lane skipped because it fell behind
 
 
 def _simulated_rig(rig: Rig, ranges: dict[str, float]) -> Rig:
@@ -315,6 +317,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
             finally:
                 halt.set()  # one device ending (duration, silence, error) ends the session
 
+        lane = _analysis_lane(cfg, rig, fan, {n: r.channels for n, r in readers.items()}, fs, writer, block_guess)
         worker = threading.Thread(target=hit_gate, name="hit-gate", daemon=True)
         worker.start()
         t0 = time.monotonic()
@@ -354,6 +357,9 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
                 write_events(r)
             fan.close()
             worker.join(timeout=30)
+            if lane is not None:
+                result.analysis_events = [e.as_dict() for e in lane.join(timeout=60)]
+                result.analysis_dropped_samples = lane.sub.dropped_samples
         result.suspects = detector.suspects()
         for c in result.suspects:
             writer.write_event("suspect_channel", message=f"channel {c} clipped on every one of {detector.health.hits} hits")
@@ -386,6 +392,36 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
     result.writer_overrun_samples = writer.stats.overrun_samples
     result.files = list(writer.stats.files)
     return result
+
+
+def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, writer: LogWriter, block: int):
+    """Start the near-live analysis on the stream that carries the rig's sensors (None if off or absent)."""
+    spec = cfg.analysis
+    if not spec.enabled:
+        return None
+    from analysis.operator import AnalysisSettings, RigModel
+    from daq.analysis_lane import AnalysisLane, analysis_stream
+
+    try:
+        model = RigModel.from_rig(rig)
+    except ValueError as exc:
+        writer.write_event("analysis_error", message=f"analysis off: {exc}")
+        return None
+    name = analysis_stream(streams, model)
+    if name is None:
+        sensors = list(model.sensors)
+        writer.write_event("analysis_error", message=f"analysis off: no device records all the rig's sensors {sensors}")
+        return None
+
+    def sink(topic: str, obj: dict, log_time_ns: int | None) -> None:
+        if topic == "/daq/events":
+            writer.write_event(obj["kind"], **{k: v for k, v in obj.items() if k != "kind"})
+        else:
+            writer.write_json(topic, obj, log_time_ns=log_time_ns)
+
+    settings = AnalysisSettings(window_s=spec.window_s, n_keep=spec.n_keep, seed_lane=spec.seed_lane)
+    maxsize = max(64, int(spec.queue_seconds * fs / max(1, block)))
+    return AnalysisLane(fan, model, name, streams[name], fs, sink, settings, maxsize=maxsize).start()
 
 
 def _chain(first, rest):

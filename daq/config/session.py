@@ -78,6 +78,16 @@ class TriggerSpec(_Strict):
     suspect_after: Annotated[int, Field(ge=1)] = 3
 
 
+class AnalysisSpec(_Strict):
+    """The near-live analysis lane (analysis/operator.py); results go to the log's ``/analysis/...`` topics."""
+
+    enabled: bool = True
+    window_s: Positive | None = None  # None: 0.45 / f1 of the rig (the seed's 0.0216 s for beam_ch4_exp)
+    n_keep: Annotated[int, Field(ge=1)] = 4  # NNMs of interest (POMs kept per window)
+    seed_lane: bool = True  # POD/RQ curves and window-robust spikes (off: modal lane only)
+    queue_seconds: Positive = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
+
+
 class SessionConfig(_Strict):
     name: Annotated[str, Field(min_length=1)]
     rig: str  # rig TOML or shipped rig name: calibration, positions, model
@@ -90,6 +100,7 @@ class SessionConfig(_Strict):
     devices: list[DeviceSpec] | None = None
     timeline: TimelineSpec | None = None
     trigger: TriggerSpec
+    analysis: AnalysisSpec = AnalysisSpec()
 
     @model_validator(mode="before")
     @classmethod

@@ -1,0 +1,82 @@
+"""The near-live analysis inside a session, and ``gvt analyze`` of its log: live equals replay."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from daq.analyze import analyze_log
+from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
+from daq.log.reader import LogReader
+from daq.rigs import open_rig
+from daq.session import run_session
+
+
+@pytest.fixture(scope="module")
+def session_log(tmp_path_factory):
+    out = tmp_path_factory.mktemp("analysis") / "live.mcap"
+    cfg = SessionConfig(
+        name="live-analysis", rig="beam_ch4_exp", duration=3.2,
+        device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 256, "forces": [700.0, 1583.0],
+                                                "period": 1.6, "physics_seconds": 3.4, "seed": 3}),
+        trigger=TriggerSpec(level=20.0, record_length=0.3),
+    )  # fmt: skip
+    res = run_session(cfg, open_rig("beam_ch4_exp"), out)
+    assert res.lost_samples == 0 and res.analysis_dropped_samples == 0
+    return out, res
+
+
+@pytest.mark.slow
+def test_the_session_log_carries_the_live_analysis(session_log):
+    out, res = session_log
+    r = LogReader(out)
+    rq = r.json_messages("/analysis/rq")
+    modal = r.json_messages("/analysis/modal")
+    assert len(rq) >= 140 and len(modal) >= 2 * len(rq) - 4  # 0.0216 s windows; modal lane hops half a window
+    assert [e["kind"] for e in r.json_messages("/daq/events") if e["kind"].startswith("analysis")] == []
+    events = r.json_messages("/analysis/events")
+    assert [{k: v for k, v in e.items() if k != "id"} for e in events] == res.analysis_events
+    assert [e["id"] for e in events] == list(range(len(events)))
+    assert any(e["ratio"] in ("3:1", "5:2") and e["start_s"] > 1.8 for e in events)  # the strong hit exchanges
+
+
+@pytest.mark.slow
+def test_gvt_analyze_of_the_log_reproduces_the_live_results(session_log):
+    out, _ = session_log
+    r = LogReader(out)
+    live_rq = r.json_messages("/analysis/rq")
+    live_modal = r.json_messages("/analysis/modal")
+    live_events = r.json_messages("/analysis/events")
+    run = analyze_log(out)  # rig from the log's attachment, blocks coalesced to 0.5 s chunks
+    rq = run.results["/analysis/rq"]
+    assert [(w["start"], w["stop"]) for w in rq] == [(w["start"], w["stop"]) for w in live_rq]
+    a = np.array([w["rq_hz"] for w in rq])
+    b = np.array([w["rq_hz"] for w in live_rq])
+    finite = np.isfinite(a)
+    assert np.array_equal(finite, np.isfinite(b))
+    assert np.max(np.abs(a[finite] - b[finite]) / np.abs(b[finite])) <= 1e-9
+    ea = np.array([w["modal_energy_J"] for w in run.results["/analysis/modal"]])
+    eb = np.array([w["modal_energy_J"] for w in live_modal])
+    assert ea.shape == eb.shape and np.max(np.abs(ea - eb) / np.maximum(np.abs(eb), 1e-300)) <= 1e-9
+    assert len(run.events) == len(live_events) >= 1
+    for x, y in zip(run.events, live_events, strict=True):
+        assert x["ratio"] == y["ratio"] and x["start_s"] == y["start_s"] and x["end_s"] == y["end_s"]
+        assert abs(x["confidence"] - y["confidence"]) <= 1e-9
+
+
+@pytest.mark.slow
+def test_gvt_analyze_cli_prints_events_and_json(session_log):
+    out, _ = session_log
+    p = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--json"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    obj = json.loads(p.stdout)
+    assert obj["rig"] == "beam_ch4_exp" and obj["rq_windows"] >= 140 and len(obj["events"]) >= 1
+    p = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out)], capture_output=True, text=True)
+    assert p.returncode == 0 and "internal-resonance events" in p.stdout
+    bad = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--rig", "no_such_rig"],
+                         capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr

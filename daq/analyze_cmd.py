@@ -37,6 +37,21 @@ def print_json(console: Console, run: AnalysisRun, full: bool = False) -> None:
     console.print_json(json.dumps(obj))
 
 
+def events_table(events: list[dict], title: str = "internal-resonance events") -> Table:
+    """IR events (``IREvent.as_dict()`` or the log's ``/analysis/events``) as a table."""
+    table = Table(title=f"{title}: {len(events)}")
+    for col in ("#", "start [s]", "end [s]", "modes", "m:n", "f [Hz]", "gain", "gain/lock/exch/rq", "confidence"):
+        table.add_column(col)
+    for k, e in enumerate(events):
+        sc = e["scores"]
+        table.add_row(
+            str(e.get("id", k)), f"{e['start_s']:.3f}", f"{e['end_s']:.3f}", f"{e['modes'][0]}→{e['modes'][1]}", e["ratio"],
+            f"{e['f_give_hz']:.1f} / {e['f_recv_hz']:.1f}", f"{e['gain']:.1f}",
+            f"{sc['gain']:.2f}/{sc['lock']:.2f}/{sc['exchange']:.2f}/{sc['rq']:.2f}", f"{e['confidence']:.2f}",
+        )  # fmt: skip
+    return table
+
+
 def print_report(console: Console, run: AnalysisRun) -> None:
     s = summary(run)
     console.print(
@@ -47,14 +62,5 @@ def print_report(console: Console, run: AnalysisRun) -> None:
     )
     for w in s["warnings"]:
         console.print(f"warning: {w['message']}", markup=False)
-    table = Table(title=f"internal-resonance events: {len(run.events)}")
-    for col in ("#", "start [s]", "end [s]", "modes", "m:n", "f [Hz]", "gain", "gain/lock/exch/rq", "confidence"):
-        table.add_column(col)
-    for e in run.events:
-        sc = e["scores"]
-        table.add_row(
-            str(e["id"]), f"{e['start_s']:.3f}", f"{e['end_s']:.3f}", f"{e['modes'][0]}→{e['modes'][1]}", e["ratio"],
-            f"{e['f_give_hz']:.1f} / {e['f_recv_hz']:.1f}", f"{e['gain']:.1f}",
-            f"{sc['gain']:.2f}/{sc['lock']:.2f}/{sc['exchange']:.2f}/{sc['rq']:.2f}", f"{e['confidence']:.2f}",
-        )  # fmt: skip
+    table = events_table(run.events)
     console.print(table)

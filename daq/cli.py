@@ -204,8 +204,10 @@ def demo(
 def replay(
     log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
     speed: Annotated[float, typer.Option(min=0.0, help="1 = real time, 2 = twice as fast, 0 = full speed.")] = 0.0,
+    analysis: Annotated[bool, typer.Option(help="Run the near-live analysis on the replayed blocks.")] = True,
+    rig: Annotated[str | None, typer.Option(help="Rig for the analysis (default: the one attached to the log).")] = None,
 ) -> None:
-    """Feed a log through the live fan-out, keeping block boundaries and sample indices."""
+    """Feed a log through the live fan-out (block boundaries and sample indices kept), with the near-live analysis."""
     import threading
 
     from daq.fanout import END, FanOut
@@ -224,6 +226,7 @@ def replay(
         rep = Replayer(log, fan, speed=speed or None)
     except LogReadError as exc:
         fail(str(exc))
+    lane = _replay_lane(rep, fan, rig) if analysis else None
     t = threading.Thread(target=consume, daemon=True)
     t.start()
     try:
@@ -232,6 +235,14 @@ def replay(
         rep.stop()
         raise
     t.join()
+    if lane is not None:
+        from daq.analyze_cmd import events_table
+
+        lane_events = [e.as_dict() for e in lane.join()]
+        out.print(events_table(lane_events, f"internal-resonance events (analysis of {lane.stream})"))
+        if lane.sub.dropped_blocks:
+            out.print(f"analysis fell behind: skipped {lane.sub.dropped_samples} samples (restarted after each gap)",
+                      markup=False)  # fmt: skip
     health = "" if rep.reader.report.complete else f" (damaged log: {rep.reader.report.messages} messages salvaged)"
     for stream, n in stats.samples.items():
         gaps = stats.gaps.get(stream, [])
@@ -243,6 +254,27 @@ def replay(
         f"{counted['blocks']}, dropped {sub.dropped_blocks}{health}",
         markup=False,
     )
+
+
+def _replay_lane(rep, fan, rig_arg: str | None):
+    """The analysis lane for a replay (None, with a note, when the log cannot be analysed)."""
+    from analysis.operator import RigModel
+    from daq.analysis_lane import AnalysisLane, analysis_stream
+    from daq.analyze import AnalyzeError, rig_from_log
+
+    try:
+        r = _open(rig_arg) if rig_arg is not None else rig_from_log(rep.reader)
+        model = RigModel.from_rig(r)
+    except (AnalyzeError, ValueError) as exc:
+        err.print(f"gvt: note: no analysis: {exc}", markup=False, soft_wrap=True)
+        return None
+    streams = {n: tuple(i.channels) for n, i in rep.reader.streams().items()}
+    name = analysis_stream(streams, model)
+    if name is None:
+        err.print(f"gvt: note: no analysis: no stream holds the rig's sensors {list(model.sensors)}", markup=False)
+        return None
+    fs = rep.reader.streams()[name].sample_rate
+    return AnalysisLane(fan, model, name, streams[name], fs, lambda *_: None, maxsize=4096).start()
 
 
 @app.command()
@@ -326,6 +358,10 @@ def record(
         f"{res.writer_overrun_samples}; suspect channels: {', '.join(res.suspects) or 'none'}",
         markup=False,
     )
+    if cfg.analysis.enabled:
+        from daq.analyze_cmd import events_table
+
+        out.print(events_table(res.analysis_events, "internal-resonance events (near-live analysis)"))
     if res.driver_error:
         fail(f"the driver stopped: {res.driver_error}", code=1)
 

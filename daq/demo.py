@@ -96,9 +96,13 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap")
         e = "—" if h.input_energy_J is None else f"{h.input_energy_J:.3g}"
         table.add_row(str(h.hit), f"{h.t_s:.3f}", f"{h.peak_force_N:.0f}", e, h.verdict, "; ".join(h.reasons) or "ok")
     console.print(table)
+    from daq.analyze_cmd import events_table
+
+    console.print(events_table(res.analysis_events, "internal-resonance events flagged near-live"))
     lost = "nothing lost" if res.lost_samples == 0 else f"{res.lost_samples} samples lost (reported as gaps)"
     console.print(
         f"  {res.samples} samples x 15 channels recorded in {res.seconds:.1f} s, {lost}; suspect channels: "
         f"{', '.join(res.suspects) or 'none'}. Inspect it: gvt log info {out}  ·  replay: gvt replay {out}"
     )
-    return {"hits": [h.verdict for h in res.hits], "lost": res.lost_samples, "path": out}
+    console.print(f"  analyse it again (same kernels, batch): gvt analyze {out}")
+    return {"hits": [h.verdict for h in res.hits], "lost": res.lost_samples, "path": out, "events": res.analysis_events}

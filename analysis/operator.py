@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -70,6 +71,7 @@ class RigModel:
     K: np.ndarray
     damping: tuple[float, ...] | None = None
     x: np.ndarray | None = None
+    nonlinearity_measured: bool | None = None  # a sensor sits on every nonlinear spring's DOF (L69); None: no springs
 
     @classmethod
     def from_rig(cls, rig) -> RigModel:
@@ -83,6 +85,7 @@ class RigModel:
         return cls(
             sensors=tuple(rig.sensors[i].name for i in order), hammer=rig.hammer.name, M=g.M, K=g.K, damping=zeta,
             x=np.array([rig.sensors[i].x_model or 0.0 for i in order]),
+            nonlinearity_measured=all(sp.dof in masters for sp in rig.structure.nonlinear) if rig.structure.nonlinear else None,
         )  # fmt: skip
 
 
@@ -148,6 +151,11 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
         s2 = seg_s2[i:j].sum(axis=0)
         out[k] = (s2 - np.outer(s1, s1) / (b - a)) / (b - a)
     return out
+
+
+#: the drift check (assumption 10) starts this long after an input: the phase band-passes and the modal
+#: high-pass need ~0.1 s to settle after the hammer pulse, and their start-up is not the structure's
+DRIFT_SETTLE_S = 0.15
 
 
 class _Grid:
@@ -223,6 +231,9 @@ class AnalysisOperator:
         self._windower = ModalWindower(self.basis, fs, round(ex.window_s * fs), max(1, round(ex.hop * fs)), first)
         self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes)
         self._prev_total: float | None = None
+        self._f1_hist: deque[float] = deque(maxlen=7)
+        self._last_input_s = -np.inf
+        self._peak_e1 = 0.0
         self._pre = CausalPreprocessor(fs, len(self._acc_cols), s.preprocess)
         self._disp = np.zeros((0, len(self._acc_cols)))
         self._disp_start = first  # stream index of self._disp[0]
@@ -251,6 +262,21 @@ class AnalysisOperator:
         if self._ham_col is None and self._prev_total is not None and total > self.s.input_jump * self._prev_total:
             w = WindowFeatures(w.index, w.start, w.stop, w.t_start_s, w.t_end_s, w.energy, w.freq_hz, True)
         self._prev_total = total
+        if w.input_active:
+            self._last_input_s = w.t_end_s
+            self._f1_hist.clear()
+        elif np.isfinite(self._last_input_s) and w.t_start_s - self._last_input_s > DRIFT_SETTLE_S:  # a hit's decay
+            # the seed's "< 10 % frequency change within one half cycle" (assumption 10, L68), on NNM1's
+            # measured frequency: medians of 5 windows (robust to one noisy phase estimate), two hops = one
+            # window apart
+            self._f1_hist.append(float(w.freq_hz[0]))
+            if len(self._f1_hist) == self._f1_hist.maxlen and w.energy[0] > 1e-3 * self._peak_e1:
+                h = list(self._f1_hist)
+                old, new = float(np.median(h[:5])), float(np.median(h[2:]))
+                if old > 0 and abs(new - old) / old > 0.1:
+                    self._warn("drift", f"NNM1's frequency moved {100 * abs(new - old) / old:.0f} % within one window at "
+                                        f"{w.t_start_s:.3f} s: windows too long for the seed's assumption 10 (L68)")  # fmt: skip
+        self._peak_e1 = max(self._peak_e1, float(w.energy[0]))
         self.stats.modal_windows += 1
         self.emit("/analysis/modal", {
             "index": w.index, "start": w.start, "stop": w.stop, "t_start_s": w.t_start_s, "t_end_s": w.t_end_s,
@@ -347,6 +373,9 @@ class AnalysisOperator:
             self._disp_start = keep_from
 
     def _check_assumptions(self) -> None:
+        if self.model.nonlinearity_measured is False:
+            self._warn("nonlinearity", "no sensor sits on the nonlinear element's DOF: the seed's method assumes its location "
+                                       "is measured (assumption 11, L69)")  # fmt: skip
         n_sens = len(self.model.sensors)
         if n_sens < 2 * self.n_keep:
             self._warn("sensors", f"{n_sens} sensors for {self.n_keep} NNMs of interest: the seed asks for at least twice "

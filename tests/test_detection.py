@@ -239,3 +239,22 @@ def test_operator_restarts_after_a_gap_and_says_so():
     assert op.stats.restarts == 1
     assert any(w["kind"] == "gap" and "8192" in w["message"] for w in got["/analysis/warnings"])
     assert all(not (r["start"] < 8192 < r["stop"]) for r in got["/analysis/rq"])  # no window bridges the gap
+
+
+def test_the_seeds_assumptions_are_checked_and_warned_about():
+    rig = rig_with()
+    model = RigModel.from_rig(rig)
+    assert model.nonlinearity_measured is True  # a13 sits on the attachment at 0.7 m
+    chans = ("hammer", *model.sensors)
+
+    def warnings_for(m: RigModel, **kw) -> list[str]:
+        got: list[dict] = []
+        AnalysisOperator(m, chans, rig.sample_rate, emit=lambda t, o: got.append(o) if t == "/analysis/warnings" else None)
+        return [w["kind"] for w in got]
+
+    assert warnings_for(model) == []
+    from dataclasses import replace
+
+    assert warnings_for(replace(model, nonlinearity_measured=False)) == ["nonlinearity"]  # L69
+    few = replace(model, sensors=model.sensors[:6], M=model.M[:6, :6], K=model.K[:6, :6])
+    assert warnings_for(few) == ["sensors"]  # 6 sensors for 4 NNMs: L61 wants >= 8

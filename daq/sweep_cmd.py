@@ -300,7 +300,7 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
         ax.axhline(f, color="0.6", ls="--", lw=0.8)
     colors = ["tab:blue", "tab:orange", "tab:green", "tab:purple"]
     for j in range(rep.freqs.shape[1]):
-        ax.plot(e[order], rep.freqs[order, j], ".-", ms=2.5, lw=0.6, color=colors[j % 4], label=f"POM {j + 1}")
+        ax.plot(e[order], rep.freqs[order, j], ".", ms=2.5, color=colors[j % 4], label=f"POM {j + 1}")
     for fl, ok in zip(rep.flags, rep.robust, strict=True):
         i = fl.i_peak
         ax.plot([e[i], e[i]], rep.freqs[i, :2], "o", mfc="none", mec="red" if ok else "salmon", ms=8)
@@ -311,9 +311,12 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     ax.set_ylim(0, top)
     ax.set_xlabel("input energy [J]")
     ax.set_ylabel("RQ frequency [Hz]")
-    ax.set_title(f"{rep.rig}: RQ-FEP, {rep.spec.n} runs, P = {rep.spec.pmin:g} … {rep.spec.pmax:g} N "
-                 "(black: fixed-free, gray: fixed-pinned; red: flagged, ? = not robust to 1 ppm of P)", fontsize=8)
-    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(
+        f"{rep.rig}: RQ-FEP, {rep.spec.n} runs, P = {rep.spec.pmin:g} … {rep.spec.pmax:g} N\n"
+        "black: fixed-free, gray: fixed-pinned; red: flagged NNM1–NNM2 interaction (? = not robust to 1 ppm of P)",
+        fontsize=9,
+    )
+    ax.legend(loc="upper left", fontsize=8, markerscale=3)
     fig.tight_layout()
     tmp = path.with_suffix(".png.part")
     fig.savefig(tmp, format="png")

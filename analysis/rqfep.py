@@ -273,7 +273,7 @@ def flag_interactions(
                 ratio_left=rl,
                 ratio_right=rr,
                 bracketed=bracketed,
-                n_points=hi - lo + 1,
+                n_points=int(hi - lo + 1),
                 score=float(np.max(closed)),
             )
         )

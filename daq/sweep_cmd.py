@@ -239,7 +239,7 @@ def _survives_jitter(sim, force, spec: SweepSpec, fs: float, g, res: MomentResul
         f2[i] = fj[r]
         e2[i] = jit.input_work[r]
         again = flag_interactions(e2, f2, spec.settings, res.amplitudes)
-        if not any(a.i_lo <= i <= a.i_hi or i in (a.i_lo, a.i_hi, a.i_peak) for a in again):
+        if not any(a.energy_lo <= e2[i] <= a.energy_hi for a in again):  # events are contiguous in energy
             return False
     return True
 

@@ -117,24 +117,28 @@ class ModalWindower:
         self._e = np.concatenate([self._e, e])
         self._dphi = np.concatenate([self._dphi, dphi])
         self._inp = np.concatenate([self._inp, inp])
-        out = []
+        starts = []
         while self._next_start + self.length <= self._buf_start + self._e.shape[0]:
-            a = self._next_start - self._buf_start
-            b = a + self.length
-            out.append(
-                WindowFeatures(
-                    index=self._count,
-                    start=self._next_start,
-                    stop=self._next_start + self.length,
-                    t_start_s=self._next_start / self.fs,
-                    t_end_s=(self._next_start + self.length) / self.fs,
-                    energy=self._e[a:b].mean(axis=0),
-                    freq_hz=self._dphi[a:b].sum(axis=0) * self.fs / (2 * np.pi * self.length),
-                    input_active=bool(self._inp[a:b].any()),
-                )
-            )
-            self._count += 1
+            starts.append(self._next_start)
             self._next_start += self.hop
+        out = []
+        if starts:
+            # per-window sums by one reduceat over interleaved (a, b) pairs: sequential, so the numbers do
+            # not depend on how the stream was cut into blocks
+            idx = np.array([(st - self._buf_start, st - self._buf_start + self.length) for st in starts]).ravel()
+            pad = np.zeros((1, self._e.shape[1]))
+            e_sum = np.add.reduceat(np.concatenate([self._e, pad]), idx, axis=0)[::2]
+            d_sum = np.add.reduceat(np.concatenate([self._dphi, pad]), idx, axis=0)[::2]
+            inp_any = np.add.reduceat(np.concatenate([self._inp, [False]]).astype(np.int64), idx)[::2] > 0
+            for k, st in enumerate(starts):
+                out.append(
+                    WindowFeatures(
+                        index=self._count, start=st, stop=st + self.length, t_start_s=st / self.fs,
+                        t_end_s=(st + self.length) / self.fs, energy=e_sum[k] / self.length,
+                        freq_hz=d_sum[k] * self.fs / (2 * np.pi * self.length), input_active=bool(inp_any[k]),
+                    )
+                )  # fmt: skip
+                self._count += 1
         drop = max(0, min(self._next_start - self._buf_start, self._e.shape[0]))
         if drop:
             self._e, self._dphi, self._inp = self._e[drop:], self._dphi[drop:], self._inp[drop:]

@@ -144,13 +144,13 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
     """
     seg_s1 = np.add.reduceat(buf[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
     seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
-    out = np.empty((len(windows), buf.shape[1], buf.shape[1]))
-    for k, (a, b) in enumerate(windows):
-        i, j = np.searchsorted(edges, a), np.searchsorted(edges, b)
-        s1 = seg_s1[i:j].sum(axis=0)
-        s2 = seg_s2[i:j].sum(axis=0)
-        out[k] = (s2 - np.outer(s1, s1) / (b - a)) / (b - a)
-    return out
+    # each window's segments [i, j) summed in order by one reduceat over interleaved (i, j) pairs (a zero
+    # row appended so that j may be the end): the same additions in the same order whatever the batch
+    idx = np.array([(np.searchsorted(edges, a), np.searchsorted(edges, b)) for a, b in windows]).ravel()
+    s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, *seg_s1.shape[1:]))]), idx, axis=0)[::2]
+    s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, *seg_s2.shape[1:]))]), idx, axis=0)[::2]
+    n = np.array([b - a for a, b in windows], float)[:, None, None]
+    return (s2 - s1[:, :, None] * s1[:, None, :] / n) / n
 
 
 #: the drift check (assumption 10) starts this long after an input: the phase band-passes and the modal
@@ -272,7 +272,7 @@ class AnalysisOperator:
             self._f1_hist.append(float(w.freq_hz[0]))
             if len(self._f1_hist) == self._f1_hist.maxlen and w.energy[0] > 1e-3 * self._peak_e1:
                 h = list(self._f1_hist)
-                old, new = float(np.median(h[:5])), float(np.median(h[2:]))
+                old, new = sorted(h[:5])[2], sorted(h[2:])[2]  # medians of 5
                 if old > 0 and abs(new - old) / old > 0.1:
                     self._warn("drift", f"NNM1's frequency moved {100 * abs(new - old) / old:.0f} % within one window at "
                                         f"{w.t_start_s:.3f} s: windows too long for the seed's assumption 10 (L68)")  # fmt: skip

@@ -50,6 +50,8 @@ class CausalSpikeRule:
     def feed(self, freqs: FloatArray) -> bool:
         """True when this window is a partnered spike on ``curves``."""
         f = np.asarray(freqs, float)[list(self.s.curves)]
+        if not np.all(np.isfinite(f)):  # a window without a usable POM (silence): neither a spike nor history
+            return False
         spike = False
         if len(self._hist) >= 3:
             h = np.array(self._hist)
@@ -64,6 +66,8 @@ class CausalSpikeRule:
     def feed_many(self, freqs: FloatArray) -> np.ndarray:
         """:meth:`feed` for consecutive windows ``(k, n)`` at once (vectorised once the history is full)."""
         F = np.asarray(freqs, float)
+        if not np.all(np.isfinite(F[:, list(self.s.curves)])):
+            return np.array([self.feed(row) for row in F], bool)
         out = np.zeros(F.shape[0], bool)
         i = 0
         h = self.s.history

@@ -258,3 +258,32 @@ def test_the_seeds_assumptions_are_checked_and_warned_about():
     assert warnings_for(replace(model, nonlinearity_measured=False)) == ["nonlinearity"]  # L69
     few = replace(model, sensors=model.sensors[:6], M=model.M[:6, :6], K=model.K[:6, :6])
     assert warnings_for(few) == ["sensors"]  # 6 sensors for 4 NNMs: L61 wants >= 8
+
+
+def test_without_a_hammer_channel_the_energy_jump_marks_the_hits():
+    """Hammer on another device: the acceleration stream alone must still know where hits are, or the
+    hits themselves open events. Two hits 0.8 s apart in one simulation, the second on the ringing beam."""
+    from daq.sim_session import pulse_train
+
+    rig = rig_with()
+    fs = rig.sample_rate
+    times = (0.05, 0.85)
+    res = rig.simulator.run(pulse_train(times, (1583.0, 900.0), rig.config.hammer.pulse_duration), 1.8, fs)
+    a = noisy(res.acceleration[0])
+    a[: int(0.05 * fs)] = noisy(np.full((int(0.05 * fs), 14), 1e-3), 1.0, seed=5)  # quiet before the first hit
+    model = RigModel.from_rig(rig)
+    with_h = np.column_stack([res.force[0], a]).astype(np.float32)
+    runs = []
+    for chans, data in ((("hammer", *model.sensors), with_h), (tuple(model.sensors), with_h[:, 1:].copy())):
+        got: dict[str, list] = {}
+        op = AnalysisOperator(model, chans, fs, emit=lambda t, o, got=got: got.setdefault(t, []).append(o))
+        _feed(op, data, chans, fs, 1024)
+        runs.append(got)
+    inputs = [w["t_start_s"] for w in runs[1]["/analysis/modal"] if w["input"]]
+    for h in times:  # both hits found by the jump rule, within a window
+        assert any(abs(t - h) <= 0.03 for t in inputs), (h, inputs)
+    assert all(any(abs(t - h) <= 0.03 for h in times) for t in inputs)  # and nothing else
+    ev = [[(e["start_s"], e["ratio"]) for e in r.get("/analysis/events", [])] for r in runs]
+    assert len(ev[1]) == len(ev[0]) >= 1
+    for (s0, r0), (s1, r1) in zip(ev[0], ev[1], strict=True):
+        assert abs(s0 - s1) <= 0.0216 and r0 == r1

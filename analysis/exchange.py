@@ -26,13 +26,13 @@ Every threshold is a named field of :class:`ExchangeSettings`, calibrated on the
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.signal
 
-from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_energy
+from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_energy, modal_phase
 
 FloatArray = np.ndarray
 
@@ -107,9 +107,9 @@ class ModalWindower:
             for j, st in enumerate(self._bp):
                 y, st[1] = scipy.signal.sosfilt(st[0], np.column_stack([q[:, j], qdot[:, j]]), axis=0, zi=st[1])
                 qf[:, j], qdf[:, j] = y[:, 0], y[:, 1]
-            theta = np.arctan2(-qdf / w, qf)
+            theta = modal_phase(qf, qdf, w)
         else:
-            theta = np.arctan2(-qdot / w, q)
+            theta = modal_phase(q, qdot, w)
         prev = theta[:1] if self._last_theta is None else self._last_theta[None, :]
         dphi = np.angle(np.exp(1j * np.diff(np.concatenate([prev, theta]), axis=0)))
         self._last_theta = theta[-1].copy() if theta.shape[0] else self._last_theta
@@ -204,9 +204,11 @@ class IREvent:
 
 
 def nearest_ratio(r: float, ratios: Sequence[tuple[int, int]] = DEFAULT_RATIOS) -> tuple[int, int]:
-    """The candidate m:n nearest to the frequency ratio ``r`` ("rounded to the nearest", issue 6: absolute
-    difference, as the evaluation truth does)."""
-    return min(ratios, key=lambda mn: abs(r - mn[0] / mn[1]))
+    """The candidate m:n nearest to the frequency ratio ``r`` — issue 6's "rounded to the nearest": absolute
+    difference of m/n, ties to the first listed. The one rule for detector and evaluation truth alike."""
+    if not np.isfinite(r):
+        raise ValueError("frequency ratio is not finite")
+    return min(ratios, key=lambda mn: abs(mn[0] / mn[1] - r))
 
 
 class _PairState:
@@ -352,7 +354,3 @@ def detect_exchanges(
     events = [ev for w in windows for ev in det.feed(w)]
     events.extend(det.finish())
     return events, windows
-
-
-def events_in(events: Iterable[IREvent], t0: float, t1: float) -> list[IREvent]:
-    return [e for e in events if e.end_s >= t0 and e.start_s <= t1]

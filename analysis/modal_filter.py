@@ -11,8 +11,9 @@ Accelerations are filtered *after* the (linear, spatial) projection: a temporal 
 constant spatial matrix, so integrating each modal acceleration is the same as integrating each channel
 and projecting, at a fraction of the cost (r modes instead of n channels), and the high-pass corner can
 sit well below NNM1 (5 Hz by default) instead of the seed's 18 Hz, which keeps ~72 % of a 21 Hz mode
-(detection-findings.md). Everything here is causal: state carries across blocks, and the batch functions
-are the streaming ones applied to one block, so live and replay agree to rounding.
+(detection-findings.md). The integration is the seed's §4.3 chain itself (analysis/preprocess.py's
+causal preprocessor) with those corners. Everything here is causal: state carries across blocks, so a
+batch run is the streaming one fed a single block, and live and replay agree.
 
 The instantaneous phase of mode j is ``θ_j = atan2(−q̇_j / ω_j, q_j)`` — the angle of the modal state in
 its own phase plane (for ``q = a cos(ωt + φ)`` it is exactly ``ωt + φ``), causal and without a Hilbert
@@ -26,7 +27,8 @@ from typing import Literal
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
+
+from analysis.preprocess import CausalPreprocessor, PreprocessSettings
 
 FloatArray = np.ndarray
 
@@ -88,15 +90,12 @@ class ModalStateTracker:
         self.basis = basis
         self.fs = float(sample_rate)
         self.s = settings or ModalFilterSettings()
-        r = basis.n_modes
         if self.s.highpass_hz >= 0.5 * self.fs:
             raise ValueError("modal filter: highpass_hz must be below the Nyquist frequency")
-        self._sos = scipy.signal.butter(self.s.order, self.s.highpass_hz, "highpass", fs=self.fs, output="sos")
-        ns = self._sos.shape[0]
-        self._zi_v = np.zeros((ns, 2, r))
-        self._zi_x = np.zeros((ns, 2, r))
-        self._int_v = _Trapezoid(r, self.fs)
-        self._int_x = _Trapezoid(r, self.fs)
+        # the §4.3 chain itself (analysis/preprocess.py), run on the r modal accelerations
+        chain = PreprocessSettings(vel_corner_hz=self.s.highpass_hz, disp_corner_hz=self.s.highpass_hz, order=self.s.order,
+                                   mode="causal")  # fmt: skip
+        self._integrate = CausalPreprocessor(self.fs, basis.n_modes, chain)
         self._prev: FloatArray | None = None  # displacement input: last projected sample
 
     def feed(self, block: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -109,33 +108,8 @@ class ModalStateTracker:
             full = np.concatenate([prev, y])
             self._prev = y[-1].copy()
             return 0.5 * (full[1:] + full[:-1]), (full[1:] - full[:-1]) * self.fs
-        v, self._zi_v = scipy.signal.sosfilt(self._sos, self._int_v.feed(y), axis=0, zi=self._zi_v)
-        x, self._zi_x = scipy.signal.sosfilt(self._sos, self._int_x.feed(v), axis=0, zi=self._zi_x)
+        v, x = self._integrate.feed(y)
         return x, v
-
-
-class _Trapezoid:
-    """Running trapezoidal integral, block by block (the first sample integrates from itself)."""
-
-    def __init__(self, n: int, fs: float) -> None:
-        self.fs = fs
-        self.prev: FloatArray | None = None
-        self.total = np.zeros(n)
-
-    def feed(self, y: FloatArray) -> FloatArray:
-        prev = y[:1] if self.prev is None else self.prev[None, :]
-        full = np.concatenate([prev, y])
-        out = self.total + np.cumsum(0.5 * (full[1:] + full[:-1]), axis=0) / self.fs
-        self.total = out[-1].copy()
-        self.prev = y[-1].copy()
-        return out
-
-
-def modal_states(
-    data: FloatArray, sample_rate: float, basis: ModalBasis, settings: ModalFilterSettings | None = None
-) -> tuple[FloatArray, FloatArray]:
-    """Batch form of :class:`ModalStateTracker` (the same code on one block)."""
-    return ModalStateTracker(basis, sample_rate, settings).feed(data)
 
 
 def modal_energy(q: FloatArray, qdot: FloatArray, omega: FloatArray) -> FloatArray:

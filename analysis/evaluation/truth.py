@@ -33,10 +33,10 @@ from itertools import pairwise
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from analysis.exchange import DEFAULT_RATIOS, nearest_ratio
 from analysis.model.beam import FloatArray
 from analysis.model.truth import zero_crossing_frequency
 
-DEFAULT_RATIOS: tuple[tuple[int, int], ...] = ((2, 1), (5, 2), (3, 1), (7, 2), (4, 1))
 DEFAULT_WINDOW_S = 354 / 16384.0  # the seed's 0.0216 s window (354 samples at 16384 Hz)
 DEFAULT_FLOOR_REL = 1e-6
 DEFAULT_HYSTERESIS = 1.25
@@ -91,13 +91,6 @@ def instantaneous_frequencies(
     t = np.arange(q.shape[0]) / fs
     c = np.atleast_1d(np.asarray(t_centres, dtype=float))
     return np.stack([zero_crossing_frequency(q[:, r], t, c, half_width) for r in range(q.shape[1])], axis=1)
-
-
-def nearest_ratio(r: float, ratios: Sequence[tuple[int, int]] = DEFAULT_RATIOS) -> tuple[int, int]:
-    """The ``m:n`` in ``ratios`` nearest to ``r`` (absolute difference of m/n); ties go to the first listed."""
-    if not np.isfinite(r):
-        raise ValueError("frequency ratio is not finite")
-    return min(ratios, key=lambda mn: abs(mn[0] / mn[1] - r))
 
 
 def zigzag(x: FloatArray, hysteresis: float = DEFAULT_HYSTERESIS) -> list[tuple[int, int]]:

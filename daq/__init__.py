@@ -1,13 +1,7 @@
 """gvtlink DAQ service: CLI, sessions, hit gate, MCAP log, replay.
 
-BLAS threads default to one (docs/decisions.md D19): the analysis works on small matrices (≤ 64 × 64
-covariances, many of them) where OpenBLAS' thread pool only adds spinning and oversubscribes a machine
-that already runs the drivers, the writer and Dask workers — measured: 64 ch × 51.2 kHz analysis went
-from 0.2× to 3× real time on 2 busy cores. Set ``OPENBLAS_NUM_THREADS`` yourself to override; this only
-takes effect if numpy was not imported before gvtlink.
+Importing it imports :mod:`analysis` first, whose ``__init__`` sets the one-BLAS-thread default
+(docs/decisions.md D19) before anything loads numpy.
 """
 
-import os as _os
-
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
+import analysis  # noqa: F401 - the BLAS thread default, before numpy

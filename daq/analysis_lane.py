@@ -28,6 +28,25 @@ def analysis_stream(streams: dict[str, tuple[str, ...]], model: RigModel) -> str
     return None
 
 
+class LaneUnavailable(Exception):
+    """Why a log or session cannot be analysed (one line: the rig does not fit its streams)."""
+
+
+def start_analysis_lane(
+    fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, sink: Sink,
+    settings: AnalysisSettings | None = None, maxsize: int = 512,
+) -> AnalysisLane:  # fmt: skip
+    """Start the lane on the stream that carries every sensor of ``rig``; :class:`LaneUnavailable` if none."""
+    try:
+        model = RigModel.from_rig(rig)
+    except ValueError as exc:
+        raise LaneUnavailable(f"rig {rig.name}: {exc}") from None
+    name = analysis_stream(streams, model)
+    if name is None:
+        raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
+    return AnalysisLane(fan, model, name, streams[name], sample_rate, sink, settings, maxsize=maxsize).start()
+
+
 class AnalysisLane:
     def __init__(
         self, fan: FanOut, model: RigModel, stream: str, channels: tuple[str, ...], sample_rate: float, sink: Sink,

@@ -10,7 +10,6 @@ the log's own ``rig/*.toml`` attachment.
 
 from __future__ import annotations
 
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ import numpy as np
 
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
+from daq.analysis_lane import analysis_stream
 from daq.blocks import BlockStatus, SampleBlock
 from daq.log.reader import LogReader, LogReadError
 from daq.replay import iter_log_blocks
@@ -47,16 +47,24 @@ class AnalysisRun:
 
 
 def rig_from_log(reader: LogReader) -> Rig:
-    from daq.rigs import open_rig
+    """The rig the session attached to its log (``rig/*.toml``), validated like any rig file."""
+    import tomllib
+
+    from analysis.model.rig import build_rig
+    from daq.config.loader import ConfigError, validate
+    from daq.config.rig import RigConfig
 
     rigs = {name: data for name, (_media, data) in reader.attachments().items() if name.startswith("rig/")}
     if not rigs:
         raise AnalyzeError(f"{reader.path}: the log carries no rig attachment; give the rig with --rig NAME_OR_TOML")
     name, data = sorted(rigs.items())[0]
-    with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / Path(name).name
-        p.write_bytes(data)
-        return open_rig(p)
+    where = f"{reader.path}:{name}"
+    try:
+        return build_rig(validate(RigConfig, tomllib.loads(data.decode()), where), where)
+    except ConfigError as exc:
+        raise AnalyzeError(f"{exc}; give the rig with --rig NAME_OR_TOML") from None
+    except (ValueError, UnicodeDecodeError) as exc:  # not TOML, or a sensor off the structure
+        raise AnalyzeError(f"{where}: the attached rig cannot be used ({exc}); give the rig with --rig NAME_OR_TOML") from None
 
 
 def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:
@@ -65,13 +73,13 @@ def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:
         if stream not in streams:
             raise AnalyzeError(f"{reader.path}: no stream {stream!r}; streams: {sorted(streams)}")
         return stream
-    for name, info in sorted(streams.items()):
-        if all(c in info.channels for c in model.sensors):
-            return name
-    raise AnalyzeError(
-        f"{reader.path}: no stream holds all the rig's sensor channels {list(model.sensors)}; "
-        f"streams: { {n: list(i.channels) for n, i in streams.items()} }"
-    )
+    name = analysis_stream({n: tuple(i.channels) for n, i in streams.items()}, model)
+    if name is None:
+        raise AnalyzeError(
+            f"{reader.path}: no stream holds all the rig's sensor channels {list(model.sensors)}; "
+            f"streams: { {n: list(i.channels) for n, i in streams.items()} }; give the rig that recorded it with --rig"
+        )
+    return name
 
 
 def coalesce(blocks: Iterator[SampleBlock], max_samples: int) -> Iterator[SampleBlock]:

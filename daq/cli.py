@@ -258,23 +258,19 @@ def replay(
 
 def _replay_lane(rep, fan, rig_arg: str | None):
     """The analysis lane for a replay (None, with a note, when the log cannot be analysed)."""
-    from analysis.operator import RigModel
-    from daq.analysis_lane import AnalysisLane, analysis_stream
+    from daq.analysis_lane import LaneUnavailable, start_analysis_lane
     from daq.analyze import AnalyzeError, rig_from_log
 
+    infos = rep.reader.streams()
+    streams = {n: tuple(i.channels) for n, i in infos.items()}
     try:
         r = _open(rig_arg) if rig_arg is not None else rig_from_log(rep.reader)
-        model = RigModel.from_rig(r)
-    except (AnalyzeError, ValueError) as exc:
-        err.print(f"gvt: note: no analysis: {exc}", markup=False, soft_wrap=True)
+        # every stream of a session shares one sample rate (daq/session.py refuses mixed rates)
+        fs = next(iter(infos.values())).sample_rate
+        return start_analysis_lane(fan, r, streams, fs, lambda *_: None, maxsize=4096)
+    except (AnalyzeError, LaneUnavailable, StopIteration) as exc:
+        err.print(f"gvt: note: no analysis: {exc or 'the log has no sample streams'}", markup=False, soft_wrap=True)
         return None
-    streams = {n: tuple(i.channels) for n, i in rep.reader.streams().items()}
-    name = analysis_stream(streams, model)
-    if name is None:
-        err.print(f"gvt: note: no analysis: no stream holds the rig's sensors {list(model.sensors)}", markup=False)
-        return None
-    fs = rep.reader.streams()[name].sample_rate
-    return AnalysisLane(fan, model, name, streams[name], fs, lambda *_: None, maxsize=4096).start()
 
 
 @app.command()

@@ -399,19 +399,8 @@ def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, 
     spec = cfg.analysis
     if not spec.enabled:
         return None
-    from analysis.operator import AnalysisSettings, RigModel
-    from daq.analysis_lane import AnalysisLane, analysis_stream
-
-    try:
-        model = RigModel.from_rig(rig)
-    except ValueError as exc:
-        writer.write_event("analysis_error", message=f"analysis off: {exc}")
-        return None
-    name = analysis_stream(streams, model)
-    if name is None:
-        sensors = list(model.sensors)
-        writer.write_event("analysis_error", message=f"analysis off: no device records all the rig's sensors {sensors}")
-        return None
+    from analysis.operator import AnalysisSettings
+    from daq.analysis_lane import LaneUnavailable, start_analysis_lane
 
     def sink(topic: str, obj: dict, log_time_ns: int | None) -> None:
         if topic == "/daq/events":
@@ -421,7 +410,11 @@ def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, 
 
     settings = AnalysisSettings(window_s=spec.window_s, n_keep=spec.n_keep, seed_lane=spec.seed_lane)
     maxsize = max(64, int(spec.queue_seconds * fs / max(1, block)))
-    return AnalysisLane(fan, model, name, streams[name], fs, sink, settings, maxsize=maxsize).start()
+    try:
+        return start_analysis_lane(fan, rig, streams, fs, sink, settings, maxsize)
+    except LaneUnavailable as exc:
+        writer.write_event("analysis_error", message=f"analysis off: {exc}")
+        return None
 
 
 def _chain(first, rest):

@@ -11,20 +11,19 @@ budget at the block's last sample; per hit, the input work.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from analysis.model.forces import ForceSeries
+from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals
 from daq.blocks import BlockStatus, SampleBlock
 from daq.log.writer import ChannelInfo, LogWriter
 from drivers.sim.sensor_model import AdcModel, channel_models_for, measure
 
 STREAM = "dev0"
-PULSE_POINTS = 257  # samples of each half-sine in the force series: interpolation error ~ (pi/256)^2/8 = 2e-5
 
 
 @dataclass(frozen=True)
@@ -50,18 +49,6 @@ def default_forces(rig: Rig, n_hits: int) -> tuple[float, ...]:
     if n_hits == 1:
         return (peak,)
     return tuple(float(f) for f in np.linspace(0.1 * peak, peak, n_hits))
-
-
-def pulse_train(times: Sequence[float], peaks: Sequence[float], duration: float) -> ForceSeries:
-    ts, fs = [], []
-    for t0, p in zip(times, peaks, strict=True):
-        tau = np.linspace(0.0, duration, PULSE_POINTS)
-        ts.append(t0 + tau)
-        fs.append(p * np.sin(np.pi * tau / duration))
-    t = np.concatenate(ts)
-    f = np.concatenate(fs)
-    keep = np.concatenate([[True], np.diff(t) > 0])  # pulses never overlap; guard exact duplicates
-    return ForceSeries(t=t[keep], force=f[keep], peak=1.0)
 
 
 def channel_infos(rig: Rig) -> list[ChannelInfo]:

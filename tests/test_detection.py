@@ -263,7 +263,7 @@ def test_the_seeds_assumptions_are_checked_and_warned_about():
 def test_without_a_hammer_channel_the_energy_jump_marks_the_hits():
     """Hammer on another device: the acceleration stream alone must still know where hits are, or the
     hits themselves open events. Two hits 0.8 s apart in one simulation, the second on the ringing beam."""
-    from daq.sim_session import pulse_train
+    from analysis.model.forces import pulse_train
 
     rig = rig_with()
     fs = rig.sample_rate

@@ -7,6 +7,7 @@ instants (for accelerations). Both are per unit amplitude; a batch scales them b
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,3 +97,21 @@ def interval_means(force: Force, a: FloatArray, b: FloatArray) -> FloatArray:
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     return (force.antiderivative(b) - force.antiderivative(a)) / (b - a)
+
+
+#: samples of each half-sine in a pulse train: interpolation error ~ (pi/256)^2/8 = 2e-5
+PULSE_POINTS = 257
+
+
+def pulse_train(times: Sequence[float], peaks: Sequence[float], duration: float) -> ForceSeries:
+    """Half-sine hammer pulses of ``duration`` at ``times`` with ``peaks`` (N), as one force series — a
+    session's hits on one continuous simulation, so each starts from the previous one's tail."""
+    ts, fs = [], []
+    for t0, p in zip(times, peaks, strict=True):
+        tau = np.linspace(0.0, duration, PULSE_POINTS)
+        ts.append(t0 + tau)
+        fs.append(p * np.sin(np.pi * tau / duration))
+    t = np.concatenate(ts)
+    f = np.concatenate(fs)
+    keep = np.concatenate([[True], np.diff(t) > 0])  # pulses never overlap; guard exact duplicates
+    return ForceSeries(t=t[keep], force=f[keep], peak=1.0)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals
 from drivers.sim.sensor_model import AdcModel, ChannelModel, channel_models_for, measure
 
@@ -33,8 +34,6 @@ class HitSchedule:
 
 class SimulatedDevice:
     def __init__(self, rig: Rig, schedule: HitSchedule, duration: float, *, block_size: int = 256, seed: int = 0) -> None:
-        from daq.sim_session import pulse_train
-
         self.rig = rig
         self.fs = rig.sample_rate
         self.block_size = int(block_size)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from daq.log import layout
@@ -141,32 +141,25 @@ class LogReader:
                     rep.stopped_because = _describe(exc)
                     break
                 rep.bytes_scanned = f.tell()
+                records = [rec]
                 if isinstance(rec, Chunk):
                     try:
-                        inner = breakup_chunk(rec, validate_crc=True)
+                        records = breakup_chunk(rec, validate_crc=True)
                     except _EXPECTED_ERRORS:
                         rep.chunks_bad += 1
                         continue
                     rep.chunks_ok += 1
-                    for r in inner:
-                        if isinstance(r, Schema):
-                            schemas[r.id] = r
-                        elif isinstance(r, Channel):
-                            channels[r.id] = r
-                        elif isinstance(r, Message):
-                            messages.append(r)
-                elif isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Message):
-                    messages.append(rec)
-                elif isinstance(rec, Metadata):
-                    metadata.append(rec)
-                elif isinstance(rec, Attachment):
-                    attachments.append(rec)
-                elif isinstance(rec, DataEnd | Footer):
-                    pass
+                for r in records:  # a chunk's records and top-level ones alike (DataEnd, Footer: nothing to keep)
+                    if isinstance(r, Schema):
+                        schemas[r.id] = r
+                    elif isinstance(r, Channel):
+                        channels[r.id] = r
+                    elif isinstance(r, Message):
+                        messages.append(r)
+                    elif isinstance(r, Metadata):
+                        metadata.append(r)
+                    elif isinstance(r, Attachment):
+                        attachments.append(r)
         rep.messages = len(messages)
         if rep.stopped_because is None and rep.bytes_scanned < self.file_size - 8:
             rep.stopped_because = "footer or summary unreadable"
@@ -180,6 +173,12 @@ class LogReader:
         return self._scan_cache
 
     # --- common API --------------------------------------------------------------------------
+    def schemas(self) -> dict[int, Schema]:
+        """Schemas by id, from the summary or, in a damaged file, from what the scan salvaged."""
+        if self._indexed:
+            return dict(self.summary.schemas)
+        return dict(self._scan()["schemas"])
+
     def channels(self) -> list[Channel]:
         if self._indexed:
             return list(self.summary.channels.values())

@@ -105,10 +105,7 @@ def recover(src: str | Path, dst: str | Path) -> SalvageReport:
     if src.resolve() == dst.resolve():
         raise LogReadError(f"{dst}: output must differ from the input")
     r = LogReader(src)
-    if r.indexed:
-        schemas = dict(r.summary.schemas)
-    else:
-        schemas = dict(r._scan()["schemas"])
+    schemas = r.schemas()
     tmp = dst.with_name(dst.name + ".part")
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD)

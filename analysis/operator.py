@@ -121,6 +121,7 @@ def rq_from_covariance(C: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int)
     lam, V = np.linalg.eigh(C)
     lam = np.maximum(lam, 0.0)
     frac = lam / np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
+    # eqs. 2.17–2.18 as analysis.pod.rq_hz, with matmul instead of einsum: the per-window hot path
     num = np.sum(V * np.matmul(K, V), axis=-2)
     den = np.sum(V * np.matmul(M, V), axis=-2)
     f = np.sqrt(np.maximum(num, 0.0) / den) / (2.0 * np.pi)

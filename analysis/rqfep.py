@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from analysis.model.beam import FloatArray
+from analysis.pod import rq_hz
 
 # Ratios f2/f1 the labeller chooses from (the seed reports 4:1 and 3:1 in the computation, 5:2 in the
 # experiment, L1255, L1389; the analyst "knows the likely IR ratios", L67).
@@ -59,10 +60,7 @@ def rq_fep(poms: FloatArray, M: FloatArray, K: FloatArray, n_keep: int = 4) -> F
         raise ValueError(f"M and K must be {n}x{n} (the POM length), got {M.shape} and {K.shape}")
     if not 1 <= n_keep <= p.shape[2]:
         raise ValueError(f"n_keep must lie in [1, {p.shape[2]}]")
-    num = np.einsum("bij,ik,bkj->bj", p, K, p)
-    den = np.einsum("bij,ik,bkj->bj", p, M, p)
-    f = np.sqrt(np.maximum(num, 0.0) / den) / (2.0 * np.pi)
-    return np.sort(f, axis=1)[:, :n_keep]
+    return np.sort(rq_hz(p, M, K), axis=1)[:, :n_keep]
 
 
 @dataclass(frozen=True)

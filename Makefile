@@ -37,6 +37,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_sweep.py
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/eval_detection.py
+	$(BIN)/python bench/bench_cwt.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

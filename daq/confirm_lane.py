@@ -1,0 +1,199 @@
+"""The confirmation lane: each near-live IR event is confirmed (WBEMD + slow flow) in the background.
+
+Why a separate process: a confirmation runs WBEMD (dozens of sifts and wavelet transforms, seconds of
+CPU per event) — in a thread it would hold the GIL against the near-live analysis and the hit gate. It
+runs in one worker process instead, so the near-live path never waits for it (architecture.md). The
+lane's own inputs are both lossy and bounded, like every subscriber's:
+
+* sample blocks from its own fan-out subscription, kept in a ring of the last ``buffer_s`` seconds of
+  the analysed stream's sensor channels (a bounded buffer of the current hit, not of the run);
+* IR events from the analysis lane (:meth:`ConfirmLane.offer`, never blocks).
+
+An event is cut out of the ring once the ring holds ``post_s`` seconds past its end, and handed to the
+worker. Whatever cannot be confirmed is said, never dropped silently: an event whose data left the
+ring, fell in a gap, or arrived while ``max_pending`` confirmations were already queued gets a
+confirmation record with ``status="skipped"`` and the reason. Results go to the sink (the session
+log's ``/analysis/confirmations`` topic) as they complete.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import queue
+import threading
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from daq.blocks import SampleBlock
+from daq.fanout import FanOut, Subscription
+
+CONFIRM_TOPIC = "/analysis/confirmations"
+
+Sink = Callable[[str, dict, int | None], None]
+
+
+@dataclass(frozen=True)
+class LaneSettings:
+    buffer_s: float = 8.0  # ring length: the longest stretch of data an event's confirmation can use
+    post_s: float = 0.3  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
+    max_pending: int = 4  # confirmations queued in the worker at once; more are skipped and said
+    event_queue: int = 256
+
+
+def skipped(event: Mapping[str, Any], reason: str) -> dict:
+    """The confirmation record of an event that was not examined, with the reason."""
+    return {"event_id": event.get("id"), "event": dict(event), "status": "skipped", "reason": reason, "ratio": None,
+            "m": None, "n": None, "start_s": None, "end_s": None, "candidates": [], "trajectory": None}  # fmt: skip
+
+
+class _Ring:
+    """The last ``capacity`` samples of a contiguous run of the stream (a gap restarts it)."""
+
+    def __init__(self, capacity: int, n_channels: int) -> None:
+        self.buf = np.zeros((capacity, n_channels), np.float32)
+        self.capacity = capacity
+        self.first = 0  # oldest index held
+        self.end = 0  # one past the newest index held
+
+    def push(self, first_index: int, data: np.ndarray) -> None:
+        if first_index != self.end:  # a gap (or the start): nothing before it is contiguous with what follows
+            self.first = self.end = first_index
+        n = data.shape[0]
+        if n >= self.capacity:
+            data, first_index = data[-self.capacity:], first_index + n - self.capacity
+            self.first = first_index
+            n = self.capacity
+        pos = first_index % self.capacity
+        head = min(n, self.capacity - pos)
+        self.buf[pos: pos + head] = data[:head]
+        self.buf[: n - head] = data[head:]
+        self.end = first_index + n
+        self.first = max(self.first, self.end - self.capacity)
+
+    def get(self, a: int, b: int) -> np.ndarray | None:
+        if a < self.first or b > self.end or b <= a:
+            return None
+        idx = np.arange(a, b) % self.capacity
+        return self.buf[idx].copy()
+
+
+class ConfirmLane:
+    """Confirms the analysis lane's IR events of one stream in a worker process; results to ``sink``.
+
+    ``confirm`` is a picklable function ``(segment, fs, t0_s, event, context) -> dict`` run in the
+    worker (default :func:`analysis.confirm.confirm_segment`), ``context`` whatever it needs of the rig.
+    """
+
+    def __init__(
+        self, fan: FanOut, stream: str, channels: tuple[str, ...], sensors: tuple[str, ...], fs: float, sink: Sink,
+        context: Any, confirm: Callable | None = None, settings: LaneSettings = LaneSettings(),
+    ) -> None:  # fmt: skip
+        if confirm is None:
+            from analysis.confirm import confirm_segment as confirm
+        self.stream, self.fs, self.sink, self.context, self.confirm, self.s = stream, fs, sink, context, confirm, settings
+        self.cols = [channels.index(c) for c in sensors]
+        self.sub: Subscription = fan.subscribe(f"confirm:{stream}", maxsize=1024)
+        self.events: queue.Queue = queue.Queue(maxsize=settings.event_queue)
+        self.ring = _Ring(max(1, int(settings.buffer_s * fs)), len(self.cols))
+        self.results: list[dict] = []
+        self.dropped_events = 0
+        self.error: str | None = None
+        self._waiting: list[dict] = []
+        self._running: list[tuple[dict, Future]] = []
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._thread = threading.Thread(target=self._main, name=f"confirm:{stream}", daemon=True)
+
+    def start(self) -> ConfirmLane:
+        self._thread.start()
+        return self
+
+    def offer(self, event: Mapping[str, Any]) -> None:
+        """Hand over an IR event (called from the analysis lane; never blocks)."""
+        try:
+            self.events.put_nowait(dict(event))
+        except queue.Full:
+            self.dropped_events += 1
+            self._emit(skipped(event, "the confirmation lane's event queue was full"))
+
+    def join(self, timeout: float | None = None) -> list[dict]:
+        """After the stream ended *and the analysis lane was joined* (its last events come at its finish):
+        confirm what is still waiting, wait for every queued confirmation, return all records."""
+        self._thread.join(timeout)
+        if self.error is None:
+            self._dispatch(final=True)
+            self._collect(wait=True)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        return list(self.results)
+
+    # -- internals -------------------------------------------------------------------------------------
+    def _emit(self, rec: dict) -> None:
+        self.results.append(rec)
+        t = rec.get("event", {}).get("end_s")
+        self.sink(CONFIRM_TOPIC, rec, None if t is None else round(float(t) * 1e9))
+
+    def _take_events(self) -> None:
+        while True:
+            try:
+                self._waiting.append(self.events.get_nowait())
+            except queue.Empty:
+                return
+
+    def _span(self, ev: dict) -> tuple[int, int]:
+        c = self.context
+        pre = float(getattr(c, "pre_s", 0.1))
+        return int(np.floor((float(ev["start_s"]) - pre) * self.fs)), int(np.ceil((float(ev["end_s"]) + self.s.post_s) * self.fs))
+
+    def _dispatch(self, final: bool = False) -> None:
+        self._take_events()
+        keep = []
+        for ev in self._waiting:
+            a, b = self._span(ev)
+            a = max(a, 0)
+            if b > self.ring.end and not final:
+                keep.append(ev)  # its data has not all arrived yet
+                continue
+            seg = self.ring.get(a, min(b, self.ring.end))
+            if seg is None:
+                self._emit(skipped(ev, f"its data ({a / self.fs:.3f}–{b / self.fs:.3f} s) is not in the lane's buffer "
+                                       f"(older than {self.s.buffer_s} s, or in a gap)"))  # fmt: skip
+            elif len(self._running) >= self.s.max_pending:
+                self._emit(skipped(ev, f"{self.s.max_pending} confirmations were already queued (the lane fell behind)"))
+            else:
+                self._running.append((ev, self._pool.submit(self.confirm, seg, self.fs, a / self.fs, ev, self.context)))
+        self._waiting = keep
+
+    def _collect(self, wait: bool = False) -> None:
+        still = []
+        for ev, fut in self._running:
+            if wait or fut.done():
+                try:
+                    rec = fut.result()
+                except Exception as exc:  # reported as the event's record; the lane goes on
+                    rec = {**skipped(ev, f"{type(exc).__name__}: {exc}"), "status": "error"}
+                self._emit(rec)
+            else:
+                still.append((ev, fut))
+        self._running = still
+
+    def _main(self) -> None:
+        try:
+            for blk in self.sub:
+                if isinstance(blk, SampleBlock) and blk.stream == self.stream:
+                    self.ring.push(blk.first_index, np.asarray(blk.data)[:, self.cols])
+                    self._dispatch()
+                    self._collect()
+        except Exception as exc:  # said on /daq/events; the recording is unaffected
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.sink("/daq/events", {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
+            for _ in self.sub:
+                pass
+        if self.sub.dropped_blocks:
+            self.sink("/daq/events", {
+                "kind": "confirm_overrun", "stream": self.stream, "count": self.sub.dropped_samples,
+                "message": f"the confirmation lane fell behind and skipped {self.sub.dropped_blocks} blocks "
+                           f"({self.sub.dropped_samples} samples); events in those ranges were skipped",
+            }, None)  # fmt: skip

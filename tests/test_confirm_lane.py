@@ -1,0 +1,129 @@
+"""The background confirmation lane: exact segments, bounded inputs, skips said, never blocks the publisher."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from daq.blocks import BlockStatus, SampleBlock
+from daq.confirm_lane import CONFIRM_TOPIC, ConfirmLane, LaneSettings, _Ring
+from daq.fanout import FanOut
+
+FS = 1000.0
+CHANNELS = ("hammer", "a1", "a2", "a3")
+SENSORS = ("a3", "a1")
+
+
+class Ctx:
+    pre_s = 0.1
+
+
+def echo_confirm(seg, fs, t0_s, event, context):
+    """Worker-side stand-in for analysis.confirm (module level: the spawned worker imports it)."""
+    return {"event_id": event["id"], "event": event, "status": "confirmed", "t0_s": t0_s, "n": int(seg.shape[0]),
+            "checksum": float(np.asarray(seg, np.float64).sum()), "first": seg[0].tolist()}  # fmt: skip
+
+
+def slow_confirm(seg, fs, t0_s, event, context):
+    time.sleep(1.0)
+    return echo_confirm(seg, fs, t0_s, event, context)
+
+
+def failing_confirm(seg, fs, t0_s, event, context):
+    raise ValueError("no IMFs")
+
+
+def _data(n: int) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    return rng.standard_normal((n, len(CHANNELS))).astype(np.float32)
+
+
+def _publish(fan: FanOut, data: np.ndarray, block: int = 100, skip: tuple[int, int] | None = None) -> float:
+    worst = 0.0
+    for s in range(0, data.shape[0], block):
+        if skip and skip[0] <= s < skip[1]:
+            continue
+        t0 = time.perf_counter()
+        fan.publish(SampleBlock("acc", s, FS, CHANNELS, data[s: s + block], BlockStatus(0)))
+        worst = max(worst, time.perf_counter() - t0)
+    fan.close()
+    return worst
+
+
+def test_ring_keeps_the_last_samples_across_wraps_and_restarts_after_a_gap():
+    r = _Ring(250, 2)
+    d = np.arange(2000, dtype=np.float32).reshape(1000, 2)
+    for s in range(0, 600, 70):
+        r.push(s, d[s: s + 70])
+    assert (r.first, r.end) == (630 - 250, 630)
+    assert np.array_equal(r.get(400, 630), d[400:630])
+    assert r.get(300, 400) is None  # older than the ring
+    r.push(700, d[700:760])  # a gap: 630..700 never came
+    assert (r.first, r.end) == (700, 760)
+    assert r.get(650, 720) is None and np.array_equal(r.get(700, 760), d[700:760])
+    r.push(760, d[760:1000])  # longer than what is left: wraps
+    assert np.array_equal(r.get(750, 1000), d[750:1000])
+
+
+def _lane(fan, sink, confirm, **kw):
+    return ConfirmLane(fan, "acc", CHANNELS, SENSORS, FS, sink, Ctx(), confirm=confirm, settings=LaneSettings(**kw)).start()
+
+
+def test_each_event_is_confirmed_on_exactly_its_samples_and_written_to_the_sink():
+    fan, out = FanOut(), []
+    lane = _lane(fan, lambda topic, obj, t: out.append((topic, obj, t)), echo_confirm, buffer_s=3.0, post_s=0.3)
+    data = _data(6000)
+    lane.offer({"id": 0, "start_s": 1.0, "end_s": 1.5})
+    lane.offer({"id": 1, "start_s": 5.5, "end_s": 5.9})  # its 0.3 s after-margin runs past the stream's end
+    _publish(fan, data)
+    lane._thread.join(timeout=30)  # the stream is consumed (test-only peek): the ring now holds 3.0–6.0 s
+    lane.offer({"id": 2, "start_s": 0.5, "end_s": 0.6})  # offered late: its data has left the 3 s ring
+    recs = {r["event_id"]: r for r in lane.join(timeout=60)}
+    assert set(recs) == {0, 1, 2}
+    a, b = 900, 1800  # (1.0 - pre 0.1) .. (1.5 + post 0.3) s
+    assert recs[0]["status"] == "confirmed" and recs[0]["n"] == b - a and recs[0]["t0_s"] == a / FS
+    assert recs[0]["checksum"] == float(data[a:b][:, [3, 1]].astype(np.float64).sum())
+    assert recs[1]["status"] == "confirmed" and recs[1]["n"] == 6000 - 5400  # cut at the stream's end
+    assert recs[2]["status"] == "skipped" and "buffer" in recs[2]["reason"]
+    assert all(t == CONFIRM_TOPIC for t, _o, _t in out) and len(out) == 3
+    assert {o["event_id"]: ns for _t, o, ns in out}[0] == 1_500_000_000
+
+
+def test_a_gap_inside_an_event_skips_it_with_the_reason():
+    fan, out = FanOut(), []
+    lane = _lane(fan, lambda *a: out.append(a), echo_confirm)
+    lane.offer({"id": 7, "start_s": 2.0, "end_s": 2.5})
+    _publish(fan, _data(4000), skip=(2200, 2300))
+    (rec,) = lane.join(timeout=60)
+    assert rec["status"] == "skipped" and "gap" in rec["reason"]
+
+
+def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said():
+    """Confirmations take 1 s each in the worker; publishing 200 blocks and offering 6 events must not wait
+    for them (each publish is a put_nowait: < 50 ms even on a loaded 2-core machine), and with
+    max_pending=2 the events beyond two are skipped with the reason, not lost."""
+    fan, out = FanOut(), []
+    lane = _lane(fan, lambda *a: out.append(a), slow_confirm, max_pending=2)
+    data = _data(20000)
+    t0 = time.perf_counter()
+    for i in range(6):
+        lane.offer({"id": i, "start_s": 1.0 + 0.2 * i, "end_s": 1.1 + 0.2 * i})
+    worst = _publish(fan, data)
+    wall = time.perf_counter() - t0
+    assert worst < 0.05 and wall < 2.0
+    recs = sorted(lane.join(timeout=60), key=lambda r: r["event_id"])
+    assert [r["status"] for r in recs].count("confirmed") >= 2
+    behind = [r for r in recs if r["status"] == "skipped"]
+    assert behind and all("fell behind" in r["reason"] for r in behind)
+    assert len(recs) == 6
+
+
+def test_a_failing_confirmation_is_an_error_record_and_the_lane_goes_on():
+    fan = FanOut()
+    lane = _lane(fan, lambda *a: None, failing_confirm)
+    lane.offer({"id": 0, "start_s": 0.5, "end_s": 0.7})
+    lane.offer({"id": 1, "start_s": 1.5, "end_s": 1.7})
+    _publish(fan, _data(3000))
+    recs = lane.join(timeout=60)
+    assert [r["status"] for r in recs] == ["error", "error"] and "ValueError: no IMFs" in recs[0]["reason"]

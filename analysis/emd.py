@@ -1,0 +1,205 @@
+"""Empirical mode decomposition (seed §2.5.2, L462–L474), EEMD (L481) and masked EMD (L485) on PyEMD.
+
+Why PyEMD and not an in-house sifter: the sifting itself (extrema, mirrored end extrema, cubic-spline
+envelopes, mean removal) is PyEMD's (package ``EMD-signal``); this module only configures it as close
+to Rilling & Flandrin's ``emd.m`` — the code the seed used (L836) — as PyEMD's hooks allow, and adds
+the two things the seed needs on top: the masking-signal EMD of Deering & Kaiser and the orthogonality
+index of Huang (L934).
+
+``emd.m`` defaults → PyEMD configuration used here (method-wbemd-slowflow.md §2.1 [EXT]):
+
+==========================  ==============================  =====================================================
+emd.m                       PyEMD here                      difference
+==========================  ==============================  =====================================================
+cubic spline envelopes      ``spline_kind="cubic"``         none intended
+NBSYM = 2 mirrored extrema  ``nbsym=2`` (PyEMD's port of    none intended (same boundary_conditions logic)
+                            Rilling's boundary_conditions)
+extrema: sign change of     ``extrema_detection="simple"``  none intended
+the first difference
+stop [θ1, θ2, tol] =        ``_RillingEMD.check_imf``       PyEMD's default test (svar/std/energy ratio) is
+[0.05, 0.5, 0.05] and       overrides PyEMD's test with     replaced by Rilling's; PyEMD checks it *after*
+abs(#zeros−#extrema) ≤ 1    the same three thresholds;      subtracting the mean, so the returned mode has one
+                            PyEMD keeps its own             more (small, below-threshold) mean removed than
+                            |#ext − #zero| < 2 test         emd.m's
+MAXITERATIONS = 2000        ``MAX_ITERATION = 2000``        none
+stop when residual has      PyEMD: residual with ≤ 2        ``range_thr``/``total_power_thr`` (absolute,
+< 3 extrema                 extrema is the trend            PyEMD-only) are disabled (set to 0)
+==========================  ==============================  =====================================================
+
+Scale: every input is divided by its standard deviation before sifting and the output multiplied back.
+Rilling's criterion is scale-free, but PyEMD keeps absolute guards (e.g. Σ imf² < 1e-10), which would
+misbehave on displacement records in metres (~1e-5).
+
+Mirror imaging of the record ends (Lee et al. 2009b, seed L487, §2.3 [CHOICE]) is available as
+``mirror=`` (number of samples reflected evenly at each end before sifting, then cut off); default 0,
+i.e. only emd.m's extrema mirroring.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from PyEMD import EEMD, EMD
+
+RILLING_STOP = (0.05, 0.5, 0.05)
+"""emd.m's default stop thresholds [θ1, θ2, tol] (Rilling, Flandrin & Gonçalves 2003)."""
+MAX_ITERATION = 2000
+"""emd.m's MAXITERATIONS."""
+
+
+class _RillingEMD(EMD):
+    """PyEMD's EMD with emd.m's stop test; only the IMF test and the envelope bookkeeping change."""
+
+    def __init__(self, stop: tuple[float, float, float] = RILLING_STOP) -> None:
+        super().__init__(spline_kind="cubic", nbsym=2, extrema_detection="simple", MAX_ITERATION=MAX_ITERATION,
+                         range_thr=0.0, total_power_thr=0.0)
+        self._stop = stop
+        self._amp: NDArray[np.float64] | None = None
+
+    def extract_max_min_spline(self, T, S):  # PyEMD's signature
+        out = super().extract_max_min_spline(T, S)
+        max_env, min_env = out[0], out[1]
+        # Envelope half-distance a_e = |e_max − e_min|/2 of the mode being sifted (emd.m's "amp").
+        self._amp = None if np.isscalar(max_env) else np.abs(max_env - min_env) / 2.0
+        return out
+
+    def check_imf(self, imf_new, imf_old, eMax, eMin) -> bool:  # PyEMD's signature
+        """Rilling's test: fraction(|m|/a_e > θ1) ≤ tol and |m|/a_e ≤ θ2 everywhere (m = imf_old − imf_new)."""
+        theta1, theta2, tol = self._stop
+        if self._amp is None:
+            return True
+        mean = np.abs(imf_old - imf_new)
+        amp = self._amp
+        sx = mean / np.where(amp > 0, amp, np.inf)
+        return bool(np.mean(sx > theta1) <= tol and not np.any(sx > theta2))
+
+
+def _check_signal(x: ArrayLike, fs: float, where: str, min_len: int = 16) -> NDArray[np.float64]:
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"{where}: x must be 1-D, got shape {x.shape}")
+    if x.size < min_len:
+        raise ValueError(f"{where}: x has {x.size} samples, need at least {min_len}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{where}: x contains NaN or inf; clean or interpolate the record first")
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"{where}: fs must be finite and > 0, got {fs}")
+    return x
+
+
+def _mirror(x: NDArray[np.float64], m: int) -> NDArray[np.float64]:
+    if m <= 0:
+        return x
+    m = min(m, x.size - 1)
+    return np.concatenate([x[m:0:-1], x, x[-2:-m - 2:-1]])
+
+
+def _unmirror(c: NDArray[np.float64], m: int, n: int) -> NDArray[np.float64]:
+    if m <= 0:
+        return c
+    m = min(m, n - 1)
+    return c[..., m:m + n]
+
+
+def emd(x: ArrayLike, fs: float, max_imf: int | None = None, *, mirror: int = 0,
+        stop: tuple[float, float, float] = RILLING_STOP) -> NDArray[np.float64]:
+    """EMD of ``x`` (eq. 2.34): rows = IMFs from highest to lowest frequency, last row the residual.
+
+    ``max_imf`` limits the number of IMFs (None: until the residual has < 3 extrema). The output always
+    has the residual as last row (zeros if PyEMD's IMFs sum exactly to ``x``). ``fs`` is only checked:
+    PyEMD sifts on the sample index, which is equivalent for uniform sampling.
+    """
+    x = _check_signal(x, fs, "emd")
+    n = x.size
+    scale = float(np.std(x))
+    if scale == 0:
+        return np.vstack([np.zeros(n), x])
+    sifter = _RillingEMD(stop)
+    sifter.emd(_mirror(x / scale, mirror), max_imf=-1 if max_imf is None else int(max_imf))
+    imfs, _ = sifter.get_imfs_and_residue()
+    imfs = _unmirror(np.atleast_2d(imfs), mirror, n) * scale
+    # PyEMD appends the residual only when it is non-zero; here the residual row is unconditional.
+    return np.vstack([imfs, (x - imfs.sum(axis=0))[None, :]])
+
+
+def first_imf(x: NDArray[np.float64], mirror: int = 0, stop: tuple[float, float, float] = RILLING_STOP) -> NDArray[np.float64]:
+    """Only the first (highest-frequency) IMF: PyEMD stops after one sifting loop (``max_imf=1``)."""
+    n = x.size
+    scale = float(np.std(x))
+    if scale == 0:
+        return np.zeros(n)
+    out = _RillingEMD(stop).emd(_mirror(x / scale, mirror), max_imf=1)
+    return _unmirror(out[0], mirror, n) * scale
+
+
+def masked_first_imf(x: ArrayLike, fs: float, mask: ArrayLike, *, mirror: int = 0,
+                     stop: tuple[float, float, float] = RILLING_STOP) -> NDArray[np.float64]:
+    """Masking-signal EMD (Deering & Kaiser 2005, seed L485): c = (IMF1(x + s) + IMF1(x − s)) / 2.
+
+    The mask s moves the sifting's frequency threshold; its own content cancels in the average
+    (exactly for the part of s that ends up in IMF1 of both runs). Like emd.m's MASK option, but only
+    the first IMF is computed, which is all WBEMD needs (eqs. 3.6–3.7).
+    """
+    x = _check_signal(x, fs, "masked_first_imf")
+    s = np.asarray(mask, dtype=np.float64)
+    if s.shape != x.shape:
+        raise ValueError(f"masked_first_imf: mask shape {s.shape} differs from x shape {x.shape}")
+    if not np.all(np.isfinite(s)):
+        raise ValueError("masked_first_imf: mask contains NaN or inf")
+    return 0.5 * (first_imf(x + s, mirror, stop) + first_imf(x - s, mirror, stop))
+
+
+def eemd(x: ArrayLike, fs: float, *, trials: int = 100, noise_width: float = 0.2, seed: int = 0,
+         max_imf: int | None = None) -> NDArray[np.float64]:
+    """Ensemble EMD (seed L481): mean over ``trials`` EMDs of x + white noise; last row residual.
+
+    ``noise_width`` is the noise standard deviation relative to std(x) (Wu & Huang 2009 suggest 0.2,
+    method-wbemd-slowflow.md §2.4 [EXT]); PyEMD's own ``noise_width`` is relative to the range
+    max(x) − min(x), so it is converted. Serial (``parallel=False``) and seeded, so results repeat.
+    The inner EMD is the emd.m-configured one of :func:`emd`.
+    """
+    x = _check_signal(x, fs, "eemd")
+    if trials < 1:
+        raise ValueError(f"eemd: trials must be >= 1, got {trials}")
+    scale = float(np.std(x))
+    if scale == 0:
+        return np.vstack([np.zeros(x.size), x])
+    xs = x / scale
+    rng_range = float(np.ptp(xs))
+    e = EEMD(trials=trials, noise_width=noise_width / rng_range, ext_EMD=_RillingEMD(), parallel=False)
+    e.noise_seed(seed)
+    imfs = e.eemd(xs, max_imf=-1 if max_imf is None else int(max_imf)) * scale
+    resid = x - imfs.sum(axis=0)
+    return np.vstack([imfs, resid[None, :]])
+
+
+def orthogonality_index(components: ArrayLike, x: ArrayLike | None = None) -> float:
+    """Index of orthogonality (Huang 1998; seed L934) in the form of Rilling's ``io()``.
+
+    IO = ½ Σ_{i≠j} |Σ_t c_i c_j| / Σ_t x², with the residual included as the last row of
+    ``components`` and x = Σ rows when ``x`` is None. The absolute value per pair (Rilling) keeps
+    positive and negative cross terms from cancelling; 0 means orthogonal components.
+    """
+    c = np.asarray(components, dtype=np.float64)
+    if c.ndim != 2 or c.shape[0] < 1:
+        raise ValueError(f"orthogonality_index: components must be 2-D (n_comp, n), got shape {c.shape}")
+    xv = c.sum(axis=0) if x is None else np.asarray(x, dtype=np.float64)
+    if xv.shape != c.shape[1:]:
+        raise ValueError(f"orthogonality_index: x shape {xv.shape} differs from component length {c.shape[1]}")
+    energy = float(np.dot(xv, xv))
+    if energy == 0:
+        raise ValueError("orthogonality_index: x has zero energy")
+    gram = np.abs(c @ c.T)
+    return float(0.5 * (gram.sum() - np.trace(gram)) / energy)
+
+
+def pcc(a: ArrayLike, b: ArrayLike) -> float:
+    """Pearson correlation coefficient (seed L853); 0 if either input is constant."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"pcc: shapes differ {a.shape} vs {b.shape}")
+    a = a - a.mean()
+    b = b - b.mean()
+    den = float(np.sqrt(np.dot(a, a) * np.dot(b, b)))
+    return 0.0 if den == 0 else float(np.dot(a, b) / den)

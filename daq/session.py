@@ -61,6 +61,7 @@ class SessionResult:
     aligner_dropped: dict[str, int] = field(default_factory=dict)  # samples the hit gate never saw, per stream
     analysis_events: list[dict] = field(default_factory=list)  # IR events of the near-live analysis
     analysis_dropped_samples: int = 0  # samples the analysis lane skipped because it fell behind
+    view_dropped_samples: int = 0  # samples the live view did not show (lossy side channel, daq/view/lane.py)
 
 
 def _simulated_rig(rig: Rig, ranges: dict[str, float]) -> Rig:
@@ -169,21 +170,23 @@ class _Reader:
 
 
 def run_session(
-    cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None, status: Callable[[dict], None] | None = None
+    cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None, status: Callable[[dict], None] | None = None,
+    view=None,
 ) -> SessionResult:
-    """Record the session's device(s) into ``out`` until ``stop``, the duration, or a driver ends."""
+    """Record the session's device(s) into ``out`` until ``stop``, the duration, or a driver ends; ``view``: a
+    :class:`daq.view.lane.ViewTarget` for the live view (a lossy fan-out subscriber)."""
     stop = stop or threading.Event()
     result = SessionResult(path=out)
     specs = cfg.device_list
     device, servers = _start_simulation(cfg, rig) if any(d.simulate is not None for d in specs) else (None, {})
     try:
-        return _run(cfg, rig, out, stop, status, result, specs, device, servers)
+        return _run(cfg, rig, out, stop, status, result, specs, device, servers, view)
     finally:
         for server, _ in servers.values():
             server.stop()
 
 
-def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> SessionResult:
+def _run(cfg, rig, out, stop, status, result, specs, device, servers, view=None) -> SessionResult:
     infos: list[ChannelInfo] = channel_infos(rig)
     by_name = {c.name: c for c in infos}
     readers: dict[str, _Reader] = {}
@@ -229,6 +232,12 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
         queue_size += max(8, int(cfg.queue_seconds * fs / block_guess))
     fan = FanOut()
     sub = fan.subscribe("hits", maxsize=max(64, queue_size))
+    vlane = None
+    if view is not None:
+        from daq.view.lane import start_view_lane
+
+        vlane = start_view_lane(fan, rig, {n: r.channels for n, r in readers.items()}, fs, view)
+    tee = vlane.offer if vlane is not None else (lambda topic, obj: None)
     ev_lock = threading.Lock()
     halt = threading.Event()  # the session ends: stop, duration reached, or a driver ended or died
     with LogWriter(
@@ -247,6 +256,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
         def write_events(r: _Reader) -> None:
             for ev in r.driver.drain_events():
                 writer.write_event(ev.kind, **{k: v for k, v in ev.as_dict().items() if k != "kind"})
+                tee("/daq/events", ev.as_dict())
                 with ev_lock:
                     result.events[ev.kind] = result.events.get(ev.kind, 0) + 1
 
@@ -266,6 +276,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
                 for h in detector.feed(blk):
                     result.hits.append(h)
                     writer.write_hit(h.summary())
+                    tee("/daq/hits", h.summary())
 
             for blk in sub:
                 if aligner is None:
@@ -281,6 +292,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
             for h in detector.finish():
                 result.hits.append(h)
                 writer.write_hit(h.summary())
+                tee("/daq/hits", h.summary())
 
         timeout = 0.2 if cfg.duration else None
         # a device may start later than the others (its own power-on, the simulated start_delay)
@@ -317,7 +329,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
             finally:
                 halt.set()  # one device ending (duration, silence, error) ends the session
 
-        lane = _analysis_lane(cfg, rig, fan, {n: r.channels for n, r in readers.items()}, fs, writer, block_guess)
+        lane = _analysis_lane(cfg, rig, fan, {n: r.channels for n, r in readers.items()}, fs, writer, block_guess, tee)
         worker = threading.Thread(target=hit_gate, name="hit-gate", daemon=True)
         worker.start()
         t0 = time.monotonic()
@@ -360,6 +372,11 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
             if lane is not None:
                 result.analysis_events = [e.as_dict() for e in lane.join(timeout=60)]
                 result.analysis_dropped_samples = lane.sub.dropped_samples
+            if vlane is not None:
+                vlane.join()
+                result.view_dropped_samples = vlane.sub.dropped_samples
+                if (vev := vlane.overrun_event()) is not None:
+                    writer.write_event(vev.pop("kind"), **vev)
         result.suspects = detector.suspects()
         for c in result.suspects:
             writer.write_event("suspect_channel", message=f"channel {c} clipped on every one of {detector.health.hits} hits")
@@ -394,7 +411,7 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers) -> Session
     return result
 
 
-def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, writer: LogWriter, block: int):
+def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, writer: LogWriter, block: int, tee=None):
     """Start the near-live analysis on the stream that carries the rig's sensors (None if off or absent)."""
     spec = cfg.analysis
     if not spec.enabled:
@@ -407,6 +424,8 @@ def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, 
             writer.write_event(obj["kind"], **{k: v for k, v in obj.items() if k != "kind"})
         else:
             writer.write_json(topic, obj, log_time_ns=log_time_ns)
+        if tee is not None:
+            tee(topic, obj)
 
     settings = AnalysisSettings(window_s=spec.window_s, n_keep=spec.n_keep, seed_lane=spec.seed_lane)
     maxsize = max(64, int(spec.queue_seconds * fs / max(1, block)))

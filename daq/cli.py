@@ -206,6 +206,8 @@ def replay(
     speed: Annotated[float, typer.Option(min=0.0, help="1 = real time, 2 = twice as fast, 0 = full speed.")] = 0.0,
     analysis: Annotated[bool, typer.Option(help="Run the near-live analysis on the replayed blocks.")] = True,
     rig: Annotated[str | None, typer.Option(help="Rig for the analysis (default: the one attached to the log).")] = None,
+    view: Annotated[bool, typer.Option("--view", help="Serve the rerun web viewer on 127.0.0.1 and show the replay.")] = False,
+    connect: Annotated[str | None, typer.Option("--connect", help="Show it in a running rerun viewer (gRPC url).")] = None,
 ) -> None:
     """Feed a log through the live fan-out (block boundaries and sample indices kept), with the near-live analysis."""
     import threading
@@ -226,7 +228,8 @@ def replay(
         rep = Replayer(log, fan, speed=speed or None)
     except LogReadError as exc:
         fail(str(exc))
-    lane = _replay_lane(rep, fan, rig) if analysis else None
+    vtarget, vlane = _replay_view(rep, fan, rig, view, connect)
+    lane = _replay_lane(rep, fan, rig, vlane) if analysis else None
     t = threading.Thread(target=consume, daemon=True)
     t.start()
     try:
@@ -243,6 +246,12 @@ def replay(
         if lane.sub.dropped_blocks:
             out.print(f"analysis fell behind: skipped {lane.sub.dropped_samples} samples (restarted after each gap)",
                       markup=False)  # fmt: skip
+    if vlane is not None:
+        vlane.join()
+    if vtarget is not None:
+        from daq.view.cli_glue import close_live_view
+
+        close_live_view(out, vtarget, vlane)
     health = "" if rep.reader.report.complete else f" (damaged log: {rep.reader.report.messages} messages salvaged)"
     for stream, n in stats.samples.items():
         gaps = stats.gaps.get(stream, [])
@@ -256,7 +265,32 @@ def replay(
     )
 
 
-def _replay_lane(rep, fan, rig_arg: str | None):
+def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None):
+    """The live view of a replay (``--view`` / ``--connect``): target and lane, or (None, None)."""
+    if not view and not connect:
+        return None, None
+    from daq.analyze import AnalyzeError, rig_from_log
+    from daq.view.cli_glue import open_live_view
+    from daq.view.lane import ViewError, start_view_lane
+
+    try:
+        target = open_live_view(out, view, connect)
+    except ViewError as exc:
+        fail(str(exc))
+    infos = rep.reader.streams()
+    try:
+        r = _open(rig_arg) if rig_arg is not None else rig_from_log(rep.reader)
+    except AnalyzeError:
+        r = None
+    fs = next(iter(infos.values())).sample_rate if infos else 1.0
+    vlane = start_view_lane(fan, r, {n: tuple(i.channels) for n, i in infos.items()}, fs, target)
+    for topic in ("/daq/hits", "/daq/events", "/analysis/confirmations"):  # recorded results: shown as they are
+        for obj in rep.reader.json_messages(topic):
+            vlane.offer(topic, obj)
+    return target, vlane
+
+
+def _replay_lane(rep, fan, rig_arg: str | None, vlane=None):
     """The analysis lane for a replay (None, with a note, when the log cannot be analysed)."""
     from daq.analysis_lane import LaneUnavailable, start_analysis_lane
     from daq.analyze import AnalyzeError, rig_from_log
@@ -267,7 +301,7 @@ def _replay_lane(rep, fan, rig_arg: str | None):
         r = _open(rig_arg) if rig_arg is not None else rig_from_log(rep.reader)
         # every stream of a session shares one sample rate (daq/session.py refuses mixed rates)
         fs = next(iter(infos.values())).sample_rate
-        return start_analysis_lane(fan, r, streams, fs, lambda *_: None, maxsize=4096)
+        return start_analysis_lane(fan, r, streams, fs, vlane.sink() if vlane is not None else lambda *_: None, maxsize=4096)
     except (AnalyzeError, LaneUnavailable, StopIteration) as exc:
         err.print(f"gvt: note: no analysis: {exc or 'the log has no sample streams'}", markup=False, soft_wrap=True)
         return None
@@ -281,6 +315,7 @@ def analyze(
     window: Annotated[float | None, typer.Option(min=0.0, help="Window length, s (default: 0.45 / f1 of the rig).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print JSON (summary, events, warnings).")] = False,
     windows_out: Annotated[bool, typer.Option("--windows", help="With --json: also every window's RQ and modal result.")] = False,
+    rrd: Annotated[Path | None, typer.Option("--rrd", help="Also write a rerun recording (.rrd).")] = None,
 ) -> None:
     """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
     from analysis.operator import AnalysisSettings
@@ -295,6 +330,11 @@ def analyze(
             run = analyze_log(log, r, stream, AnalysisSettings(window_s=window), progress=lambda f: report("analysing", f))
     except AnalyzeError as exc:
         fail(str(exc))
+    if rrd is not None:
+        from daq.view.build import build_rrd
+
+        summary = build_rrd(log, rrd, rig=r, results=run.results)
+        (err if json_out else out).print(f"wrote {rrd} ({summary.blocks} blocks); open it: {_rerun_hint()} {rrd}", markup=False)
     if json_out:
         print_json(out, run, full=windows_out)
     else:
@@ -306,6 +346,8 @@ def record(
     session: Annotated[Path, typer.Argument(help="Session config (configs/sessions/*.toml).")],
     out_path: Annotated[Path | None, typer.Option("--out", help="Output log (default: the config's output).")] = None,
     duration: Annotated[float | None, typer.Option(min=0.1, help="Seconds to record (default: the config's).")] = None,
+    view: Annotated[bool, typer.Option("--view", help="Serve the rerun web viewer on 127.0.0.1, show it live.")] = False,
+    connect: Annotated[str | None, typer.Option("--connect", help="Show it in a running rerun viewer (gRPC url).")] = None,
 ) -> None:
     """Record a session: device → MCAP log, with the hammer trigger and hit quality gate."""
     import signal
@@ -324,10 +366,16 @@ def record(
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     from daq.live_status import LiveStatus
+    from daq.view.cli_glue import close_live_view, open_live_view
+    from daq.view.lane import ViewError
 
     try:
+        vtarget = open_live_view(out, view, connect)
+    except ViewError as exc:
+        fail(str(exc))
+    try:
         with LiveStatus(out, cfg.name) as live:
-            res = run_session(cfg, r, target, stop=stop, status=live.update)
+            res = run_session(cfg, r, target, stop=stop, status=live.update, view=vtarget)
     except KeyboardInterrupt:
         stop.set()
         raise
@@ -358,8 +406,16 @@ def record(
         from daq.analyze_cmd import events_table
 
         out.print(events_table(res.analysis_events, "internal-resonance events (near-live analysis)"))
+    close_live_view(out, vtarget, None)
+    if res.view_dropped_samples:
+        out.print(f"view: did not show {res.view_dropped_samples} samples (view_overrun event in the log)", markup=False)
     if res.driver_error:
         fail(f"the driver stopped: {res.driver_error}", code=1)
+
+
+def _rerun_hint() -> str:
+    exe = Path(sys.executable).parent / "rerun"
+    return str(exe) if exe.exists() else "rerun"
 
 
 def _open(rig: str):

@@ -1,0 +1,168 @@
+"""The rerun view (daq/view/): offline .rrd of a session log, the live lossy side channel, CLI wiring.
+
+The .rrd files are checked with the bundled ``rerun rrd verify`` and their entity paths read back with
+``rerun rrd print`` (the CLI is next to the interpreter in the venv, not necessarily on PATH).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daq.config.session import AnalysisSpec, DeviceSpec, SessionConfig, TriggerSpec
+from daq.log.reader import LogReader
+from daq.rigs import open_rig
+from daq.session import run_session
+
+RERUN = Path(sys.executable).parent / "rerun"
+ENV = {**os.environ, "RERUN_TELEMETRY": "0"}
+pytestmark = pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed next to python")
+
+
+def session_config(duration: float = 2.2, paced: bool = False) -> SessionConfig:
+    return SessionConfig(
+        name="view-test", rig="beam_ch4_exp", duration=duration,
+        device=DeviceSpec(driver="sim", config={"paced": paced, "block_size": 512, "forces": [700.0, 1583.0], "period": 1.0,
+                                                "physics_seconds": duration + 0.2, "seed": 3}),
+        trigger=TriggerSpec(level=20.0, record_length=0.3, driving_point="a13"),
+        analysis=AnalysisSpec(queue_seconds=30.0),  # unpaced, the device outruns the analysis; a queue for all of it
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def session_log(tmp_path_factory):
+    out = tmp_path_factory.mktemp("view") / "session.mcap"
+    res = run_session(session_config(), open_rig("beam_ch4_exp"), out)
+    assert res.lost_samples == 0 and len(res.hits) == 2
+    return out
+
+
+def rrd_verify(path: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True, text=True, env=ENV, timeout=60)
+
+
+def rrd_entity_paths(path: Path) -> set[str]:
+    p = subprocess.run([str(RERUN), "rrd", "print", str(path)], capture_output=True, text=True, env=ENV, timeout=60)
+    assert p.returncode == 0, p.stderr
+    return set(re.findall(r"(?<![\w/])(/(?:raw|hammer|rq|rqfep|modal|pom|wavelet|slowflow|log)\b(?:/[\w.-]+)*)", p.stdout))
+
+
+EXPECTED = {
+    "/raw/dev0/a01", "/raw/dev0/a14", "/hammer/force", "/hammer/hits", "/rq/nnm1", "/rq/nnm2", "/rq/ir_events",
+    "/modal/energy/mode1", "/modal/energy/mode4", "/rqfep/nnm1", "/pom/current", "/wavelet/a13", "/log/daq", "/log/analysis",
+}  # fmt: skip
+
+
+def test_offline_rrd_verifies_and_holds_the_layout(session_log, tmp_path):
+    from daq.view.build import build_rrd
+
+    out = tmp_path / "session.rrd"
+    s = build_rrd(session_log, out)
+    assert s.results_from == "log" and s.counts["/daq/hits"] == 2 and s.counts["/wavelet"] == 2
+    v = rrd_verify(out)
+    assert v.returncode == 0, v.stdout + v.stderr
+    paths = rrd_entity_paths(out)
+    assert EXPECTED <= paths, EXPECTED - paths
+    events = LogReader(session_log).json_messages("/analysis/events")
+    assert events and {f"/pom/events/e{e['id']}" for e in events} <= paths  # POMs over every IR event's span
+
+
+def test_envelope_keeps_extremes_and_display_rate():
+    from daq.view.recording import envelope
+
+    fs, bucket = 16384.0, 33  # 16384 / 500 Hz display buckets
+    x = np.random.default_rng(1).standard_normal((bucket * 100, 3)).astype(np.float32)
+    mn, mx = envelope(x, bucket)
+    assert mn.shape == (100, 3) and np.array_equal(mx.max(axis=0), x.max(axis=0)) and np.array_equal(mn.min(axis=0), x.min(axis=0))
+    assert 2 * fs / bucket <= 1000  # two points (min, max) per bucket: at most 1000 points/s per channel
+
+
+def with_synthetic_confirmation(src: Path, dst: Path) -> dict:
+    """Copy a session log and add ONE SYNTHETIC /analysis/confirmations message (not computed by any
+    analysis: its numbers are made up to exercise the view and the report)."""
+    from daq.log.writer import ChannelInfo, LogWriter
+    from daq.replay import iter_log_blocks
+
+    r = LogReader(src)
+    events = r.json_messages("/analysis/events")
+    ev = events[-1]
+    t = np.linspace(ev["start_s"], ev["end_s"], 50)
+    conf = {
+        "event_id": ev["id"], "event": ev, "status": "confirmed", "ratio": "3:1", "m": 3, "n": 1,
+        "start_s": ev["start_s"], "end_s": ev["end_s"],
+        "candidates": [{"ratio": "3:1", "captured_fraction": 0.8, "intervals": [[ev["start_s"], ev["end_s"]]], "drift_sign": 0}],
+        "trajectory": {"t": t.tolist(), "phi": np.linspace(0.2, 1.4, 50).tolist(), "phi_dot": np.cos(np.linspace(0, 3, 50)).tolist()},
+        "imf_freqs_hz": [21.0, 63.0], "orthogonality_index": 0.012, "elapsed_s": 0.5, "synthetic": True,
+    }  # fmt: skip
+    with LogWriter(dst) as w:
+        for n, i in r.streams().items():
+            w.add_stream(n, [ChannelInfo(c, "other", "") for c in i.channels], i.sample_rate, t0_ns=i.t0_ns)
+        for name, (media, data) in r.attachments().items():
+            w.add_attachment(name, data, media)
+        for blk in iter_log_blocks(r):
+            w.write_block(blk, wait=True)
+        for topic in ("/daq/hits", "/daq/events", "/analysis/rq", "/analysis/modal", "/analysis/events", "/analysis/rq_spikes",
+                      "/analysis/warnings"):  # fmt: skip
+            for o in r.json_messages(topic):
+                w.write_json(topic, o)
+        w.write_json("/analysis/confirmations", conf)
+    return conf
+
+
+def test_confirmations_become_slow_flow_trajectories(session_log, tmp_path):
+    from daq.view.build import build_rrd
+
+    log = tmp_path / "confirmed.mcap"
+    conf = with_synthetic_confirmation(session_log, log)
+    out = tmp_path / "confirmed.rrd"
+    s = build_rrd(log, out)
+    assert s.counts.get("/slowflow") == 1 and s.counts["/analysis/confirmations"] == 1
+    assert rrd_verify(out).returncode == 0
+    assert f"/slowflow/e{conf['event_id']}" in rrd_entity_paths(out)
+
+
+def test_a_slow_view_never_holds_up_the_recording(tmp_path):
+    """A viewer sink that takes 0.2 s per block: had the recording waited for it, 2.2 s of data in 71 blocks
+    would have taken >= 14 s. It must take about as long as without a view, lose nothing, and the view must
+    drop (and say so in the log and in the view)."""
+    from daq.view.lane import open_view
+
+    rrd = tmp_path / "live.rrd"
+    target = open_view("save", str(rrd))
+    target.sink_delay_s = 0.2
+    out = tmp_path / "live.mcap"
+    t0 = time.monotonic()
+    res = run_session(session_config(), open_rig("beam_ch4_exp"), out, view=target)
+    wall = time.monotonic() - t0
+    target.close()
+    assert res.lost_samples == 0 and res.writer_overrun_samples == 0 and res.analysis_dropped_samples == 0
+    assert wall < 8.0, wall  # unpaced: ~1–3 s on a loaded 2-core machine; waiting on the view: >= 14 s
+    r = LogReader(out)
+    data = r.read_stream("dev0")
+    assert data.data.shape[0] == round(2.2 * 16384) and not data.gaps  # every sample recorded
+    assert res.view_dropped_samples > 0
+    ev = [e for e in r.json_messages("/daq/events") if e["kind"] == "view_overrun"]
+    assert len(ev) == 1 and ev[0]["count"] == res.view_dropped_samples
+    assert rrd_verify(rrd).returncode == 0
+    p = subprocess.run([str(RERUN), "rrd", "print", "-vvv", str(rrd)], capture_output=True, text=True, env=ENV, timeout=60)
+    assert "fell behind" in p.stdout  # the drop is shown in the view's text log
+
+
+def test_the_view_keeps_up_when_it_is_fast(tmp_path):
+    """Paced at 1x (near-live): nothing dropped, hits and analysis results reach the view."""
+    from daq.view.lane import open_view
+
+    rrd = tmp_path / "live.rrd"
+    target = open_view("save", str(rrd))
+    res = run_session(session_config(duration=1.6, paced=True), open_rig("beam_ch4_exp"), tmp_path / "paced.mcap", view=target)
+    target.close()
+    assert res.view_dropped_samples == 0 and len(res.hits) >= 1
+    paths = rrd_entity_paths(rrd)
+    assert {"/raw/dev0/a01", "/hammer/force", "/hammer/hits", "/rq/nnm1", "/modal/energy/mode1", "/wavelet/a13"} <= paths

@@ -55,8 +55,10 @@ class DetectorParams:
 
     ``max_phase_range``: largest Φ excursion (rad) between two successive reversals of Φ that still
     counts as one loop — a captured slow angle stays within one turn.
-    ``min_sign_changes``: Φ̇ reversals needed in a chain (two = one loop; one is a mere passage).
-    ``max_gap_cycles``: successive reversals further apart than this many cut-off periods are not chained.
+    ``min_sign_changes``: Φ̇ reversals needed in a chain, ≥ 2 (two = one loop; one is a mere passage).
+    ``max_gap_cycles``: successive reversals further apart than this many cut-off periods are not chained
+    (a loop's reversals come every few slow periods; without this bound a loose ``max_phase_range`` let
+    the filter's start-up transient chain onto a capture seconds later and drag it into the end guard).
     ``dead_band_rel``: Φ̇ must leave ±dead_band_rel·m·mean(ω_a) for a sign change to count (rejects
     rounding chatter about zero, e.g. a linear 1:1 pair whose Φ̇ is identically ~0).
     ``end_guard_s``: intervals starting or ending this close to the record ends are ``end_effect``;
@@ -66,14 +68,14 @@ class DetectorParams:
 
     max_phase_range: float = 2.0 * math.pi
     min_sign_changes: int = 2
-    max_gap_cycles: float = 10.0
+    max_gap_cycles: float = 3.0
     dead_band_rel: float = 0.002
     end_guard_s: float | None = None
     end_guard_min_s: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.max_gap_cycles <= 0 or self.max_phase_range <= 0 or self.min_sign_changes < 1:
-            raise ValueError("DetectorParams: max_gap_cycles and max_phase_range must be > 0, min_sign_changes >= 1")
+        if self.max_gap_cycles <= 0 or self.max_phase_range <= 0 or self.min_sign_changes < 2:
+            raise ValueError("DetectorParams: max_gap_cycles and max_phase_range must be > 0, min_sign_changes >= 2")
         if self.dead_band_rel < 0 or self.end_guard_min_s < 0:
             raise ValueError("DetectorParams: dead_band_rel and end_guard_min_s must be >= 0")
 

@@ -151,6 +151,6 @@ def test_linear_beam_modal_coordinates_have_no_slow_angle():
 
 def test_detector_params_are_validated():
     with pytest.raises(ValueError, match="DetectorParams"):
-        sf.DetectorParams(min_sign_changes=0)
+        sf.DetectorParams(min_sign_changes=1)
     with pytest.raises(ValueError, match="DetectorParams"):
         sf.DetectorParams(dead_band_rel=-1.0)

@@ -413,6 +413,26 @@ def record(
         fail(f"the driver stopped: {res.driver_error}", code=1)
 
 
+@app.command()
+def report(
+    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    out_path: Annotated[Path, typer.Option("--out", help="Output HTML file (self-contained).")] = Path("report.html"),
+    rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
+) -> None:
+    """A static HTML report of a session: plots and tables of hits, verdicts, loss, RQ-FEP, IR events, confirmations."""
+    from daq.log.reader import LogReadError
+    from daq.report import build_report
+
+    if out_path.parent and not out_path.parent.exists():
+        fail(f"--out {out_path}: directory {out_path.parent} does not exist")
+    try:
+        s = build_report(log, out_path, rig=_open(rig) if rig is not None else None)
+    except LogReadError as exc:
+        fail(str(exc))
+    out.print(f"wrote {out_path}: {len(s.figures)} plots, {len(s.tables)} tables (analysis results from {s.results_from})",
+              markup=False)  # fmt: skip
+
+
 def _rerun_hint() -> str:
     exe = Path(sys.executable).parent / "rerun"
     return str(exe) if exe.exists() else "rerun"

@@ -105,4 +105,16 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap")
         f"{', '.join(res.suspects) or 'none'}. Inspect it: gvt log info {out}  ·  replay: gvt replay {out}"
     )
     console.print(f"  analyse it again (same kernels, batch): gvt analyze {out}")
-    return {"hits": [h.verdict for h in res.hits], "lost": res.lost_samples, "path": out, "events": res.analysis_events}
+    rrd = str(Path(out).with_suffix(".rrd"))
+    from daq.view.build import build_rrd
+    from daq.view.lane import ViewError, rerun_cli
+
+    build_rrd(out, rrd, rig=rig)
+    try:
+        viewer = rerun_cli()
+    except ViewError:
+        viewer = "rerun"
+    console.print(f"  rerun recording: {rrd} — open it with: {viewer} {rrd}", markup=False)
+    console.print(f"  static report: gvt report {out} --out report.html", markup=False)
+    events = res.analysis_events
+    return {"hits": [h.verdict for h in res.hits], "lost": res.lost_samples, "path": out, "events": events, "rrd": rrd}

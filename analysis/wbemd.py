@@ -287,6 +287,8 @@ def _extract_step(z: NDArray[np.float64], fs: float, t: NDArray[np.float64], wi:
 
     def fun(a: float, b: float) -> float:
         key = (round(float(a), 6), round(float(b), 6))
+        if key not in cache and len(evals) >= p.max_evals:
+            return 1e9  # budget spent (scipy's DIRECT may overshoot maxfun): refuse further EMDs
         if key not in cache:
             s = zmax * key[0] * np.sin(key[1] * wi * t)
             ev = _evaluate(masked_first_imf(z, fs, s, mirror=p.mirror), zoom, z_mwt, w, i_at, wi, wnext, p)

@@ -173,8 +173,7 @@ def characteristic_frequencies(x: ArrayLike, fs: float, n: int, f_min_hz: float,
         raise ValueError(f"characteristic_frequencies: n must be >= 1, got {n}")
     grid = np.linspace(f_min_hz, f_max_hz, n_freq_bins)
     m = mwt(morlet_cwt(x, fs, grid, omega0=omega0, dtype=np.complex64), fs, trim_s)
-    peaks, props = signal.find_peaks(np.concatenate([[0.0], m, [0.0]]), prominence=0)
-    peaks = peaks - 1
+    peaks, props = signal.find_peaks(m, prominence=0)  # interior maxima only: a band edge is not a peak
     if peaks.size < n:
         raise ValueError(f"characteristic_frequencies: MWT has {peaks.size} peaks in [{f_min_hz}, {f_max_hz}] Hz, need {n}")
     best = peaks[np.argsort(props["prominences"])[::-1][:n]]

@@ -39,7 +39,7 @@ Sink = Callable[[str, dict, int | None], None]
 @dataclass(frozen=True)
 class LaneSettings:
     buffer_s: float = 8.0  # ring length: the longest stretch of data an event's confirmation can use
-    post_s: float = 0.3  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
+    post_s: float = 0.5  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
     max_pending: int = 4  # confirmations queued in the worker at once; more are skipped and said
     event_queue: int = 256
 

@@ -1,0 +1,218 @@
+"""Confirm a flagged internal resonance: WBEMD of one sensor's displacement, then the slow flow (seed Ch. 3–4).
+
+The near-live detector (analysis/exchange.py) flags "mode r gave energy to mode s at about m:n". The seed
+proves such a flag by decomposing the response into well-separated components (WBEMD, eqs. 3.4–3.11)
+and showing that the slow phase Φ_{m:n} = mθ̂_low − nθ̂_high of the two components stops drifting
+(non-time-like loops, L986, L1298). This module does that for one event's stretch of data:
+
+1. accelerations → displacements by the seed's §4.3 chain, zero-phase (batch data), with the high-pass
+   corners lowered to half the giving mode's frequency when the seed's 18/10 Hz would eat it
+   (docs/preprocessing.md: the 18 Hz filter keeps 0.71 of a 21 Hz mode);
+2. the sensor: the one where both modes of the event are most visible (largest min over the two modes of
+   |φ_k(s)| / max|φ_k|, mode shapes of the rig's Guyan model at the sensors);
+3. characteristic frequencies: the MWT peaks of that displacement (L769, L478), with the event's two
+   frequencies put in when no peak lies within ``match_rel`` of them; WBEMD into those components;
+4. the two IMFs nearest the event's frequencies go to :func:`analysis.slowflow.test_ratios`, which scans
+   (m−2 … m+2):n and applies the bracketing rule (L1296–L1298).
+
+The record (a plain dict, the ``/analysis/confirmations`` message) carries the confirmed ratio and interval
+or "not_confirmed", the candidates, the (Φ, Φ̇) trajectory decimated for display, the IMF frequencies and
+the orthogonality index.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+from numpy.typing import NDArray
+
+from analysis.preprocess import PreprocessSettings, acc_to_disp
+from analysis.slowflow import DetectorParams, candidate_ratios, test_ratios, trajectory
+from analysis.wavelet import analytic
+from analysis.wbemd import WbemdParams, characteristic_frequencies, wbemd
+
+
+@dataclass(frozen=True)
+class ConfirmSettings:
+    n_imfs: int = 4  # components WBEMD extracts (the seed's experiment: 4 IMFs, L1316–L1445)
+    pre_s: float = 0.5  # data before the event's start given to the decomposition (>= the slow-flow end guard, 0.3 s)
+    match_rel: float = 0.15  # an MWT peak within this fraction of an event frequency stands for it
+    f_max_factor: float = 4.0  # MWT peak search up to this × the higher event frequency
+    vel_corner_hz: float = 18.0  # seed §4.3 (L1322–L1323), lowered to half the giving mode when above it
+    disp_corner_hz: float = 10.0
+    lowpass_hz: float | None = None  # instantaneous-frequency low-pass (None: slowflow's default for the data)
+    span: int = 2  # candidates (m−span … m+span):n (L1296)
+    min_gain: float = 1.5  # receiving IMF's energy (amplitude²) end / start of the event, slow-angle test
+    max_turn: float = 2.0 * math.pi  # largest Φ range over the event for a slow angle (one turn)
+    wbemd: WbemdParams = field(default_factory=WbemdParams)
+    detector: DetectorParams = field(default_factory=DetectorParams)
+
+
+@dataclass(frozen=True)
+class ConfirmContext:
+    """What a confirmation needs of the rig (small and picklable: it travels to the worker process)."""
+
+    sensors: tuple[str, ...]
+    shapes: NDArray[np.float64]  # (n_sensors, n_modes) Guyan mode shapes at the sensors, ascending frequency
+    settings: ConfirmSettings = ConfirmSettings()
+
+    @property
+    def pre_s(self) -> float:
+        return self.settings.pre_s
+
+    @classmethod
+    def from_model(cls, model, settings: ConfirmSettings = ConfirmSettings()) -> ConfirmContext:
+        """From an :class:`analysis.operator.RigModel` (Guyan M, K at the sensors, sensors in model order)."""
+        _w2, phi = scipy.linalg.eigh(model.K, model.M)
+        return cls(sensors=tuple(model.sensors), shapes=np.asarray(phi), settings=settings)
+
+
+def pick_sensor(shapes: NDArray[np.float64], modes: tuple[int, int]) -> int:
+    """Index of the sensor where both (1-based) modes are most visible: max over s of min_k |φ_k(s)|/max|φ_k|."""
+    cols = [k - 1 for k in modes]
+    if min(cols) < 0 or max(cols) >= shapes.shape[1]:
+        raise ValueError(f"modes {modes} outside the model's {shapes.shape[1]} modes")
+    a = np.abs(shapes[:, cols])
+    return int(np.argmax(np.min(a / a.max(axis=0), axis=1)))
+
+
+def _frequencies(x: NDArray[np.float64], fs: float, f_a: float, f_b: float, s: ConfirmSettings) -> NDArray[np.float64]:
+    lo, hi = min(f_a, f_b), max(f_a, f_b)
+    f_max = min(s.f_max_factor * hi, 0.4 * fs)
+    peaks: list[float] = []
+    for k in range(s.n_imfs, 0, -1):  # as many distinct MWT peaks as there are, up to n_imfs
+        try:
+            peaks = list(characteristic_frequencies(x, fs, k, 0.5 * lo, f_max))
+            break
+        except ValueError:
+            continue
+    for f in (f_a, f_b):
+        near = [p for p in peaks if abs(p - f) <= s.match_rel * f]
+        if near:
+            peaks.remove(min(near, key=lambda p: abs(p - f)))
+        elif len(peaks) >= s.n_imfs:
+            peaks.remove(min((p for p in peaks if all(abs(p - g) > s.match_rel * g for g in (f_a, f_b))),
+                             key=lambda p: abs(np.log(p / f)), default=peaks[-1]))  # fmt: skip
+        peaks.append(f)
+    out = np.sort(np.asarray(peaks, dtype=np.float64))
+    keep = np.concatenate([[True], np.diff(out) > 0.05 * out[1:]])  # distinct components only
+    return out[keep]
+
+
+@dataclass(frozen=True)
+class SlowAngle:
+    """The slow-angle test of one event (seed L574: near resonance Φ_{k:l} is a slow angle; finding one
+    shows the resonance). ``phase_range`` per candidate is the range of Φ_{m:n} over the event interval."""
+
+    ratio: tuple[int, int]  # the candidate whose Φ moves least over the event
+    phase_range: dict[tuple[int, int], float]
+    gain: float  # energy gain of the higher-frequency IMF over the event (amplitude² end / start)
+    passed: bool
+
+
+def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s: float, end_s: float, m: int, n: int,
+                    s: ConfirmSettings) -> SlowAngle:  # fmt: skip
+    """Is Φ_{m:n} a slow angle while the higher component gains energy (the exchange the detector flagged)?
+
+    Three conditions, all physical: (1) the higher IMF's energy grows by ``min_gain`` over the event — an
+    exchange seen in one sensor's WBEMD component, independent of the detector's modal filter; (2) of the
+    candidates (m−2 … m+2):n the slowest angle over the event is the confirmed ratio — the bracketing rule
+    (L1298) in its integral form: the neighbours drift faster on either side; (3) that angle moves less
+    than ``max_turn`` over the event (the averaged energy flow ∝ sin Φ keeps its direction for a half
+    turn; one turn allows for the ramp in and out). Captured loops (non-time-like, :mod:`analysis.slowflow`)
+    are the stronger evidence and reported separately.
+    """
+    lp = 0.25 * _mean_freq(low, fs)
+    t = t0_s + np.arange(low.size) / fs
+    sel = (t >= start_s) & (t <= end_s)
+    if sel.sum() < 4:
+        raise ValueError(f"event {start_s:.3f}–{end_s:.3f} s has fewer than 4 samples in its segment")
+    ranges = {}
+    for r in candidate_ratios(m, n, s.span):
+        tr = trajectory(low, high, fs, r[0], r[1], lowpass_hz=lp, t0=t0_s)
+        ranges[r] = float(np.ptp(tr.phi[sel]))
+    best = min(ranges, key=ranges.get)
+    amp = analytic(high, fs, lowpass_hz=None).amplitude
+    sos = scipy.signal.butter(3, min(0.25 * _mean_freq(high, fs), 0.4 * fs), fs=fs, output="sos")
+    amp = scipy.signal.sosfiltfilt(sos, amp)
+    a = amp[sel]
+    gain = float((a[-1] / a[0]) ** 2) if a[0] > 0 else float("inf")
+    return SlowAngle(best, ranges, gain, bool(gain >= s.min_gain and ranges[best] < s.max_turn))
+
+
+def _mean_freq(x: NDArray, fs: float) -> float:
+    ph = analytic(x, fs, lowpass_hz=None).phase
+    return abs(ph[-1] - ph[0]) / (2.0 * math.pi) * fs / max(ph.size - 1, 1)
+
+
+def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, Any], context: ConfirmContext) -> dict:
+    """Confirm one IR event on its stretch of sensor accelerations ``seg`` (n, sensors in context order).
+
+    ``t0_s`` is the time of ``seg[0]`` on the stream's clock; times in the record are on that clock too.
+    """
+    t_start = time.perf_counter()
+    s = context.settings
+    modes = tuple(int(k) for k in event["modes"])
+    f_give, f_recv = float(event["f_give_hz"]), float(event["f_recv_hz"])
+    m, n = int(event["m"]), int(event["n"])
+    if not (math.isfinite(f_give) and math.isfinite(f_recv) and f_give > 0 and f_recv > 0):
+        raise ValueError(f"event {event.get('id')}: frequencies {f_give}, {f_recv} Hz are not usable")
+    acc = np.asarray(seg, dtype=np.float64)
+    if acc.ndim != 2 or acc.shape[1] != len(context.sensors):
+        raise ValueError(f"segment of shape {acc.shape} for {len(context.sensors)} sensors")
+    f_low = min(f_give, f_recv)
+    pre = PreprocessSettings(vel_corner_hz=min(s.vel_corner_hz, 0.5 * f_low), disp_corner_hz=min(s.disp_corner_hz, 0.5 * f_low))
+    k = pick_sensor(context.shapes, modes)
+    _v, disp = acc_to_disp(acc[:, [k]], fs, pre)
+    x = disp[:, 0]
+    freqs = _frequencies(x, fs, f_give, f_recv, s)
+    dec = wbemd(x, fs, freqs, params=s.wbemd)
+    i_lo = int(np.argmin(np.abs(dec.char_freqs_hz - f_low)))
+    i_hi = int(np.argmin(np.abs(dec.char_freqs_hz - max(f_give, f_recv))))
+    base = {
+        "event_id": event.get("id"), "event": dict(event), "sensor": context.sensors[k],
+        "imf_freqs_hz": dec.char_freqs_hz.tolist(), "orthogonality_index": float(dec.orthogonality_index),
+        "segment_s": [t0_s, t0_s + acc.shape[0] / fs],
+    }  # fmt: skip
+    if i_lo == i_hi:
+        return {**base, "status": "not_confirmed", "reason": "the two event frequencies fell on one IMF", "ratio": None,
+                "m": None, "n": None, "start_s": None, "end_s": None, "candidates": [], "trajectory": None,
+                "elapsed_s": time.perf_counter() - t_start}  # fmt: skip
+    lo_imf, hi_imf = dec.imfs[i_lo], dec.imfs[i_hi]
+    c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=s.detector, t0=t0_s)
+    sa = slow_angle_test(lo_imf, hi_imf, fs, t0_s, float(event["start_s"]), float(event["end_s"]), m, n, s)
+    captured = c.status == "confirmed"
+    if captured:
+        status, evidence, (cm, cn), span = "confirmed", "captured", (c.m, c.n), (c.start_s, c.end_s)
+        reason = c.reason
+    elif sa.passed:
+        status, evidence, (cm, cn) = "confirmed", "slow_angle", sa.ratio
+        span = (float(event["start_s"]), float(event["end_s"]))
+        reason = (f"Φ_{cm}:{cn} moved {sa.phase_range[sa.ratio]:.2f} rad (slowest of the candidates) while the "
+                  f"{dec.char_freqs_hz[i_hi]:.1f} Hz component gained ×{sa.gain:.2f} in energy")  # fmt: skip
+    else:
+        status, evidence, (cm, cn), span = "not_confirmed", None, (None, None), (None, None)
+        reason = (f"no captured loops ({c.reason}); slow-angle test: gain ×{sa.gain:.2f} (needs {s.min_gain}), "
+                  f"slowest Φ_{sa.ratio[0]}:{sa.ratio[1]} moved {sa.phase_range[sa.ratio]:.2f} rad (needs < {s.max_turn:.2f})")
+    return {
+        **base, "status": status, "evidence": evidence, "reason": reason,
+        "ratio": f"{cm}:{cn}" if cm is not None else None, "m": cm, "n": cn,
+        "label_agrees": status == "confirmed" and (cm, cn) == (m, n),
+        "start_s": span[0], "end_s": span[1], "bracketed": bool(c.bracketed),
+        "slow_angle": {"gain": sa.gain, "phase_range": {f"{k[0]}:{k[1]}": v for k, v in sa.phase_range.items()},
+                       "slowest": f"{sa.ratio[0]}:{sa.ratio[1]}"},
+        "candidates": [{"ratio": f"{rt.m}:{rt.n}", "captured_fraction": float(rt.captured_fraction),
+                        "intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if not iv.end_effect],
+                        "end_effect_intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if iv.end_effect],
+                        "drift_sign": int(rt.drift_sign)} for rt in c.candidates],
+        "trajectory": {"t": np.asarray(c.t).tolist(), "phi": np.asarray(c.phi).tolist(),
+                       "phi_dot": np.asarray(c.phi_dot).tolist()},
+        "elapsed_s": time.perf_counter() - t_start,
+    }  # fmt: skip

@@ -1,0 +1,126 @@
+"""``gvt confirm LOG [--event ID]``: confirm a log's IR events with WBEMD + slow flow, in batch.
+
+The events are the log's own ``/analysis/events`` (written live by ``gvt record``); a log recorded
+without the analysis is analysed first (``gvt analyze``'s kernels). Each event is confirmed on the same
+stretch of data the background lane uses (analysis/confirm.py), read straight from the log.
+
+Results go to a small companion log, ``LOG.confirm.mcap`` by default (topic ``/analysis/confirmations``,
+metadata naming the source log), not into the session log itself: an MCAP log is a finished file
+(footer and summary), so adding to it means rewriting it — a multi-GB copy of the one record of a test
+that must never be put at risk for a few kB of results (docs/decisions.md D22). ``gvt report`` and
+``gvt confirm`` itself read the companion next to the log.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
+from analysis.model.rig import Rig
+from analysis.operator import RigModel
+from daq.analyze import AnalyzeError, analyze_log, pick_stream, rig_from_log
+from daq.confirm_lane import CONFIRM_TOPIC, LaneSettings, skipped
+from daq.log.reader import LogReader, LogReadError
+
+META_CONFIRM = "gvtlink.confirm"
+
+
+def companion_path(log: str | Path) -> Path:
+    """Where the confirmations of ``log`` go: ``session.mcap`` → ``session.confirm.mcap``."""
+    p = Path(log)
+    return p.with_name(p.stem + ".confirm.mcap")
+
+
+@dataclass
+class ConfirmRun:
+    log: str
+    stream: str
+    rig: str
+    events_from: str  # "log" or "analysis"
+    records: list[dict] = field(default_factory=list)
+    wall_seconds: float = 0.0
+
+
+def read_confirmations(log: str | Path) -> list[dict]:
+    """Confirmation records of a log: its own topic (written live) then its companion file, if any."""
+    out: list[dict] = []
+    try:
+        out.extend(LogReader(log).json_messages(CONFIRM_TOPIC))
+    except LogReadError:
+        pass
+    side = companion_path(log)
+    if side.exists():
+        try:
+            out.extend(LogReader(side).json_messages(CONFIRM_TOPIC))
+        except LogReadError:
+            pass
+    return out
+
+
+def confirm_log(
+    path: str | Path, rig: Rig | None = None, event_id: int | None = None, settings: ConfirmSettings | None = None,
+    post_s: float = LaneSettings().post_s, progress: Callable[[float], None] | None = None,
+) -> ConfirmRun:  # fmt: skip
+    """Confirm every IR event of the log (or the one with ``event_id``)."""
+    settings = settings if settings is not None else ConfirmSettings()
+    try:
+        reader = LogReader(path)
+    except LogReadError as exc:
+        raise AnalyzeError(str(exc)) from None
+    rig = rig if rig is not None else rig_from_log(reader)
+    try:
+        model = RigModel.from_rig(rig)
+    except ValueError as exc:
+        raise AnalyzeError(f"rig {rig.name}: {exc}") from None
+    stream = pick_stream(reader, model, None)
+    events = reader.json_messages("/analysis/events")
+    source = "log"
+    if not events:
+        events = analyze_log(path, rig).events
+        source = "analysis"
+    if event_id is not None:
+        chosen = [e for e in events if e.get("id") == event_id]
+        if not chosen:
+            ids = [e.get("id") for e in events]
+            raise AnalyzeError(f"{path}: no IR event with id {event_id}; the log's events are {ids or 'none'} (see gvt analyze)")
+        events = chosen
+    ctx = ConfirmContext.from_model(model, settings)
+    info = reader.streams()[stream]
+    fs = info.sample_rate
+    run = ConfirmRun(log=str(path), stream=stream, rig=rig.name, events_from=source)
+    t0 = time.perf_counter()
+    for i, ev in enumerate(events):
+        a = max(0.0, float(ev["start_s"]) - settings.pre_s)
+        b = float(ev["end_s"]) + post_s
+        data = reader.read_stream(stream, list(model.sensors), a, b)
+        if data.gaps or data.data.shape[0] < 16:
+            rec = skipped(ev, f"the log has a gap or no data in {a:.3f}–{b:.3f} s")
+        else:
+            try:
+                rec = confirm_segment(np.asarray(data.data, np.float64), fs, float(data.index[0]) / fs, ev, ctx)
+            except ValueError as exc:
+                rec = {**skipped(ev, str(exc)), "status": "error"}
+        run.records.append(rec)
+        if progress is not None:
+            progress((i + 1) / len(events))
+    run.wall_seconds = time.perf_counter() - t0
+    return run
+
+
+def write_companion(run: ConfirmRun, out: str | Path) -> Path:
+    """The confirmation records as a small MCAP log (topic ``/analysis/confirmations``)."""
+    from daq.log.writer import LogWriter
+
+    out = Path(out)
+    meta = {"source_log": Path(run.log).name, "stream": run.stream, "rig": run.rig, "events_from": run.events_from}
+    with LogWriter(out, fsync=True, session_metadata={"kind": "confirmations"}) as w:
+        w.add_metadata(META_CONFIRM, meta)
+        for rec in run.records:
+            t = rec.get("event", {}).get("end_s")
+            w.write_json(CONFIRM_TOPIC, rec, None if t is None else round(float(t) * 1e9))
+    return out

@@ -32,3 +32,8 @@ def rigs():
 def gvt_command() -> list[str]:
     exe = Path(sys.executable).parent / "gvt"
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "daq.cli"]
+
+
+def pytest_configure(config):
+    # the `browser` marker (issue 8): tests that open a file in headless Chromium; they skip when it is absent
+    config.addinivalue_line("markers", "browser: renders in headless Chromium (/usr/bin/chromium); skips when it is absent")

@@ -154,6 +154,7 @@ class ViewLane:
         self.view = ViewLogger(rec, setup)
         self.error: str | None = None
         self._results_done = threading.Event()
+        self._abandon = threading.Event()
         self._reported = (0, 0)
         self._thread = threading.Thread(target=self._main, name="view", daemon=True)
 
@@ -178,10 +179,14 @@ class ViewLane:
 
         return tee
 
-    def join(self, timeout: float | None = 30.0) -> None:
-        """Call after the fan-out closed and every result producer finished."""
+    def join(self, drain_s: float = 2.0) -> None:
+        """Call after the fan-out closed and every result producer finished. The view gets ``drain_s`` to
+        catch up; what it has not shown by then is dropped and counted (the session does not wait on it)."""
         self._results_done.set()
-        self._thread.join(timeout)
+        self._thread.join(drain_s)
+        if self._thread.is_alive():
+            self._abandon.set()
+            self._thread.join(10.0)
 
     @property
     def dropped(self) -> bool:
@@ -202,6 +207,9 @@ class ViewLane:
         last_report = time.monotonic()
         try:
             while True:
+                if self._abandon.is_set():
+                    ended = self._discard()
+                    break
                 if not ended:
                     try:
                         item = self.sub.get(timeout=0.05)
@@ -235,6 +243,24 @@ class ViewLane:
             except Exception:
                 pass
 
+    def _discard(self) -> bool:
+        """Drop (and count) everything still queued for the view: it took too long after the end."""
+        while True:
+            try:
+                item = self.sub.queue.get_nowait()
+            except queue.Empty:
+                break
+            if item is not END:
+                self.sub.dropped_blocks += 1
+                self.sub.dropped_samples += item.n_samples
+                self.sub.dropped_ranges.append((item.stream, item.first_index, item.end_index))
+        while True:
+            try:
+                self.results.get_nowait()
+            except queue.Empty:
+                return True
+            self.dropped_results += 1
+
     def _drain_results(self) -> None:
         by: dict[str, list[dict]] = {}
         for _ in range(10000):
@@ -257,7 +283,7 @@ class ViewLane:
 
 
 def start_view_lane(fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, target: ViewTarget,
-                    maxsize: int = 16) -> ViewLane:  # fmt: skip
+                    maxsize: int = 64) -> ViewLane:  # fmt: skip
     """The view lane for a session or replay of ``rig`` (None rig: raw channels and results only)."""
     setup = ViewSetup.from_rig(rig, streams, sample_rate) if rig is not None else ViewSetup(streams, sample_rate)
     return ViewLane(fan, setup, target.rec, maxsize=maxsize, sink_delay_s=target.sink_delay_s).start()

@@ -124,3 +124,25 @@ def write_companion(run: ConfirmRun, out: str | Path) -> Path:
             t = rec.get("event", {}).get("end_s")
             w.write_json(CONFIRM_TOPIC, rec, None if t is None else round(float(t) * 1e9))
     return out
+
+
+def confirmations_table(records: list[dict], title: str):
+    """A rich table: one row per event — label, status, confirmed ratio and interval, evidence, why."""
+    from rich.table import Table
+
+    t = Table(title=title)
+    for col in ("id", "label", "modes", "event (s)", "status", "ratio", "interval (s)", "evidence", "IO", "s", "why"):
+        t.add_column(col, overflow="fold")
+    for rec in records:
+        ev = rec.get("event", {})
+        span = (f"{rec['start_s']:.3f}–{rec['end_s']:.3f}" if rec.get("start_s") is not None else "–")
+        io = rec.get("orthogonality_index")
+        t.add_row(
+            str(rec.get("event_id")), str(ev.get("ratio", "?")), "→".join(str(m) for m in ev.get("modes", [])),
+            f"{ev.get('start_s', float('nan')):.3f}–{ev.get('end_s', float('nan')):.3f}", rec.get("status", "?"),
+            rec.get("ratio") or "–", span, rec.get("evidence") or "–", "–" if io is None else f"{io:.3f}",
+            f"{rec.get('elapsed_s', 0.0):.1f}", rec.get("reason", ""),
+        )  # fmt: skip
+    if not records:
+        t.add_row("–", "–", "–", "–", "no IR events", "–", "–", "–", "–", "–", "")
+    return t

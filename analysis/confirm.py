@@ -43,7 +43,8 @@ from analysis.wbemd import WbemdParams, characteristic_frequencies, wbemd
 class ConfirmSettings:
     n_imfs: int = 4  # components WBEMD extracts (the seed's experiment: 4 IMFs, L1316–L1445)
     pre_s: float = 0.5  # data before the event's start given to the decomposition (>= the slow-flow end guard, 0.3 s)
-    match_rel: float = 0.15  # an MWT peak within this fraction of an event frequency stands for it
+    match_rel: float = 0.3  # an MWT peak within this fraction of an event frequency stands for it (a hardening
+    # mode sweeps ~20 % within one segment; the two modes of an event are >= 2x apart)
     f_max_factor: float = 4.0  # MWT peak search up to this × the higher event frequency
     vel_corner_hz: float = 18.0  # seed §4.3 (L1322–L1323), lowered to half the giving mode when above it
     disp_corner_hz: float = 10.0
@@ -51,6 +52,7 @@ class ConfirmSettings:
     span: int = 2  # candidates (m−span … m+span):n (L1296)
     min_gain: float = 1.5  # receiving IMF's energy (amplitude²) end / start of the event, slow-angle test
     max_turn: float = 2.0 * math.pi  # largest Φ range over the event for a slow angle (one turn)
+    overlap_s: float = 0.1  # captured loops must overlap the event interval widened by this much
     wbemd: WbemdParams = field(default_factory=WbemdParams)
     detector: DetectorParams = field(default_factory=DetectorParams)
 
@@ -188,10 +190,11 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     lo_imf, hi_imf = dec.imfs[i_lo], dec.imfs[i_hi]
     c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=s.detector, t0=t0_s)
     sa = slow_angle_test(lo_imf, hi_imf, fs, t0_s, float(event["start_s"]), float(event["end_s"]), m, n, s)
-    captured = c.status == "confirmed"
+    ev_lo, ev_hi = float(event["start_s"]) - s.overlap_s, float(event["end_s"]) + s.overlap_s
+    captured = c.status == "confirmed" and c.start_s <= ev_hi and c.end_s >= ev_lo and sa.gain >= s.min_gain
     if captured:
         status, evidence, (cm, cn), span = "confirmed", "captured", (c.m, c.n), (c.start_s, c.end_s)
-        reason = c.reason
+        reason = f"{c.reason}; the {dec.char_freqs_hz[i_hi]:.1f} Hz component gained ×{sa.gain:.2f} in energy"
     elif sa.passed:
         status, evidence, (cm, cn) = "confirmed", "slow_angle", sa.ratio
         span = (float(event["start_s"]), float(event["end_s"]))
@@ -199,7 +202,9 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
                   f"{dec.char_freqs_hz[i_hi]:.1f} Hz component gained ×{sa.gain:.2f} in energy")  # fmt: skip
     else:
         status, evidence, (cm, cn), span = "not_confirmed", None, (None, None), (None, None)
-        reason = (f"no captured loops ({c.reason}); slow-angle test: gain ×{sa.gain:.2f} (needs {s.min_gain}), "
+        loops = c.reason if c.status != "confirmed" else (
+            f"loops at {c.start_s:.3f}–{c.end_s:.3f} s do not overlap the event or come without an energy gain")
+        reason = (f"no captured loops ({loops}); slow-angle test: gain ×{sa.gain:.2f} (needs {s.min_gain}), "
                   f"slowest Φ_{sa.ratio[0]}:{sa.ratio[1]} moved {sa.phase_range[sa.ratio]:.2f} rad (needs < {s.max_turn:.2f})")
     return {
         **base, "status": status, "evidence": evidence, "reason": reason,

@@ -53,6 +53,7 @@ class AnalysisLane:
         settings: AnalysisSettings | None = None, maxsize: int = 512,
     ) -> None:  # fmt: skip
         self.stream = stream
+        self.channels = channels
         self.sink = sink
         self.error: str | None = None
         self.sub: Subscription = fan.subscribe(f"analysis:{stream}", maxsize=maxsize)

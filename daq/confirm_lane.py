@@ -21,8 +21,10 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import threading
+import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +44,7 @@ class LaneSettings:
     post_s: float = 0.5  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
     max_pending: int = 4  # confirmations queued in the worker at once; more are skipped and said
     event_queue: int = 256
+    finish_timeout_s: float = 120.0  # at the end, confirmations still running after this are skipped and said
 
 
 def skipped(event: Mapping[str, Any], reason: str) -> dict:
@@ -168,10 +171,13 @@ class ConfirmLane:
 
     def _collect(self, wait: bool = False) -> None:
         still = []
+        deadline = time.monotonic() + self.s.finish_timeout_s
         for ev, fut in self._running:
             if wait or fut.done():
                 try:
-                    rec = fut.result()
+                    rec = fut.result(timeout=max(0.0, deadline - time.monotonic()) if wait else None)
+                except FutureTimeout:
+                    rec = skipped(ev, f"still running {self.s.finish_timeout_s:.0f} s after the stream ended")
                 except Exception as exc:  # reported as the event's record; the lane goes on
                     rec = {**skipped(ev, f"{type(exc).__name__}: {exc}"), "status": "error"}
                 self._emit(rec)
@@ -197,3 +203,14 @@ class ConfirmLane:
                 "message": f"the confirmation lane fell behind and skipped {self.sub.dropped_blocks} blocks "
                            f"({self.sub.dropped_samples} samples); events in those ranges were skipped",
             }, None)  # fmt: skip
+
+
+def start_confirm_lane(fan: FanOut, analysis_lane, sink: Sink, settings: LaneSettings = LaneSettings()) -> ConfirmLane:
+    """The confirmation lane beside a started analysis lane (same stream, same rig model). Feed it the
+    analysis lane's ``/analysis/events`` with :meth:`ConfirmLane.offer`; join it after the analysis lane."""
+    from analysis.confirm import ConfirmContext
+
+    op = analysis_lane.op
+    ctx = ConfirmContext.from_model(op.model)
+    return ConfirmLane(fan, analysis_lane.stream, tuple(analysis_lane.channels), tuple(op.model.sensors), op.fs, sink, ctx,
+                       settings=settings).start()  # fmt: skip

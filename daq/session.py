@@ -62,6 +62,7 @@ class SessionResult:
     analysis_events: list[dict] = field(default_factory=list)  # IR events of the near-live analysis
     analysis_dropped_samples: int = 0  # samples the analysis lane skipped because it fell behind
     view_dropped_samples: int = 0  # samples the live view did not show (lossy side channel, daq/view/lane.py)
+    confirmations: list[dict] = field(default_factory=list)  # WBEMD + slow-flow records of the IR events
 
 
 def _simulated_rig(rig: Rig, ranges: dict[str, float]) -> Rig:
@@ -329,7 +330,16 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers, view=None)
             finally:
                 halt.set()  # one device ending (duration, silence, error) ends the session
 
-        lane = _analysis_lane(cfg, rig, fan, {n: r.channels for n, r in readers.items()}, fs, writer, block_guess, tee)
+        clane_box: list = []  # the confirmation lane, once the analysis lane says which stream it reads
+
+        def tee_events(topic: str, obj: dict) -> None:
+            tee(topic, obj)
+            if topic == "/analysis/events" and clane_box:
+                clane_box[0].offer(obj)
+
+        lane = _analysis_lane(cfg, rig, fan, {n: r.channels for n, r in readers.items()}, fs, writer, block_guess, tee_events)
+        if lane is not None and cfg.analysis.confirm:
+            clane_box.append(_confirm_lane(fan, lane, writer, tee))
         worker = threading.Thread(target=hit_gate, name="hit-gate", daemon=True)
         worker.start()
         t0 = time.monotonic()
@@ -372,6 +382,8 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers, view=None)
             if lane is not None:
                 result.analysis_events = [e.as_dict() for e in lane.join(timeout=60)]
                 result.analysis_dropped_samples = lane.sub.dropped_samples
+            if clane_box:  # after the analysis lane: its last events come at its finish
+                result.confirmations = clane_box[0].join(timeout=60)
             if vlane is not None:
                 vlane.join()
                 result.view_dropped_samples = vlane.sub.dropped_samples
@@ -434,6 +446,20 @@ def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, 
     except LaneUnavailable as exc:
         writer.write_event("analysis_error", message=f"analysis off: {exc}")
         return None
+
+
+def _confirm_lane(fan, lane, writer: LogWriter, tee):
+    """The background confirmation of the analysis lane's IR events; records to the log (and the view)."""
+    from daq.confirm_lane import start_confirm_lane
+
+    def sink(topic: str, obj: dict, log_time_ns: int | None) -> None:
+        if topic == "/daq/events":
+            writer.write_event(obj["kind"], **{k: v for k, v in obj.items() if k != "kind"})
+        else:
+            writer.write_json(topic, obj, log_time_ns=log_time_ns)
+        tee(topic, obj)
+
+    return start_confirm_lane(fan, lane, sink)
 
 
 def _chain(first, rest):

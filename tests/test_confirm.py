@@ -102,7 +102,11 @@ def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_e
     assert rec["status"] in ("confirmed", "not_confirmed") and rec["event"]["start_s"] == first["start_s"]
     assert rec["reason"]
     side = companion_path(log)
-    assert side.exists() and [r["event_id"] for r in read_confirmations(log)] == [0]
+    from daq.log.reader import LogReader
+
+    assert side.exists() and [r["event_id"] for r in LogReader(side).json_messages("/analysis/confirmations")] == [0]
+    live = LogReader(log).json_messages("/analysis/confirmations")  # the session's own lane wrote these
+    assert [r["event_id"] for r in read_confirmations(log)] == [r["event_id"] for r in live] + [0]
 
 
 def test_gvt_confirm_bad_event_and_bad_log_are_one_line_errors(tmp_path):
@@ -117,3 +121,17 @@ def test_gvt_confirm_unknown_event_id(log_with_events):
     log, _res = log_with_events
     p = _gvt("confirm", str(log), "--event", "999")
     assert p.returncode == 2 and "no IR event with id 999" in p.stderr and "Traceback" not in p.stderr
+
+
+@pytest.mark.slow
+def test_the_session_confirms_its_events_in_the_background_and_logs_them(log_with_events):
+    """gvt record's confirmation lane: one record per near-live IR event, in the session log's
+    /analysis/confirmations topic, without a single lost sample or analysis drop on the recording path."""
+    from daq.log.reader import LogReader
+
+    log, res = log_with_events
+    assert res.lost_samples == 0 and res.analysis_dropped_samples == 0
+    ids = sorted(e["id"] for e in LogReader(log).json_messages("/analysis/events"))
+    logged = LogReader(log).json_messages("/analysis/confirmations")
+    assert sorted(r["event_id"] for r in logged) == ids == sorted(r["event_id"] for r in res.confirmations)
+    assert all(r["status"] in ("confirmed", "not_confirmed", "skipped") and r.get("reason") is not None for r in logged)

@@ -86,6 +86,7 @@ class AnalysisSpec(_Strict):
     n_keep: Annotated[int, Field(ge=1)] = 4  # NNMs of interest (POMs kept per window)
     seed_lane: bool = True  # POD/RQ curves and window-robust spikes (off: modal lane only)
     queue_seconds: Positive = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
+    confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/confirm_lane.py)
 
 
 class SessionConfig(_Strict):

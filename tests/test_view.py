@@ -32,7 +32,8 @@ def session_config(duration: float = 2.2, paced: bool = False) -> SessionConfig:
         device=DeviceSpec(driver="sim", config={"paced": paced, "block_size": 512, "forces": [700.0, 1583.0], "period": 1.0,
                                                 "physics_seconds": duration + 0.2, "seed": 3}),
         trigger=TriggerSpec(level=20.0, record_length=0.3, driving_point="a13"),
-        analysis=AnalysisSpec(queue_seconds=30.0),  # unpaced, the device outruns the analysis; a queue for all of it
+        # unpaced, the device outruns the analysis: a queue for all of it; no background confirmation (tests/test_confirm.py)
+        analysis=AnalysisSpec(queue_seconds=30.0, confirm=False),
     )  # fmt: skip
 
 
@@ -55,8 +56,8 @@ def rrd_entity_paths(path: Path) -> set[str]:
 
 
 EXPECTED = {
-    "/raw/dev0/a01", "/raw/dev0/a14", "/hammer/force", "/hammer/hits", "/rq/nnm1", "/rq/nnm2", "/rq/ir_events",
-    "/modal/energy/mode1", "/modal/energy/mode4", "/rqfep/nnm1", "/pom/current", "/wavelet/a13", "/log/daq", "/log/analysis",
+    "/raw/dev0/a01", "/raw/dev0/a14", "/hammer/force", "/hammer/hits", "/rq/nnm", "/rq/ir_events", "/modal/energy",
+    "/modal/freq", "/rqfep", "/pom/current", "/wavelet/a13", "/log/daq", "/log/analysis",
 }  # fmt: skip
 
 
@@ -133,21 +134,22 @@ def test_confirmations_become_slow_flow_trajectories(session_log, tmp_path):
 
 
 def test_a_slow_view_never_holds_up_the_recording(tmp_path):
-    """A viewer sink that takes 0.2 s per block: had the recording waited for it, 2.2 s of data in 71 blocks
-    would have taken >= 14 s. It must take about as long as without a view, lose nothing, and the view must
-    drop (and say so in the log and in the view)."""
+    """A viewer sink that takes 1 s per block: had the recording waited for it, 2.2 s of data in 71 blocks
+    would have taken >= 71 s. It must finish in the time of an unpaced session (1–3 s idle, ~13 s at load 7
+    on 2 cores) plus at most 2 s for the view to catch up, lose nothing, and the view must drop (and say so
+    in the log and in the view)."""
     from daq.view.lane import open_view
 
     rrd = tmp_path / "live.rrd"
     target = open_view("save", str(rrd))
-    target.sink_delay_s = 0.2
+    target.sink_delay_s = 1.0
     out = tmp_path / "live.mcap"
     t0 = time.monotonic()
     res = run_session(session_config(), open_rig("beam_ch4_exp"), out, view=target)
     wall = time.monotonic() - t0
     target.close()
     assert res.lost_samples == 0 and res.writer_overrun_samples == 0 and res.analysis_dropped_samples == 0
-    assert wall < 8.0, wall  # unpaced ~1–3 s, + <= 2 s for the view to catch up after the end; waiting on it: >= 14 s
+    assert wall < 30.0, wall  # waiting on the view: >= 71 s
     r = LogReader(out)
     data = r.read_stream("dev0")
     assert data.data.shape[0] == round(2.2 * 16384) and not data.gaps  # every sample recorded
@@ -169,7 +171,7 @@ def test_the_view_keeps_up_when_it_is_fast(tmp_path):
     target.close()
     assert res.view_dropped_samples == 0 and len(res.hits) >= 1
     paths = rrd_entity_paths(rrd)
-    assert {"/raw/dev0/a01", "/hammer/force", "/hammer/hits", "/rq/nnm1", "/modal/energy/mode1", "/wavelet/a13"} <= paths
+    assert {"/raw/dev0/a01", "/hammer/force", "/hammer/hits", "/rq/nnm", "/modal/energy", "/rqfep", "/wavelet/a13"} <= paths
 
 
 def test_served_viewer_listens_on_localhost_only(tmp_path):
@@ -204,4 +206,4 @@ def test_gvt_replay_view_and_analyze_rrd(session_log, tmp_path):
     r = CliRunner().invoke(app, ["analyze", str(session_log), "--rrd", str(out)])
     assert r.exit_code == 0, r.output
     assert "open it:" in r.output and rrd_verify(out).returncode == 0
-    assert {"/rq/nnm1", "/rqfep/nnm1", "/modal/energy/mode1"} <= rrd_entity_paths(out)
+    assert {"/rq/nnm", "/rqfep", "/modal/energy"} <= rrd_entity_paths(out)

@@ -142,7 +142,7 @@ class ViewLane:
 
     def __init__(
         self, fan: FanOut, setup: ViewSetup, rec: rr.RecordingStream, maxsize: int = 16, result_maxsize: int = 4096,
-        sink_delay_s: float = 0.0, report_every_s: float = 1.0,
+        sink_delay_s: float = 0.0, report_every_s: float = 1.0, results_every_s: float = 0.5,
     ) -> None:  # fmt: skip
         self.sub: Subscription = fan.subscribe("view", maxsize=maxsize)
         self.results: queue.Queue = queue.Queue(maxsize=max(1, result_maxsize))
@@ -150,9 +150,11 @@ class ViewLane:
         self.logged_blocks = 0
         self.sink_delay_s = sink_delay_s  # a deliberately slow viewer sink (tests, benchmarks)
         self.report_every_s = report_every_s
+        self.results_every_s = results_every_s  # results go to rerun in batches: one send_columns per entity and batch
         self.rec = rec
         self.view = ViewLogger(rec, setup)
         self.error: str | None = None
+        self.thread_cpu_s = 0.0  # CPU of the view's own Python thread (rerun's encoder threads are not in it)
         self._results_done = threading.Event()
         self._abandon = threading.Event()
         self._reported = (0, 0)
@@ -203,8 +205,15 @@ class ViewLane:
 
     # --- thread -----------------------------------------------------------------------------------
     def _main(self) -> None:
+        c0 = time.thread_time()
+        try:
+            self._loop()
+        finally:
+            self.thread_cpu_s = time.thread_time() - c0
+
+    def _loop(self) -> None:
         ended = False
-        last_report = time.monotonic()
+        last_report = last_results = time.monotonic()
         try:
             while True:
                 if self._abandon.is_set():
@@ -222,8 +231,10 @@ class ViewLane:
                         self.logged_blocks += 1
                         if self.sink_delay_s:
                             time.sleep(self.sink_delay_s)
-                self._drain_results()
                 now = time.monotonic()
+                if ended or now - last_results >= self.results_every_s:
+                    self._drain_results()
+                    last_results = now
                 if now - last_report >= self.report_every_s:
                     self._report_drops()
                     last_report = now

@@ -29,12 +29,13 @@ APP_ID = "gvtlink"
 RAW = "/raw"  # /raw/<stream>/<channel>: (min, max) envelope per display bucket, SI units
 HAMMER = "/hammer/force"  # hammer channel envelope, N
 HITS = "/hammer/hits"  # one point per hit at (t_s, peak force), coloured by verdict
-RQ = "/rq"  # /rq/nnm<k>: RQ frequency per base-grid window, Hz
+RQ = "/rq"
+RQ_NNM = "/rq/nnm"  # series NNM1..NNMk: RQ frequency per base-grid window, Hz (one entity: one send_columns per batch)
 RQ_SEED_SPIKES = "/rq/seed_spikes"  # the seed's literal spike rule, marker at the window's RQ of NNM2
 RQ_IR_EVENTS = "/rq/ir_events"  # per IR event: markers at (start_s, f_give) and (start_s, f_recv)
-MODAL_ENERGY = "/modal/energy"  # /modal/energy/mode<k>: windowed linear modal energy, J
-MODAL_FREQ = "/modal/freq"  # /modal/freq/mode<k>: windowed instantaneous frequency, Hz
-RQFEP = "/rqfep"  # /rqfep/nnm<k>: points (FEP_X_PER_DECADE·log10 E, −f/Hz)
+MODAL_ENERGY = "/modal/energy"  # series mode 1..r: windowed linear modal energy, J
+MODAL_FREQ = "/modal/freq"  # series mode 1..r: windowed instantaneous frequency, Hz
+RQFEP = "/rqfep"  # points (FEP_X_PER_DECADE·log10 E, −f/Hz), one per NNM and window, coloured by NNM
 POM_CURRENT = "/pom/current"  # line strips along the structure, latest window
 POM_EVENTS = "/pom/events"  # /pom/events/e<id>: POMs over an IR event's span
 WAVELET = "/wavelet"  # /wavelet/<channel>: |Z| of a hit record, Morlet CWT (amplitude normalisation, eq. 3.2)
@@ -101,16 +102,19 @@ def log_styles(
             path = HAMMER if c == hammer else f"{RAW}/{s}/{c}"
             rec.log(path, rr.SeriesLines(names=[f"{c} min", f"{c} max"], colors=[(120, 120, 120), (30, 30, 30)]), static=True)
     rec.log(HITS, rr.SeriesPoints(names=["hit peak"], markers=["circle"], marker_sizes=[6.0]), static=True)
-    for k in range(n_nnm):
-        rec.log(f"{RQ}/nnm{k + 1}", rr.SeriesLines(names=[f"RQ NNM{k + 1}"], colors=[color(k)]), static=True)
-        rec.log(f"{RQFEP}/nnm{k + 1}", rr.Points2D.from_fields(radii=[2.0], colors=[color(k)]), static=True)
+    rec.log(
+        RQ_NNM,
+        rr.SeriesLines(names=[f"RQ NNM{k + 1}" for k in range(n_nnm)], colors=[color(k) for k in range(n_nnm)]),
+        static=True,
+    )
+    rec.log(RQFEP, rr.Points2D.from_fields(radii=[2.0]), static=True)
     rec.log(RQ_SEED_SPIKES, rr.SeriesPoints(names=["seed-rule spike"], markers=["cross"], colors=[(200, 0, 0)]), static=True)
     ir = rr.SeriesPoints(names=["IR give", "IR receive"], markers=["down", "up"], colors=[(0, 0, 0), (200, 0, 200)],
                          marker_sizes=[8, 8])  # fmt: skip
     rec.log(RQ_IR_EVENTS, ir, static=True)
-    for k in range(n_modes):
-        rec.log(f"{MODAL_ENERGY}/mode{k + 1}", rr.SeriesLines(names=[f"E mode {k + 1}"], colors=[color(k)]), static=True)
-        rec.log(f"{MODAL_FREQ}/mode{k + 1}", rr.SeriesLines(names=[f"f mode {k + 1}"], colors=[color(k)]), static=True)
+    cols = [color(k) for k in range(n_modes)]
+    rec.log(MODAL_ENERGY, rr.SeriesLines(names=[f"E mode {k + 1}" for k in range(n_modes)], colors=cols), static=True)
+    rec.log(MODAL_FREQ, rr.SeriesLines(names=[f"f mode {k + 1}" for k in range(n_modes)], colors=cols), static=True)
 
 
 def envelope(data: np.ndarray, bucket: int) -> tuple[np.ndarray, np.ndarray]:
@@ -138,7 +142,8 @@ def log_envelopes(
 
 
 def _series(rec: rr.RecordingStream, path: str, t: np.ndarray, v: np.ndarray) -> None:
-    keep = np.isfinite(v).all(axis=1) if v.ndim == 2 else np.isfinite(v)
+    """One send_columns for all series of ``v`` (n, k); rows with no finite value are left out."""
+    keep = np.isfinite(v).any(axis=1) if v.ndim == 2 else np.isfinite(v)
     if keep.any():
         rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[keep])], columns=rr.Scalars.columns(scalars=v[keep]))
 
@@ -149,8 +154,7 @@ def log_rq(rec: rr.RecordingStream, rows: Sequence[dict]) -> None:
         return
     t = np.array([r["t_end_s"] for r in rows], float)
     f = np.array([r["rq_hz"] for r in rows], float)
-    for k in range(f.shape[1]):
-        _series(rec, f"{RQ}/nnm{k + 1}", t, f[:, k])
+    _series(rec, RQ_NNM, t, f)
     spike = np.array([bool(r.get("seed_spike")) for r in rows])
     if spike.any() and f.shape[1] > 1:
         _series(rec, RQ_SEED_SPIKES, t[spike], f[spike, 1])
@@ -163,9 +167,8 @@ def log_modal(rec: rr.RecordingStream, rows: Sequence[dict]) -> None:
     t = np.array([r["t_end_s"] for r in rows], float)
     e = np.array([r["modal_energy_J"] for r in rows], float)
     f = np.array([r["modal_freq_hz"] for r in rows], float)
-    for k in range(e.shape[1]):
-        _series(rec, f"{MODAL_ENERGY}/mode{k + 1}", t, e[:, k])
-        _series(rec, f"{MODAL_FREQ}/mode{k + 1}", t, f[:, k])
+    _series(rec, MODAL_ENERGY, t, e)
+    _series(rec, MODAL_FREQ, t, f)
 
 
 def rqfep_points(rq_rows: Sequence[dict], modal_t: np.ndarray, modal_e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -184,13 +187,19 @@ def rqfep_points(rq_rows: Sequence[dict], modal_t: np.ndarray, modal_e: np.ndarr
 
 
 def log_rqfep(rec: rr.RecordingStream, t: np.ndarray, log_e: np.ndarray, f: np.ndarray) -> None:
-    for k in range(f.shape[1] if f.ndim == 2 else 0):
-        keep = np.isfinite(f[:, k])
-        if not keep.any():
-            continue
-        pos = np.stack([FEP_X_PER_DECADE * log_e[keep], -f[keep, k]], axis=1)
-        rec.send_columns(f"{RQFEP}/nnm{k + 1}", indexes=[rr.TimeColumn(TIMELINE, duration=t[keep])],
-                         columns=rr.Points2D.columns(positions=pos).partition(np.ones(len(pos), np.int64)))  # fmt: skip
+    """One row per window with one point per NNM (coloured by NNM); one send_columns per batch."""
+    if f.ndim != 2 or f.shape[0] == 0:
+        return
+    ok = np.isfinite(f)
+    lengths = ok.sum(axis=1)
+    rows = lengths > 0
+    if not rows.any():
+        return
+    k = np.broadcast_to(np.arange(f.shape[1]), f.shape)[ok]
+    pos = np.stack([FEP_X_PER_DECADE * np.broadcast_to(log_e[:, None], f.shape)[ok], -f[ok]], axis=1)
+    cols = np.array([color(int(j)) for j in k], np.uint8)
+    rec.send_columns(RQFEP, indexes=[rr.TimeColumn(TIMELINE, duration=t[rows])],
+                     columns=rr.Points2D.columns(positions=pos, colors=cols).partition(lengths[rows]))  # fmt: skip
 
 
 def log_pom(rec: rr.RecordingStream, path: str, t: float, x: np.ndarray, poms: np.ndarray, povs: np.ndarray) -> None:

@@ -1,0 +1,140 @@
+"""Viewer overhead on the near-live path (issue 8): the same paced replay + near-live analysis of a
+14-accelerometer + hammer log at 16384 Hz, with and without the view lane, in the same process.
+
+CPU is ``time.process_time()`` (all threads of this process) over each run; for the served viewer the
+``rerun --serve-web`` child's CPU (utime + stime from /proc) is added. Runs alternate (none, rrd, serve,
+none, rrd, serve, ...) so load drift hits every variant alike; the table gives the median per variant
+and the overhead relative to the no-view median. The browser that would render the web viewer is not
+part of the measurement (none is connected).
+
+    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py [--seconds 15] [--repeats 2] [--speed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from daq.analysis_lane import start_analysis_lane  # noqa: E402
+from daq.analyze import rig_from_log  # noqa: E402
+from daq.fanout import END, FanOut  # noqa: E402
+from daq.replay import Replayer  # noqa: E402
+from daq.view.lane import open_view, start_view_lane  # noqa: E402
+
+
+def make_log(path: Path, seconds: float) -> None:
+    from daq.config.session import AnalysisSpec, DeviceSpec, SessionConfig, TriggerSpec
+    from daq.rigs import open_rig
+    from daq.session import run_session
+
+    n = max(1, int(seconds // 2))
+    cfg = SessionConfig(
+        name="bench-view", rig="beam_ch4_exp", duration=seconds,
+        device=DeviceSpec(driver="sim", config={"paced": False, "block_size": 1024, "forces": [700.0, 1583.0] * n,
+                                                "period": 1.0, "physics_seconds": seconds + 0.2, "seed": 5}),
+        trigger=TriggerSpec(level=20.0, record_length=0.3, driving_point="a13"), analysis=AnalysisSpec(enabled=False),
+    )  # fmt: skip
+    run_session(cfg, open_rig("beam_ch4_exp"), path)
+
+
+def child_cpu(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
+def one_run(log: Path, variant: str, speed: float, tmp: Path) -> dict:
+    fan = FanOut()
+    rep = Replayer(log, fan, speed=speed)
+    infos = rep.reader.streams()
+    streams = {n: tuple(i.channels) for n, i in infos.items()}
+    fs = next(iter(infos.values())).sample_rate
+    rig = rig_from_log(rep.reader)
+    target = None
+    vlane = None
+    if variant == "rrd":
+        target = open_view("save", str(tmp / "bench_view.rrd"))
+    elif variant == "serve":
+        target = open_view("serve")
+    child0 = child_cpu(target.process.pid) if target is not None and target.process is not None else 0.0
+    c0, w0 = time.process_time(), time.perf_counter()
+    if target is not None:
+        vlane = start_view_lane(fan, rig, streams, fs, target)
+    sink = vlane.sink() if vlane is not None else (lambda *_: None)
+    lane = start_analysis_lane(fan, rig, streams, fs, sink, maxsize=4096)
+    summary = fan.subscribe("summary", maxsize=1024)
+    t = threading.Thread(target=lambda: [None for _ in iter(summary.get, END)], daemon=True)
+    t.start()
+    stats = rep.run()
+    t.join()
+    lane.join()
+    if vlane is not None:
+        vlane.join()
+        target.rec.flush()
+    cpu = time.process_time() - c0
+    wall = time.perf_counter() - w0
+    child = child_cpu(target.process.pid) - child0 if target is not None and target.process is not None else 0.0
+    if target is not None:
+        target.close()
+    return {
+        "variant": variant, "cpu_s": cpu, "child_cpu_s": child, "total_cpu_s": cpu + child, "wall_s": wall,
+        "data_s": stats.log_seconds, "analysis_dropped_samples": lane.sub.dropped_samples,
+        "view_dropped_samples": vlane.sub.dropped_samples if vlane else 0,
+        "view_dropped_results": vlane.dropped_results if vlane else 0, "view_thread_cpu_s": vlane.thread_cpu_s if vlane else 0.0,
+    }  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=15.0)
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--speed", type=float, default=1.0, help="replay pacing: 1 = real time (near-live)")
+    ap.add_argument("--variants", default="none,rrd,serve")
+    args = ap.parse_args()
+    tmp = Path(os.environ.get("TMPDIR", "/tmp")) / "gvt_bench_view"
+    tmp.mkdir(parents=True, exist_ok=True)
+    log = tmp / f"bench_view_{args.seconds:g}s.mcap"
+    if not log.exists():
+        make_log(log, args.seconds)
+    variants = args.variants.split(",")
+    one_run(log, "none", 0.0, tmp)  # warm-up: imports, numba, caches
+    runs = []
+    for _ in range(args.repeats):
+        for v in variants:
+            runs.append(one_run(log, v, args.speed, tmp))
+            r = runs[-1]
+            print(f"  {v:6s} cpu {r['total_cpu_s']:.2f} s (view thread {r['view_thread_cpu_s']:.2f} s, viewer process "
+                  f"{r['child_cpu_s']:.2f} s), wall {r['wall_s']:.1f} s", flush=True)  # fmt: skip
+    load = os.getloadavg()
+    med = {v: statistics.median(r["total_cpu_s"] for r in runs if r["variant"] == v) for v in variants}
+    base = med.get("none", float("nan"))
+    print(f"\nview overhead, {args.seconds:g} s of 15 ch x 16384 Hz (hammer + 14 accelerometers), replay at {args.speed:g}x, "
+          f"analysis on; load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")  # fmt: skip
+    print(f"{'variant':8s} {'CPU s (median)':>15s} {'CPU/data s':>11s} {'overhead':>9s} {'view drops':>11s}")
+    rows = []
+    for v in variants:
+        rs = [r for r in runs if r["variant"] == v]
+        over = (med[v] - base) / base if base > 0 else float("nan")
+        drops = max(r["view_dropped_samples"] for r in rs)
+        print(f"{v:8s} {med[v]:15.3f} {med[v] / args.seconds:11.4f} {100 * over:8.1f}% {drops:11d}")
+        rows.append({"variant": v, "cpu_s_median": med[v], "overhead_fraction": over, "max_view_dropped_samples": drops})
+    out = ROOT / "bench" / "results" / "bench_view.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"seconds_of_data": args.seconds, "speed": args.speed, "repeats": args.repeats,
+                               "loadavg": load, "cpus": os.cpu_count(), "summary": rows, "runs": runs}, indent=1))  # fmt: skip
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

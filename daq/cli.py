@@ -208,6 +208,7 @@ def replay(
     rig: Annotated[str | None, typer.Option(help="Rig for the analysis (default: the one attached to the log).")] = None,
     view: Annotated[bool, typer.Option("--view", help="Serve the rerun web viewer on 127.0.0.1 and show the replay.")] = False,
     connect: Annotated[str | None, typer.Option("--connect", help="Show it in a running rerun viewer (gRPC url).")] = None,
+    confirm: Annotated[bool, typer.Option(help="Confirm the IR events (WBEMD + slow flow) in the background.")] = True,
 ) -> None:
     """Feed a log through the live fan-out (block boundaries and sample indices kept), with the near-live analysis."""
     import threading
@@ -229,7 +230,13 @@ def replay(
     except LogReadError as exc:
         fail(str(exc))
     vtarget, vlane = _replay_view(rep, fan, rig, view, connect)
-    lane = _replay_lane(rep, fan, rig, vlane) if analysis else None
+    clane_box: list = []
+    lane = _replay_lane(rep, fan, rig, vlane, clane_box) if analysis else None
+    if lane is not None and confirm:
+        from daq.confirm_lane import start_confirm_lane
+
+        vsink = vlane.sink() if vlane is not None else (lambda *_: None)
+        clane_box.append(start_confirm_lane(fan, lane, vsink, log_path=str(log)))
     t = threading.Thread(target=consume, daemon=True)
     t.start()
     try:
@@ -246,6 +253,14 @@ def replay(
         if lane.sub.dropped_blocks:
             out.print(f"analysis fell behind: skipped {lane.sub.dropped_samples} samples (restarted after each gap)",
                       markup=False)  # fmt: skip
+    if clane_box:
+        from daq.confirm_cmd import ConfirmRun, companion_path, confirmations_table, write_companion
+
+        records = clane_box[0].join(timeout=60)
+        out.print(confirmations_table(records, f"confirmations (WBEMD + slow flow, {lane.stream})"))
+        if records:
+            dest = write_companion(ConfirmRun(str(log), lane.stream, "replay", "replay", records), companion_path(log))
+            out.print(f"wrote {len(records)} confirmation records to {dest}", markup=False)
     if vlane is not None:
         vlane.join()
     if vtarget is not None:
@@ -290,8 +305,9 @@ def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None)
     return target, vlane
 
 
-def _replay_lane(rep, fan, rig_arg: str | None, vlane=None):
-    """The analysis lane for a replay (None, with a note, when the log cannot be analysed)."""
+def _replay_lane(rep, fan, rig_arg: str | None, vlane=None, confirm_box: list | None = None):
+    """The analysis lane for a replay (None, with a note, when the log cannot be analysed); its IR events also
+    go to the confirmation lane in ``confirm_box`` once there is one."""
     from daq.analysis_lane import LaneUnavailable, start_analysis_lane
     from daq.analyze import AnalyzeError, rig_from_log
 
@@ -301,7 +317,14 @@ def _replay_lane(rep, fan, rig_arg: str | None, vlane=None):
         r = _open(rig_arg) if rig_arg is not None else rig_from_log(rep.reader)
         # every stream of a session shares one sample rate (daq/session.py refuses mixed rates)
         fs = next(iter(infos.values())).sample_rate
-        return start_analysis_lane(fan, r, streams, fs, vlane.sink() if vlane is not None else lambda *_: None, maxsize=4096)
+        vsink = vlane.sink() if vlane is not None else (lambda *_: None)
+
+        def sink(topic: str, obj: dict, t_ns: int | None) -> None:
+            vsink(topic, obj, t_ns)
+            if topic == "/analysis/events" and confirm_box:
+                confirm_box[0].offer(obj)
+
+        return start_analysis_lane(fan, r, streams, fs, sink, maxsize=4096)
     except (AnalyzeError, LaneUnavailable, StopIteration) as exc:
         err.print(f"gvt: note: no analysis: {exc or 'the log has no sample streams'}", markup=False, soft_wrap=True)
         return None

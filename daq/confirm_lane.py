@@ -34,6 +34,7 @@ from daq.blocks import SampleBlock
 from daq.fanout import FanOut, Subscription
 
 CONFIRM_TOPIC = "/analysis/confirmations"
+_END_EVENTS = object()
 
 Sink = Callable[[str, dict, int | None], None]
 
@@ -94,12 +95,14 @@ class ConfirmLane:
     def __init__(
         self, fan: FanOut, stream: str, channels: tuple[str, ...], sensors: tuple[str, ...], fs: float, sink: Sink,
         context: Any, confirm: Callable | None = None, settings: LaneSettings = LaneSettings(),
+        fetch: Callable[[int, int], np.ndarray | None] | None = None,
     ) -> None:  # fmt: skip
         if confirm is None:
             from analysis.confirm import confirm_segment as confirm
         self.stream, self.fs, self.sink, self.context, self.confirm, self.s = stream, fs, sink, context, confirm, settings
         self.cols = [channels.index(c) for c in sensors]
-        self.sub: Subscription = fan.subscribe(f"confirm:{stream}", maxsize=1024)
+        self.fetch = fetch  # replay: samples [a, b) of the sensors straight from the log, no ring, nothing to lose
+        self.sub: Subscription | None = None if fetch is not None else fan.subscribe(f"confirm:{stream}", maxsize=1024)
         self.events: queue.Queue = queue.Queue(maxsize=settings.event_queue)
         self.ring = _Ring(max(1, int(settings.buffer_s * fs)), len(self.cols))
         self.results: list[dict] = []
@@ -125,6 +128,8 @@ class ConfirmLane:
     def join(self, timeout: float | None = None) -> list[dict]:
         """After the stream ended *and the analysis lane was joined* (its last events come at its finish):
         confirm what is still waiting, wait for every queued confirmation, return all records."""
+        if self.fetch is not None:
+            self.events.put(_END_EVENTS)  # blocking put: the end marker must arrive
         self._thread.join(timeout)
         if self.error is None:
             self._dispatch(final=True)
@@ -141,9 +146,11 @@ class ConfirmLane:
     def _take_events(self) -> None:
         while True:
             try:
-                self._waiting.append(self.events.get_nowait())
+                ev = self.events.get_nowait()
             except queue.Empty:
                 return
+            if ev is not _END_EVENTS:
+                self._waiting.append(ev)
 
     def _span(self, ev: dict) -> tuple[int, int]:
         c = self.context
@@ -156,14 +163,18 @@ class ConfirmLane:
         for ev in self._waiting:
             a, b = self._span(ev)
             a = max(a, 0)
-            if b > self.ring.end and not final:
+            if self.fetch is not None:
+                seg = self.fetch(a, b)
+            elif b > self.ring.end and not final:
                 keep.append(ev)  # its data has not all arrived yet
                 continue
-            seg = self.ring.get(a, min(b, self.ring.end))
+            else:
+                seg = self.ring.get(a, min(b, self.ring.end))
             if seg is None:
-                self._emit(skipped(ev, f"its data ({a / self.fs:.3f}–{b / self.fs:.3f} s) is not in the lane's buffer "
-                                       f"(older than {self.s.buffer_s} s, or in a gap)"))  # fmt: skip
-            elif len(self._running) >= self.s.max_pending:
+                where = "the log has a gap there" if self.fetch is not None else (
+                    f"not in the lane's buffer: older than {self.s.buffer_s} s, or in a gap")
+                self._emit(skipped(ev, f"its data ({a / self.fs:.3f}–{b / self.fs:.3f} s) is missing ({where})"))
+            elif self.fetch is None and len(self._running) >= self.s.max_pending:  # a replay has no deadline: all queue
                 self._emit(skipped(ev, f"{self.s.max_pending} confirmations were already queued (the lane fell behind)"))
             else:
                 self._running.append((ev, self._pool.submit(self.confirm, seg, self.fs, a / self.fs, ev, self.context)))
@@ -185,7 +196,23 @@ class ConfirmLane:
                 still.append((ev, fut))
         self._running = still
 
+    def _main_fetch(self) -> None:
+        try:
+            while True:
+                ev = self.events.get()
+                if ev is _END_EVENTS:
+                    return
+                self._waiting.append(ev)
+                self._dispatch()
+                self._collect()
+        except Exception as exc:  # said; the replay is unaffected
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.sink("/daq/events", {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
+
     def _main(self) -> None:
+        if self.sub is None:
+            self._main_fetch()
+            return
         try:
             for blk in self.sub:
                 if isinstance(blk, SampleBlock) and blk.stream == self.stream:
@@ -197,7 +224,7 @@ class ConfirmLane:
             self.sink("/daq/events", {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
             for _ in self.sub:
                 pass
-        if self.sub.dropped_blocks:
+        if self.sub is not None and self.sub.dropped_blocks:
             self.sink("/daq/events", {
                 "kind": "confirm_overrun", "stream": self.stream, "count": self.sub.dropped_samples,
                 "message": f"the confirmation lane fell behind and skipped {self.sub.dropped_blocks} blocks "
@@ -205,12 +232,25 @@ class ConfirmLane:
             }, None)  # fmt: skip
 
 
-def start_confirm_lane(fan: FanOut, analysis_lane, sink: Sink, settings: LaneSettings = LaneSettings()) -> ConfirmLane:
+def start_confirm_lane(
+    fan: FanOut, analysis_lane, sink: Sink, settings: LaneSettings = LaneSettings(), log_path: str | None = None,
+) -> ConfirmLane:  # fmt: skip
     """The confirmation lane beside a started analysis lane (same stream, same rig model). Feed it the
-    analysis lane's ``/analysis/events`` with :meth:`ConfirmLane.offer`; join it after the analysis lane."""
+    analysis lane's ``/analysis/events`` with :meth:`ConfirmLane.offer`; join it after the analysis lane.
+    ``log_path`` (replay): read each event's samples from the log instead of a ring of the fan-out."""
     from analysis.confirm import ConfirmContext
 
     op = analysis_lane.op
     ctx = ConfirmContext.from_model(op.model)
+    fetch = None
+    if log_path is not None:
+        from daq.log.reader import LogReader
+
+        reader, sensors, stream = LogReader(log_path), list(op.model.sensors), analysis_lane.stream
+
+        def fetch(a: int, b: int) -> np.ndarray | None:
+            d = reader.read_stream(stream, sensors, a / op.fs, b / op.fs)
+            return None if d.gaps or d.data.shape[0] == 0 or int(d.index[0]) != a else np.asarray(d.data)
+
     return ConfirmLane(fan, analysis_lane.stream, tuple(analysis_lane.channels), tuple(op.model.sensors), op.fs, sink, ctx,
-                       settings=settings).start()  # fmt: skip
+                       settings=settings, fetch=fetch).start()  # fmt: skip

@@ -135,3 +135,25 @@ def test_the_session_confirms_its_events_in_the_background_and_logs_them(log_wit
     logged = LogReader(log).json_messages("/analysis/confirmations")
     assert sorted(r["event_id"] for r in logged) == ids == sorted(r["event_id"] for r in res.confirmations)
     assert all(r["status"] in ("confirmed", "not_confirmed", "skipped") and r.get("reason") is not None for r in logged)
+
+
+@pytest.mark.slow
+def test_gvt_replay_confirms_every_event_from_the_log_and_writes_the_companion(log_with_events, tmp_path):
+    """A replay reads each event's samples from the log (nothing to lose, no deadline): one record per event,
+    none skipped, equal to what gvt confirm computes for the same events."""
+    import shutil
+
+    from daq.log.reader import LogReader
+
+    log = tmp_path / "copy.mcap"
+    shutil.copy(log_with_events[0], log)
+    p = _gvt("replay", str(log))
+    assert p.returncode == 0, p.stderr
+    assert "confirmations (WBEMD + slow flow" in p.stdout
+    recs = LogReader(companion_path(log)).json_messages("/analysis/confirmations")
+    n_events = len(LogReader(log).json_messages("/analysis/events"))
+    assert len(recs) == n_events and all(r["status"] != "skipped" for r in recs)
+    q = _gvt("confirm", str(log), "--json", "--out", str(tmp_path / "batch.mcap"))
+    batch = {r["event_id"]: r for r in json.loads(q.stdout)["confirmations"]}
+    for r in recs:
+        assert (r["status"], r["ratio"]) == (batch[r["event_id"]]["status"], batch[r["event_id"]]["ratio"])

@@ -38,6 +38,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/eval_detection.py
 	$(BIN)/python bench/bench_cwt.py
+	$(BIN)/python bench/eval_confirm.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

@@ -43,7 +43,7 @@ Sink = Callable[[str, dict, int | None], None]
 class LaneSettings:
     buffer_s: float = 8.0  # ring length: the longest stretch of data an event's confirmation can use
     post_s: float = 0.5  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
-    max_pending: int = 4  # confirmations queued in the worker at once; more are skipped and said
+    max_pending: int = 16  # confirmations queued in the worker at once (~1.5 MB of samples each); more are skipped and said
     event_queue: int = 256
     finish_timeout_s: float = 120.0  # at the end, confirmations still running after this are skipped and said
 

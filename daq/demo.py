@@ -99,6 +99,11 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap")
     from daq.analyze_cmd import events_table
 
     console.print(events_table(res.analysis_events, "internal-resonance events flagged near-live"))
+    if res.confirmations:
+        from daq.confirm_cmd import confirmations_table
+
+        console.print(confirmations_table(sorted(res.confirmations, key=lambda r: r.get("event_id") or 0),
+                                          "confirmed in the background (WBEMD + slow flow; seed Ch. 3)"))  # fmt: skip
     lost = "nothing lost" if res.lost_samples == 0 else f"{res.lost_samples} samples lost (reported as gaps)"
     console.print(
         f"  {res.samples} samples x 15 channels recorded in {res.seconds:.1f} s, {lost}; suspect channels: "

@@ -192,6 +192,12 @@ def test_served_viewer_listens_on_localhost_only(tmp_path):
     finally:
         target.close()
     assert target.process is not None and target.process.poll() is not None  # the viewer we started is gone
+    import socket
+
+    for port in (port_g, port_w):  # and nothing it started still listens
+        with socket.socket() as sock:
+            sock.settimeout(1.0)
+            assert sock.connect_ex(("127.0.0.1", port)) != 0
 
 
 def test_gvt_replay_view_and_analyze_rrd(session_log, tmp_path):

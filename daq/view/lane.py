@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 import queue
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -60,13 +61,8 @@ class ViewTarget:
     def close(self, stop_viewer: bool = True) -> None:
         self.rec.flush()
         self.rec.disconnect()
-        if stop_viewer and self.process is not None and self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
+        if stop_viewer and self.process is not None:
+            _stop_group(self.process)
 
 
 def rerun_cli() -> str:
@@ -78,6 +74,34 @@ def rerun_cli() -> str:
     if found is None:
         raise ViewError("the rerun CLI was not found next to python or on PATH; install rerun-sdk in this environment")
     return found
+
+
+def _server_binary() -> str:
+    """The viewer binary itself: the ``rerun`` script is a Python wrapper that runs it as a *child*, which
+    would outlive a terminated wrapper."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / "rerun"
+        if exe.is_file() and os.access(exe, os.X_OK):
+            return str(exe)
+    except ImportError:
+        pass
+    return rerun_cli()
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Stop the viewer we started and anything it started (its own process group)."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
 
 
 def _free_port() -> int:
@@ -120,15 +144,15 @@ def open_view(kind: str, where: str | None = None, web_port: int | None = None, 
         raise ViewError(f"view: unknown kind {kind!r} (serve, connect or save)")
     g, w = grpc_port or _free_port(), web_port or _free_port()
     env = {**os.environ, "RERUN_TELEMETRY": "0"}
-    cmd = [rerun_cli(), "--serve-web", "--bind", HOST, "--port", str(g), "--web-viewer-port", str(w),
+    cmd = [_server_binary(), "--serve-web", "--bind", HOST, "--port", str(g), "--web-viewer-port", str(w),
            "--server-memory-limit", memory_limit, "--hide-welcome-screen"]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                            start_new_session=True)  # fmt: skip
     try:
         _wait_port(g, proc)
         _wait_port(w, proc)
     except ViewError:
-        proc.kill()
-        proc.wait()
+        _stop_group(proc)
         raise
     url = f"rerun+http://{HOST}:{g}/proxy"
     rec.connect_grpc(url, default_blueprint=bp)

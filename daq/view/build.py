@@ -43,8 +43,10 @@ def _time_of(topic: str, obj: dict) -> float:
 
 def log_results(reader: LogReader, rig=None, results: dict[str, list[dict]] | None = None) -> tuple[dict[str, list[dict]], str]:
     """The log's ``/analysis/*`` results, or a fresh batch analysis when the log has none."""
-    if results is not None:
-        return dict(results), "analyze"
+    if results is not None:  # computed now; confirmations only ever come from the log (or the confirmation lane)
+        out = dict(results)
+        out.setdefault("/analysis/confirmations", reader.json_messages("/analysis/confirmations"))
+        return out, "analyze"
     got = {t: reader.json_messages(t) for t in RESULT_TOPICS}
     if got["/analysis/rq"] or got["/analysis/modal"]:
         return got, "log"

@@ -20,7 +20,8 @@ Speed: each objective evaluation is two first-IMF EMDs plus one MWT of the trial
 a "zoom" evaluation of the same linear-convolution CWT: one real FFT of the zero-padded trial IMF, then
 per analysing frequency only the spectral bins inside ±6 kernel standard deviations are inverse-FFT'd
 (the kernel is < 2e-8 outside) on a coarser, 4×-oversampled time grid. |Z| does not change under the
-baseband shift; the decimated maximum agrees with the full transform to < 1e-3 relative (tested).
+baseband shift; the decimated maximum agrees with the full transform to 2e-3 relative on noise (the
+worst case) and ~1e-6 on tones (tested against analysis.wavelet), ~20× faster.
 
 Ordering: extraction is high → low (L769); the result is relabelled ascending, IMF 1 = lowest (L935).
 The last (lowest) component is the remaining residual z_N (the text does not say; §3.2 [CHOICE]).

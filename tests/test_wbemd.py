@@ -105,6 +105,15 @@ def test_fixed_mask_for_ratio_above_two():
     assert pcc(r.imfs[1], y1) > 0.95 and pcc(r.imfs[0], y2) > 0.95
 
 
+def test_last_component_by_fixed_mask_keeps_reconstruction():
+    y1, y2 = _pair(1.0, 1.5)
+    x = y1 + y2 + 0.1  # an offset that a masked last IMF must leave in the residual
+    r = wbemd(x, FS, [F1, 1.5 * F1], params=WbemdParams(last="mask"))
+    assert [d.mask for d in r.diagnostics] == ["fixed", "optimised"]
+    np.testing.assert_allclose(r.imfs.sum(axis=0) + r.residual, x, atol=1e-9)
+    assert abs(r.residual.mean() - 0.1) < 0.02  # the offset is not an oscillation at ω_N: EMD leaves it out of IMF 1
+
+
 def test_characteristic_frequencies_finds_tones():
     x = np.sin(2 * np.pi * 600 * T) + 0.6 * np.sin(2 * np.pi * 2000 * T)
     f = characteristic_frequencies(x, FS, 2, 200.0, 4000.0)

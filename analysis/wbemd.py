@@ -75,6 +75,9 @@ class WbemdParams:
     trim_s: float = 0.0
     """Seconds skipped at each end in every MWT (0 = the text's definition)."""
     oversample: int = 4
+    omega0_spacing: float | None = None
+    """Not in the text. If set, step i uses ω0_i = max(ω0, omega0_spacing·ω_i/(ω_i − ω_{i+1})) for Z̃_i and C̃_i, so
+    ω_{i+1} lies ≥ omega0_spacing kernel standard deviations from ω_i (None: ω0 for every step, as the text)."""
 
 
 @dataclass(frozen=True)
@@ -351,6 +354,9 @@ def wbemd(x: ArrayLike, fs: float, char_freqs_hz: ArrayLike | None = None, *, n_
             break
         # last="mask": no ω_{i+1} exists; fixed mask at ω_N, diagnostics use ω_{i+1} := ω_N/ratio_switch.
         wnext = 2.0 * np.pi * f_desc[i + 1] if not last else wi / params.ratio_switch
+        if params.omega0_spacing is not None and not last:
+            w0_i = max(params.omega0, params.omega0_spacing * wi / (wi - wnext))
+            zoom = _ZoomMwt(n, fs, grid, w0_i, params.oversample, params.trim_s)
         z_mwt = zoom(z)
         i_at = int(np.argmin(np.abs(grid - fi)))
         if z_mwt[i_at] <= 0:

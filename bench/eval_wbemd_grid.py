@@ -135,11 +135,13 @@ def main() -> None:
     ap.add_argument("--omega0", type=float, default=2 * np.pi)
     ap.add_argument("--trim", type=float, default=0.0, help="MWT trim_s (s)")
     ap.add_argument("--delta", type=float, default=0.15)
+    ap.add_argument("--omega0-spacing", type=float, default=None, help="WbemdParams.omega0_spacing (not in the text)")
     ap.add_argument("--optimizer", default="nelder-mead")
     ap.add_argument("--eemd-trials", type=int, default=20)
     ap.add_argument("--json", default=str(ROOT / "bench/results/eval_wbemd_grid.json"))
     args = ap.parse_args()
-    params = WbemdParams(omega0=args.omega0, trim_s=args.trim, delta=args.delta, optimizer=args.optimizer)
+    params = WbemdParams(omega0=args.omega0, trim_s=args.trim, delta=args.delta, optimizer=args.optimizer,
+                         omega0_spacing=args.omega0_spacing)
     ks, as_ = (K_VALUES, A_VALUES)
     if args.quick:
         ks, as_ = K_FULL[::5], np.array([0.1, 0.5, 1.0, 2.0])

@@ -39,6 +39,10 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/eval_detection.py
 	$(BIN)/python bench/bench_cwt.py
 	$(BIN)/python bench/eval_confirm.py
+	$(BIN)/python bench/bench_wbemd.py
+	$(BIN)/python bench/eval_wbemd_grid.py
+	$(BIN)/python bench/eval_beam_ch3.py
+	$(BIN)/python bench/bench_view.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

@@ -212,6 +212,10 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
             ax.legend(fontsize=6)
         figs.append(("POM shapes over IR events (acceleration POD)", _png(fig)))
     confs = res.get("/analysis/confirmations", [])
+    if not confs:  # gvt confirm / gvt replay write theirs next to the log (docs/decisions.md D22)
+        from daq.confirm_cmd import read_confirmations
+
+        confs = read_confirmations(log)
     with_traj = [c for c in confs if (c.get("trajectory") or {}).get("phi")]
     if with_traj:
         fig, ax = plt.subplots(figsize=(6, 4.5))
@@ -259,7 +263,8 @@ STREAM_COLS = ["stream", "channels", "fs [Hz]", "duration [s]", "samples", "gaps
                "undecodable blocks"]  # fmt: skip
 HIT_COLS = ["#", "t [s]", "peak [N]", "width [ms]", "energy [J]", "verdict", "reason"]
 IR_COLS = ["#", "start [s]", "end [s]", "modes", "m:n", "f give/recv [Hz]", "gain", "confidence", "source"]
-CONF_COLS = ["event", "status", "m:n", "start [s]", "end [s]", "orthogonality", "IMF freqs [Hz]", "candidates (captured)"]
+CONF_COLS = ["event", "status", "evidence", "m:n", "start [s]", "end [s]", "orthogonality", "IMF freqs [Hz]",
+             "candidates (captured)", "why"]
 
 
 def _stream_row(s: dict) -> list:
@@ -281,5 +286,5 @@ def _ir_row(k: int, e: dict) -> list:
 def _conf_row(c: dict) -> list:
     cands = "; ".join(f"{d.get('ratio')} {100 * d.get('captured_fraction', 0):.0f} %" for d in c.get("candidates") or [])
     freqs = ", ".join(_f(f, ".1f") for f in c.get("imf_freqs_hz") or [])
-    return [c.get("event_id"), c.get("status"), c.get("ratio") or "—", _f(c.get("start_s")), _f(c.get("end_s")),
-            _f(c.get("orthogonality_index"), ".3f"), freqs, cands]  # fmt: skip
+    return [c.get("event_id"), c.get("status"), c.get("evidence") or "—", c.get("ratio") or "—", _f(c.get("start_s")),
+            _f(c.get("end_s")), _f(c.get("orthogonality_index"), ".3f"), freqs, cands, c.get("reason") or ""]  # fmt: skip

@@ -89,7 +89,7 @@ def _gvt(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_events):
+def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_events, tmp_path):
     log, res = log_with_events
     if not res.analysis_events:
         pytest.fail("the strong hit produced no IR event to confirm")  # the detector's recall is tested in test_detection
@@ -107,6 +107,11 @@ def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_e
     assert side.exists() and [r["event_id"] for r in LogReader(side).json_messages("/analysis/confirmations")] == [0]
     live = LogReader(log).json_messages("/analysis/confirmations")  # the session's own lane wrote these
     assert [r["event_id"] for r in read_confirmations(log)] == [r["event_id"] for r in live] + [0]
+    from daq.report import build_report
+
+    page = tmp_path / "r.html"
+    build_report(log, page)
+    assert rec["reason"].split(";")[0][:40] in page.read_text()  # the confirmation's "why" is in the report
 
 
 def test_gvt_confirm_bad_event_and_bad_log_are_one_line_errors(tmp_path):

@@ -25,8 +25,8 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.linalg
@@ -34,9 +34,11 @@ import scipy.signal
 from numpy.typing import NDArray
 
 from analysis.preprocess import PreprocessSettings, acc_to_disp
-from analysis.slowflow import DetectorParams, candidate_ratios, test_ratios, trajectory
 from analysis.wavelet import analytic
-from analysis.wbemd import WbemdParams, characteristic_frequencies, wbemd
+
+if TYPE_CHECKING:  # the decomposition (PyEMD, ~30 MB) is imported where it runs: in the confirmation worker
+    from analysis.slowflow import DetectorParams
+    from analysis.wbemd import WbemdParams
 
 
 @dataclass(frozen=True)
@@ -53,8 +55,8 @@ class ConfirmSettings:
     min_gain: float = 1.5  # receiving IMF's energy (amplitude²) end / start of the event, slow-angle test
     max_turn: float = 2.0 * math.pi  # largest Φ range over the event for a slow angle (one turn)
     overlap_s: float = 0.1  # captured loops must overlap the event interval widened by this much
-    wbemd: WbemdParams = field(default_factory=WbemdParams)
-    detector: DetectorParams = field(default_factory=DetectorParams)
+    wbemd: WbemdParams | None = None  # None: WbemdParams() — the text's values
+    detector: DetectorParams | None = None  # None: DetectorParams() — docs/slowflow.md
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,8 @@ def pick_sensor(shapes: NDArray[np.float64], modes: tuple[int, int]) -> int:
 
 
 def _frequencies(x: NDArray[np.float64], fs: float, f_a: float, f_b: float, s: ConfirmSettings) -> NDArray[np.float64]:
+    from analysis.wbemd import characteristic_frequencies
+
     lo, hi = min(f_a, f_b), max(f_a, f_b)
     f_max = min(s.f_max_factor * hi, 0.4 * fs)
     peaks: list[float] = []
@@ -131,6 +135,8 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
     turn; one turn allows for the ramp in and out). Captured loops (non-time-like, :mod:`analysis.slowflow`)
     are the stronger evidence and reported separately.
     """
+    from analysis.slowflow import candidate_ratios, trajectory
+
     lp = 0.25 * _mean_freq(low, fs)
     t = t0_s + np.arange(low.size) / fs
     sel = (t >= start_s) & (t <= end_s)
@@ -159,6 +165,9 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
 
     ``t0_s`` is the time of ``seg[0]`` on the stream's clock; times in the record are on that clock too.
     """
+    from analysis.slowflow import DetectorParams, test_ratios
+    from analysis.wbemd import WbemdParams, wbemd
+
     t_start = time.perf_counter()
     s = context.settings
     modes = tuple(int(k) for k in event["modes"])
@@ -175,7 +184,7 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     _v, disp = acc_to_disp(acc[:, [k]], fs, pre)
     x = disp[:, 0]
     freqs = _frequencies(x, fs, f_give, f_recv, s)
-    dec = wbemd(x, fs, freqs, params=s.wbemd)
+    dec = wbemd(x, fs, freqs, params=s.wbemd or WbemdParams())
     i_lo = int(np.argmin(np.abs(dec.char_freqs_hz - f_low)))
     i_hi = int(np.argmin(np.abs(dec.char_freqs_hz - max(f_give, f_recv))))
     base = {
@@ -188,7 +197,8 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
                 "m": None, "n": None, "start_s": None, "end_s": None, "candidates": [], "trajectory": None,
                 "elapsed_s": time.perf_counter() - t_start}  # fmt: skip
     lo_imf, hi_imf = dec.imfs[i_lo], dec.imfs[i_hi]
-    c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=s.detector, t0=t0_s)
+    params = s.detector or DetectorParams()
+    c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=params, t0=t0_s)
     sa = slow_angle_test(lo_imf, hi_imf, fs, t0_s, float(event["start_s"]), float(event["end_s"]), m, n, s)
     ev_lo, ev_hi = float(event["start_s"]) - s.overlap_s, float(event["end_s"]) + s.overlap_s
     captured = c.status == "confirmed" and c.start_s <= ev_hi and c.end_s >= ev_lo and sa.gain >= s.min_gain

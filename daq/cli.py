@@ -420,13 +420,16 @@ def record(
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
 
     from daq.live_status import LiveStatus
-    from daq.view.cli_glue import close_live_view, open_live_view
-    from daq.view.lane import ViewError
 
-    try:
-        vtarget = open_live_view(out, view, connect)
-    except ViewError as exc:
-        fail(str(exc))
+    vtarget = None
+    if view or connect:  # rerun (pyarrow, its bindings: ~100 MB resident) is imported only for a view
+        from daq.view.cli_glue import open_live_view
+        from daq.view.lane import ViewError
+
+        try:
+            vtarget = open_live_view(out, view, connect)
+        except ViewError as exc:
+            fail(str(exc))
     try:
         with LiveStatus(out, cfg.name) as live:
             res = run_session(cfg, r, target, stop=stop, status=live.update, view=vtarget)
@@ -460,7 +463,15 @@ def record(
         from daq.analyze_cmd import events_table
 
         out.print(events_table(res.analysis_events, "internal-resonance events (near-live analysis)"))
-    close_live_view(out, vtarget, None)
+        if res.confirmations:
+            from daq.confirm_cmd import confirmations_table
+
+            out.print(confirmations_table(sorted(res.confirmations, key=lambda c: c.get("event_id") or 0),
+                                          "confirmations (WBEMD + slow flow, in the background)"))  # fmt: skip
+    if vtarget is not None:
+        from daq.view.cli_glue import close_live_view
+
+        close_live_view(out, vtarget, None)
     if res.view_dropped_samples:
         out.print(f"view: did not show {res.view_dropped_samples} samples (view_overrun event in the log)", markup=False)
     if res.driver_error:

@@ -34,10 +34,10 @@ import scipy.signal
 from numpy.typing import NDArray
 
 from analysis.preprocess import PreprocessSettings, acc_to_disp
+from analysis.slowflow import DetectorParams, candidate_ratios, mean_frequency_hz, test_ratios, trajectory
 from analysis.wavelet import analytic
 
 if TYPE_CHECKING:  # the decomposition (PyEMD, ~30 MB) is imported where it runs: in the confirmation worker
-    from analysis.slowflow import DetectorParams
     from analysis.wbemd import WbemdParams
 
 
@@ -45,6 +45,7 @@ if TYPE_CHECKING:  # the decomposition (PyEMD, ~30 MB) is imported where it runs
 class ConfirmSettings:
     n_imfs: int = 4  # components WBEMD extracts (the seed's experiment: 4 IMFs, L1316–L1445)
     pre_s: float = 0.5  # data before the event's start given to the decomposition (>= the slow-flow end guard, 0.3 s)
+    post_s: float = 0.5  # data after the event's end (seed L1426: a loop needs >= 0.3 s of signal after escape)
     match_rel: float = 0.3  # an MWT peak within this fraction of an event frequency stands for it (a hardening
     # mode sweeps ~20 % within one segment; the two modes of an event are >= 2x apart)
     f_max_factor: float = 4.0  # MWT peak search up to this × the higher event frequency
@@ -67,9 +68,11 @@ class ConfirmContext:
     shapes: NDArray[np.float64]  # (n_sensors, n_modes) Guyan mode shapes at the sensors, ascending frequency
     settings: ConfirmSettings = ConfirmSettings()
 
-    @property
-    def pre_s(self) -> float:
-        return self.settings.pre_s
+    def span_s(self, event: Mapping[str, Any]) -> tuple[float, float]:
+        """The stretch of data one event's confirmation uses: ``pre_s`` before its start to ``post_s`` after its
+        end (never before the stream's start). The lane, ``gvt confirm`` and the evaluation all cut this."""
+        s = self.settings
+        return max(0.0, float(event["start_s"]) - s.pre_s), float(event["end_s"]) + s.post_s
 
     @classmethod
     def from_model(cls, model, settings: ConfirmSettings = ConfirmSettings()) -> ConfirmContext:
@@ -92,13 +95,7 @@ def _frequencies(x: NDArray[np.float64], fs: float, f_a: float, f_b: float, s: C
 
     lo, hi = min(f_a, f_b), max(f_a, f_b)
     f_max = min(s.f_max_factor * hi, 0.4 * fs)
-    peaks: list[float] = []
-    for k in range(s.n_imfs, 0, -1):  # as many distinct MWT peaks as there are, up to n_imfs
-        try:
-            peaks = list(characteristic_frequencies(x, fs, k, 0.5 * lo, f_max))
-            break
-        except ValueError:
-            continue
+    peaks = list(characteristic_frequencies(x, fs, s.n_imfs, 0.5 * lo, f_max, at_most=True))
     for f in (f_a, f_b):
         near = [p for p in peaks if abs(p - f) <= s.match_rel * f]
         if near:
@@ -135,9 +132,7 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
     turn; one turn allows for the ramp in and out). Captured loops (non-time-like, :mod:`analysis.slowflow`)
     are the stronger evidence and reported separately.
     """
-    from analysis.slowflow import candidate_ratios, trajectory
-
-    lp = 0.25 * _mean_freq(low, fs)
+    lp = 0.25 * mean_frequency_hz(low, fs)
     t = t0_s + np.arange(low.size) / fs
     sel = (t >= start_s) & (t <= end_s)
     if sel.sum() < 4:
@@ -148,16 +143,11 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
         ranges[r] = float(np.ptp(tr.phi[sel]))
     best = min(ranges, key=ranges.get)
     amp = analytic(high, fs, lowpass_hz=None).amplitude
-    sos = scipy.signal.butter(3, min(0.25 * _mean_freq(high, fs), 0.4 * fs), fs=fs, output="sos")
+    sos = scipy.signal.butter(3, min(0.25 * mean_frequency_hz(high, fs), 0.4 * fs), fs=fs, output="sos")
     amp = scipy.signal.sosfiltfilt(sos, amp)
     a = amp[sel]
     gain = float((a[-1] / a[0]) ** 2) if a[0] > 0 else float("inf")
     return SlowAngle(best, ranges, gain, bool(gain >= s.min_gain and ranges[best] < s.max_turn))
-
-
-def _mean_freq(x: NDArray, fs: float) -> float:
-    ph = analytic(x, fs, lowpass_hz=None).phase
-    return abs(ph[-1] - ph[0]) / (2.0 * math.pi) * fs / max(ph.size - 1, 1)
 
 
 def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, Any], context: ConfirmContext) -> dict:
@@ -165,7 +155,6 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
 
     ``t0_s`` is the time of ``seg[0]`` on the stream's clock; times in the record are on that clock too.
     """
-    from analysis.slowflow import DetectorParams, test_ratios
     from analysis.wbemd import WbemdParams, wbemd
 
     t_start = time.perf_counter()

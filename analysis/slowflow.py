@@ -179,10 +179,15 @@ def phase_variable(
     return phi, np.gradient(phi) * fs
 
 
+def mean_frequency_hz(c: ArrayLike, fs: float) -> float:
+    """Mean frequency of a component: the slope of its unwrapped Hilbert phase over the record."""
+    ph = analytic(c, fs, lowpass_hz=None).phase
+    return abs(ph[-1] - ph[0]) / (2.0 * math.pi) * fs / max(ph.size - 1, 1)
+
+
 def default_lowpass_hz(comp_low: ArrayLike, fs: float) -> float:
     """``LOWPASS_FRACTION`` × the mean frequency of the lower component (unwrapped-phase slope)."""
-    ph = analytic(comp_low, fs, lowpass_hz=None).phase
-    f_mean = abs(ph[-1] - ph[0]) / (2.0 * math.pi) * fs / max(ph.size - 1, 1)
+    f_mean = mean_frequency_hz(comp_low, fs)
     if not f_mean > 0:
         raise ValueError("default_lowpass_hz: the lower component has no oscillation; pass lowpass_hz explicitly")
     return LOWPASS_FRACTION * f_mean

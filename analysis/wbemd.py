@@ -165,8 +165,10 @@ def frequency_grid(char_freqs_hz: ArrayLike, fs: float, params: WbemdParams = Wb
 
 
 def characteristic_frequencies(x: ArrayLike, fs: float, n: int, f_min_hz: float, f_max_hz: float, *, n_freq_bins: int = 400,
-                               omega0: float = OMEGA0_DEFAULT, trim_s: float = 0.0) -> NDArray[np.float64]:
+                               omega0: float = OMEGA0_DEFAULT, trim_s: float = 0.0, at_most: bool = False) -> NDArray[np.float64]:
     """The ``n`` most prominent peaks of MWT{x} (eq. 3.3) on a uniform grid in [f_min_hz, f_max_hz], ascending.
+
+    With fewer peaks than ``n``: ValueError, or (``at_most=True``) all the peaks there are, possibly none.
 
     The seed's analyst reads the characteristic frequencies off the MWT (L769, L478); this automates it by
     peak prominence (scipy.signal.find_peaks). Peaks are refined by a parabola through the three bins.
@@ -179,7 +181,7 @@ def characteristic_frequencies(x: ArrayLike, fs: float, n: int, f_min_hz: float,
     grid = np.linspace(f_min_hz, f_max_hz, n_freq_bins)
     m = mwt(morlet_cwt(x, fs, grid, omega0=omega0, dtype=np.complex64), fs, trim_s)
     peaks, props = signal.find_peaks(m, prominence=0)  # interior maxima only: a band edge is not a peak
-    if peaks.size < n:
+    if peaks.size < n and not at_most:
         raise ValueError(f"characteristic_frequencies: MWT has {peaks.size} peaks in [{f_min_hz}, {f_max_hz}] Hz, need {n}")
     best = peaks[np.argsort(props["prominences"])[::-1][:n]]
     out = []

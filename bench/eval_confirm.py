@@ -3,7 +3,7 @@
 For every nonlinear case of issue 6's grid (analysis/evaluation/grid.py: 24 hits, 400–2000 N x
 ζ 0.002–0.015, 1 % noise, acceleration path), gvtlink's near-live detector gives its IR events; each
 event labelled 3:1 or 5:2 is confirmed on its stretch of noisy accelerations exactly as the background
-lane does it (analysis/confirm.py: event start − pre_s … end + 0.3 s). Scored against the simulator's
+lane does it (``ConfirmContext.span_s``: event start − 0.5 s … end + 0.5 s). Scored against the simulator's
 truth (major exchanges of mode 2, issue 6's definition):
 
 * precision — of the events confirmed with their own label, the fraction that match a truth exchange
@@ -30,6 +30,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import scipy.linalg
@@ -43,8 +44,6 @@ from analysis.evaluation.detectors import WINDOW_S, modal_exchange_acc  # noqa: 
 from analysis.evaluation.grid import case_rig, default_grid, simulate_cases  # noqa: E402
 from analysis.evaluation.score import match_case  # noqa: E402
 
-POST_S = 0.5  # as the lane (daq/confirm_lane.py LaneSettings.post_s)
-
 
 def _context(case) -> ConfirmContext:
     rig = case_rig(case.case)
@@ -56,8 +55,8 @@ def _context(case) -> ConfirmContext:
 def _confirm_all(case, events: list[dict], ctx: ConfirmContext) -> list[dict]:
     fs, out = case.fs, []
     for ev in events:
-        a = max(0, int(np.floor((ev["start_s"] - ctx.pre_s) * fs)))
-        b = min(case.acc.shape[0], int(np.ceil((ev["end_s"] + POST_S) * fs)))
+        lo, hi = ctx.span_s(ev)
+        a, b = int(np.floor(lo * fs)), min(case.acc.shape[0], int(np.ceil(hi * fs)))
         try:
             out.append(confirm_segment(case.acc[a:b], fs, a / fs, ev, ctx))
         except Exception as exc:  # counted and shown, never hidden
@@ -84,16 +83,6 @@ def _one(pair_index: int, ratios: tuple[str, ...]) -> dict:
     }  # fmt: skip
 
 
-class _Ev:
-    def __init__(self, start_s: float, end_s: float) -> None:
-        self.start_s, self.end_s = start_s, end_s
-
-
-class _Tr:
-    def __init__(self, d: dict) -> None:
-        self.start_s, self.end_s = d["start_s"], d["end_s"]
-
-
 def score(rows: list[dict], ratios: tuple[str, ...]) -> dict:
     tp = fp = 0
     truth_total = truth_detected = truth_confirmed = 0
@@ -108,11 +97,11 @@ def score(rows: list[dict], ratios: tuple[str, ...]) -> dict:
         ev_by_id = {e["id"]: e for e in r["events"]}
         # detected with the right label (the confirmation's denominator)
         labelled = [e for e in r["events"] if e["ratio"] in ratios]
-        pairs = match_case([_Ev(e["start_s"], e["end_s"]) for e in labelled], [_Tr(t) for t in truths], WINDOW_S)
+        pairs = match_case([SimpleNamespace(**e) for e in labelled], [SimpleNamespace(**t) for t in truths], WINDOW_S)
         truth_detected += sum(labelled[i]["ratio"] == truths[j]["ratio"] for i, j in pairs)
         conf = [c for c in r["confirm_nl"] if c["status"] == "confirmed" and c.get("ratio") == ev_by_id[c["event_id"]]["ratio"]]
         cev = [ev_by_id[c["event_id"]] for c in conf]
-        pairs = match_case([_Ev(e["start_s"], e["end_s"]) for e in cev], [_Tr(t) for t in truths], WINDOW_S)
+        pairs = match_case([SimpleNamespace(**e) for e in cev], [SimpleNamespace(**t) for t in truths], WINDOW_S)
         good = sum(cev[i]["ratio"] == truths[j]["ratio"] for i, j in pairs)
         tp += good
         fp += len(cev) - good

@@ -106,15 +106,9 @@ def _join(parts: list[SampleBlock]) -> SampleBlock:
     return SampleBlock(p0.stream, p0.first_index, p0.sample_rate, p0.channels, np.concatenate([p.data for p in parts]), status)
 
 
-def analyze_log(
-    path: str | Path,
-    rig: Rig | None = None,
-    stream: str | None = None,
-    settings: AnalysisSettings | None = None,
-    chunk_s: float = 0.5,
-    progress: Callable[[float], None] | None = None,
-) -> AnalysisRun:
-    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second."""
+def open_for_analysis(path: str | Path, rig: Rig | None, stream: str | None) -> tuple[LogReader, Rig, RigModel, str]:
+    """The log, its rig (given, or attached to the log), the rig's model and the stream that carries its sensors;
+    :class:`AnalyzeError` (one line) when any of them cannot be had."""
     try:
         reader = LogReader(path)
     except LogReadError as exc:
@@ -124,7 +118,19 @@ def analyze_log(
         model = RigModel.from_rig(rig)
     except ValueError as exc:
         raise AnalyzeError(f"rig {rig.name}: {exc}") from None
-    name = pick_stream(reader, model, stream)
+    return reader, rig, model, pick_stream(reader, model, stream)
+
+
+def analyze_log(
+    path: str | Path,
+    rig: Rig | None = None,
+    stream: str | None = None,
+    settings: AnalysisSettings | None = None,
+    chunk_s: float = 0.5,
+    progress: Callable[[float], None] | None = None,
+) -> AnalysisRun:
+    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second."""
+    reader, rig, model, name = open_for_analysis(path, rig, stream)
     info = reader.streams()[name]
     run = AnalysisRun(stream=name, rig=rig.name)
 

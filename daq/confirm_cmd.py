@@ -22,10 +22,9 @@ import numpy as np
 
 from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
 from analysis.model.rig import Rig
-from analysis.operator import RigModel
-from daq.analyze import AnalyzeError, analyze_log, pick_stream, rig_from_log
-from daq.confirm_lane import CONFIRM_TOPIC, LaneSettings, skipped
-from daq.log.reader import LogReader, LogReadError
+from daq.analyze import AnalyzeError, analyze_log, open_for_analysis
+from daq.confirm_lane import CONFIRM_TOPIC, skipped
+from daq.log.reader import LogReader
 
 META_CONFIRM = "gvtlink.confirm"
 
@@ -46,38 +45,23 @@ class ConfirmRun:
     wall_seconds: float = 0.0
 
 
-def read_confirmations(log: str | Path) -> list[dict]:
-    """Confirmation records of a log: its own topic (written live) then its companion file, if any."""
-    out: list[dict] = []
-    try:
-        out.extend(LogReader(log).json_messages(CONFIRM_TOPIC))
-    except LogReadError:
-        pass
+def read_confirmations(log: str | Path, include_log: bool = True) -> list[dict]:
+    """Confirmation records of a log: its own topic (written live, unless ``include_log=False``) then its
+    companion file, if any. An unreadable file raises :class:`LogReadError` (one line) — never a silent "none"."""
+    out: list[dict] = LogReader(log).json_messages(CONFIRM_TOPIC) if include_log else []
     side = companion_path(log)
     if side.exists():
-        try:
-            out.extend(LogReader(side).json_messages(CONFIRM_TOPIC))
-        except LogReadError:
-            pass
+        out.extend(LogReader(side).json_messages(CONFIRM_TOPIC))
     return out
 
 
 def confirm_log(
     path: str | Path, rig: Rig | None = None, event_id: int | None = None, settings: ConfirmSettings | None = None,
-    post_s: float = LaneSettings().post_s, progress: Callable[[float], None] | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> ConfirmRun:  # fmt: skip
     """Confirm every IR event of the log (or the one with ``event_id``)."""
     settings = settings if settings is not None else ConfirmSettings()
-    try:
-        reader = LogReader(path)
-    except LogReadError as exc:
-        raise AnalyzeError(str(exc)) from None
-    rig = rig if rig is not None else rig_from_log(reader)
-    try:
-        model = RigModel.from_rig(rig)
-    except ValueError as exc:
-        raise AnalyzeError(f"rig {rig.name}: {exc}") from None
-    stream = pick_stream(reader, model, None)
+    reader, rig, model, stream = open_for_analysis(path, rig, None)
     events = reader.json_messages("/analysis/events")
     source = "log"
     if not events:
@@ -95,8 +79,7 @@ def confirm_log(
     run = ConfirmRun(log=str(path), stream=stream, rig=rig.name, events_from=source)
     t0 = time.perf_counter()
     for i, ev in enumerate(events):
-        a = max(0.0, float(ev["start_s"]) - settings.pre_s)
-        b = float(ev["end_s"]) + post_s
+        a, b = ctx.span_s(ev)
         data = reader.read_stream(stream, list(model.sensors), a, b)
         if data.gaps or data.data.shape[0] < 16:
             rec = skipped(ev, f"the log has a gap or no data in {a:.3f}–{b:.3f} s")

@@ -9,7 +9,8 @@ lane's own inputs are both lossy and bounded, like every subscriber's:
   the analysed stream's sensor channels (a bounded buffer of the current hit, not of the run);
 * IR events from the analysis lane (:meth:`ConfirmLane.offer`, never blocks).
 
-An event is cut out of the ring once the ring holds ``post_s`` seconds past its end, and handed to the
+An event is cut out of the ring once the ring holds the stretch its confirmation uses (the context's
+``span_s``: 0.5 s before its start to 0.5 s after its end), and handed to the
 worker. Whatever cannot be confirmed is said, never dropped silently: an event whose data left the
 ring, fell in a gap, or arrived while ``max_pending`` confirmations were already queued gets a
 confirmation record with ``status="skipped"`` and the reason. Results go to the sink (the session
@@ -42,7 +43,6 @@ Sink = Callable[[str, dict, int | None], None]
 @dataclass(frozen=True)
 class LaneSettings:
     buffer_s: float = 8.0  # ring length: the longest stretch of data an event's confirmation can use
-    post_s: float = 0.5  # data kept after an event's end (seed L1426: a loop needs >= 0.3 s after escape)
     max_pending: int = 16  # confirmations queued in the worker at once (~1.5 MB of samples each); more are skipped and said
     event_queue: int = 256
     finish_timeout_s: float = 120.0  # at the end, confirmations still running after this are skipped and said
@@ -153,9 +153,8 @@ class ConfirmLane:
                 self._waiting.append(ev)
 
     def _span(self, ev: dict) -> tuple[int, int]:
-        c = self.context
-        pre = float(getattr(c, "pre_s", 0.1))
-        return int(np.floor((float(ev["start_s"]) - pre) * self.fs)), int(np.ceil((float(ev["end_s"]) + self.s.post_s) * self.fs))
+        a, b = self.context.span_s(ev)
+        return int(np.floor(a * self.fs)), int(np.ceil(b * self.fs))
 
     def _dispatch(self, final: bool = False) -> None:
         self._take_events()

@@ -215,7 +215,7 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
     if not confs:  # gvt confirm / gvt replay write theirs next to the log (docs/decisions.md D22)
         from daq.confirm_cmd import read_confirmations
 
-        confs = read_confirmations(log)
+        confs = read_confirmations(log, include_log=False)
     with_traj = [c for c in confs if (c.get("trajectory") or {}).get("phi")]
     if with_traj:
         fig, ax = plt.subplots(figsize=(6, 4.5))

@@ -431,14 +431,7 @@ def _analysis_lane(cfg: SessionConfig, rig: Rig, fan, streams: dict, fs: float, 
     from analysis.operator import AnalysisSettings
     from daq.analysis_lane import LaneUnavailable, start_analysis_lane
 
-    def sink(topic: str, obj: dict, log_time_ns: int | None) -> None:
-        if topic == "/daq/events":
-            writer.write_event(obj["kind"], **{k: v for k, v in obj.items() if k != "kind"})
-        else:
-            writer.write_json(topic, obj, log_time_ns=log_time_ns)
-        if tee is not None:
-            tee(topic, obj)
-
+    sink = _log_sink(writer, tee)
     settings = AnalysisSettings(window_s=spec.window_s, n_keep=spec.n_keep, seed_lane=spec.seed_lane)
     maxsize = max(64, int(spec.queue_seconds * fs / max(1, block)))
     try:
@@ -452,14 +445,21 @@ def _confirm_lane(fan, lane, writer: LogWriter, tee):
     """The background confirmation of the analysis lane's IR events; records to the log (and the view)."""
     from daq.confirm_lane import start_confirm_lane
 
+    return start_confirm_lane(fan, lane, _log_sink(writer, tee))
+
+
+def _log_sink(writer: LogWriter, tee=None):
+    """A lane's sink: ``/daq/events`` as events, everything else as JSON on its topic, then to ``tee`` (the view)."""
+
     def sink(topic: str, obj: dict, log_time_ns: int | None) -> None:
         if topic == "/daq/events":
             writer.write_event(obj["kind"], **{k: v for k, v in obj.items() if k != "kind"})
         else:
             writer.write_json(topic, obj, log_time_ns=log_time_ns)
-        tee(topic, obj)
+        if tee is not None:
+            tee(topic, obj)
 
-    return start_confirm_lane(fan, lane, sink)
+    return sink
 
 
 def _chain(first, rest):

@@ -16,7 +16,11 @@ SENSORS = ("a3", "a1")
 
 
 class Ctx:
-    pre_s = 0.1
+    """A confirmation context as the lane sees it: which stretch of data an event needs."""
+
+    @staticmethod
+    def span_s(event):
+        return max(0.0, event["start_s"] - 0.1), event["end_s"] + 0.3
 
 
 def echo_confirm(seg, fs, t0_s, event, context):
@@ -72,7 +76,7 @@ def _lane(fan, sink, confirm, **kw):
 
 def test_each_event_is_confirmed_on_exactly_its_samples_and_written_to_the_sink():
     fan, out = FanOut(), []
-    lane = _lane(fan, lambda topic, obj, t: out.append((topic, obj, t)), echo_confirm, buffer_s=3.0, post_s=0.3)
+    lane = _lane(fan, lambda topic, obj, t: out.append((topic, obj, t)), echo_confirm, buffer_s=3.0)
     data = _data(6000)
     lane.offer({"id": 0, "start_s": 1.0, "end_s": 1.5})
     lane.offer({"id": 1, "start_s": 5.5, "end_s": 5.9})  # its 0.3 s after-margin runs past the stream's end

@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+import numba
 import numpy as np
 import scipy.integrate
 import scipy.signal
@@ -116,39 +117,47 @@ def acc_to_disp(acc: FloatArray, fs: float, settings: PreprocessSettings = Prepr
     return v, d
 
 
-class _Trapezoid:
-    """Causal trapezoid integrator ``y[k] = y[k-1] + dt (x[k-1] + x[k]) / 2`` with ``y[0] = 0``.
+@numba.njit(cache=True, nogil=True)
+def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out, d_out):  # pragma: no cover - compiled
+    """The whole causal §4.3 chain in one pass over ``a`` (n, c): states ``z_*`` are updated in place.
 
-    As an ``lfilter`` with carried state, so a split record integrates sample for sample like a whole one.
+    Per sample and channel: baseline removal, trapezoid ``y[k] = y[k-1] + h (x[k-1] + x[k])`` (h = dt/2),
+    the velocity high-pass sections, trapezoid again, the displacement high-pass sections. Each step is
+    the arithmetic of the library filters it replaces, operation for operation, so the output is
+    bit-identical to ``scipy.signal.lfilter([h, h], [1, -1])`` (transposed direct form II:
+    ``y = z + h·x``, ``z ← h·x − (−1)·y``) and ``scipy.signal.sosfilt`` (``scipy/signal/_sosfilt.pyx``)
+    applied stage after stage with carried ``zi`` (tests/test_preprocess.py checks it). ``first``:
+    the integrators start at y[0] = 0 (their state becomes ``−h·x[0]``). One pass with the channels
+    innermost instead of four library calls each copying the block to channel-major order: ~6× faster
+    (docs/preprocessing.md, bench/bench_analysis.py).
     """
-
-    def __init__(self, dt: float, n_channels: int) -> None:
-        self.b = np.array([0.5 * dt, 0.5 * dt])
-        self.a = np.array([1.0, -1.0])
-        self.zi: FloatArray | None = None
-        self.n = n_channels
-
-    def __call__(self, x: FloatArray) -> FloatArray:
-        if x.shape[0] == 0:
-            return x.copy()
-        if self.zi is None:  # y[0] = 0: the state that makes b0 x[0] + zi = 0
-            self.zi = (-self.b[0] * x[0])[None, :]
-        y, self.zi = scipy.signal.lfilter(self.b, self.a, x, axis=0, zi=self.zi)
-        return y
-
-
-class _SosStage:
-    """``sosfilt`` from rest with the section states carried between blocks."""
-
-    def __init__(self, sos: FloatArray | None, n_channels: int) -> None:
-        self.sos = sos
-        self.zi = None if sos is None else np.zeros((sos.shape[0], 2, n_channels))
-
-    def __call__(self, x: FloatArray) -> FloatArray:
-        if self.sos is None or x.shape[0] == 0:
-            return x.copy()
-        y, self.zi = scipy.signal.sosfilt(self.sos, x, axis=0, zi=self.zi)
-        return y
+    n, c = a.shape
+    nv, nd = sos_v.shape[0], sos_d.shape[0]
+    for k in range(n):
+        for j in range(c):
+            x = a[k, j] - offset[j]
+            if first and k == 0:
+                z_iv[j] = -(h * x)
+            y = z_iv[j] + h * x
+            z_iv[j] = h * x + y
+            x = y
+            for s in range(nv):
+                xn = sos_v[s, 0] * x + z_v[s, 0, j]
+                z_v[s, 0, j] = sos_v[s, 1] * x - sos_v[s, 4] * xn + z_v[s, 1, j]
+                z_v[s, 1, j] = sos_v[s, 2] * x - sos_v[s, 5] * xn
+                x = xn
+            v_out[k, j] = x
+            if first and k == 0:
+                z_id[j] = -(h * x)
+            y = z_id[j] + h * x
+            z_id[j] = h * x + y
+            x = y
+            for s in range(nd):
+                xn = sos_d[s, 0] * x + z_d[s, 0, j]
+                z_d[s, 0, j] = sos_d[s, 1] * x - sos_d[s, 4] * xn + z_d[s, 1, j]
+                z_d[s, 1, j] = sos_d[s, 2] * x - sos_d[s, 5] * xn
+                x = xn
+            d_out[k, j] = x
 
 
 class CausalPreprocessor:
@@ -168,11 +177,17 @@ class CausalPreprocessor:
         self.fs = float(fs)
         self.n_channels = int(n_channels)
         self.settings = settings
-        dt = 1.0 / fs
-        self._int_v = _Trapezoid(dt, n_channels)
-        self._int_d = _Trapezoid(dt, n_channels)
-        self._hp_v = _SosStage(highpass_sos(settings.vel_corner_hz, fs, settings.order), n_channels)
-        self._hp_d = _SosStage(highpass_sos(settings.disp_corner_hz, fs, settings.order), n_channels)
+        self._h = 0.5 * (1.0 / fs)  # the trapezoid's dt/2, as lfilter's b = [dt/2, dt/2]
+        sos_v = highpass_sos(settings.vel_corner_hz, fs, settings.order)
+        sos_d = highpass_sos(settings.disp_corner_hz, fs, settings.order)
+        self._sos_v = np.zeros((0, 6)) if sos_v is None else np.ascontiguousarray(sos_v)  # no sections: no filter
+        self._sos_d = np.zeros((0, 6)) if sos_d is None else np.ascontiguousarray(sos_d)
+        # carried states: the integrators' single delay (set from the first sample) and the sections' two
+        # delays each, started from rest (sosfilt's zi layout, channels last)
+        self._z_iv, self._z_id = np.zeros(n_channels), np.zeros(n_channels)
+        self._z_v = np.zeros((self._sos_v.shape[0], 2, n_channels))
+        self._z_d = np.zeros((self._sos_d.shape[0], 2, n_channels))
+        self._started = False
         self._n_base = round(settings.causal_baseline_s * fs)
         self._buf: list[FloatArray] = []
         self._n_buf = 0
@@ -185,8 +200,12 @@ class CausalPreprocessor:
 
     def _run(self, a: FloatArray) -> tuple[FloatArray, FloatArray]:
         assert self.offset is not None
-        v = self._hp_v(self._int_v(a - self.offset))
-        d = self._hp_d(self._int_d(v))
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        v, d = np.empty_like(a), np.empty_like(a)
+        if a.shape[0]:
+            _causal_chain(a, np.ascontiguousarray(self.offset, dtype=np.float64), self._h, not self._started, self._z_iv,
+                          self._sos_v, self._z_v, self._z_id, self._sos_d, self._z_d, v, d)  # fmt: skip
+            self._started = True
         return v, d
 
     def feed(self, acc_block: FloatArray) -> tuple[FloatArray, FloatArray]:

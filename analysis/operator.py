@@ -151,7 +151,7 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
     seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
     # each window's segments [i, j) summed in order by one reduceat over interleaved (i, j) pairs (a zero
     # row appended so that j may be the end): the same additions in the same order whatever the batch
-    idx = np.array([(np.searchsorted(edges, a), np.searchsorted(edges, b)) for a, b in windows]).ravel()
+    idx = np.searchsorted(edges, np.asarray(windows, dtype=np.int64)).ravel()
     s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, *seg_s1.shape[1:]))]), idx, axis=0)[::2]
     s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, *seg_s2.shape[1:]))]), idx, axis=0)[::2]
     n = np.array([b - a for a, b in windows], float)[:, None, None]

@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 FloatArray = np.ndarray
@@ -64,26 +65,60 @@ class CausalSpikeRule:
         return spike
 
     def feed_many(self, freqs: FloatArray) -> np.ndarray:
-        """:meth:`feed` for consecutive windows ``(k, n)`` at once (vectorised once the history is full)."""
+        """:meth:`feed` for consecutive windows ``(k, n)`` at once: the same decisions, in one compiled pass.
+
+        Windows without finite frequencies on ``curves`` are skipped as :meth:`feed` skips them; the others
+        are judged against the (up to ``history``) finite windows before them — the median and MAD of an odd
+        count are a middle element and of an even count the mean of the two, exactly as ``np.median``.
+        """
         F = np.asarray(freqs, float)
-        if not np.all(np.isfinite(F[:, list(self.s.curves)])):
-            return np.array([self.feed(row) for row in F], bool)
         out = np.zeros(F.shape[0], bool)
-        i = 0
-        h = self.s.history
-        while i < F.shape[0] and len(self._hist) < h:
-            out[i] = self.feed(F[i])
-            i += 1
-        if i < F.shape[0]:
-            f = F[i:][:, list(self.s.curves)]
-            H = np.concatenate([np.array(self._hist), f])
-            win = np.lib.stride_tricks.sliding_window_view(H[:-1], h, axis=0)  # (m, n_curves, h): the h rows before each
-            med = np.median(win, axis=-1)
-            mad = np.median(np.abs(win - med[..., None]), axis=-1)
-            dev = np.abs(f - med)
-            out[i:] = ((dev > self.s.mad_factor * mad) & (dev > self.s.min_relative * np.abs(med))).all(axis=1)
-            self._hist.extend(H[-h:])
+        f = F[:, list(self.s.curves)]
+        ok = np.isfinite(f).all(axis=1)
+        if not ok.any():
+            return out
+        f = f[ok]
+        n_hist = len(self._hist)
+        H = np.concatenate([np.array(self._hist).reshape(n_hist, f.shape[1]), f]) if n_hist else np.ascontiguousarray(f)
+        out[ok] = _spike_flags(H, n_hist, self.s.history, self.s.mad_factor, self.s.min_relative)
+        self._hist.extend(f[-self.s.history :])
         return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _median_sorted(buf, m):  # pragma: no cover - compiled
+    """Median of the first ``m`` entries of ``buf`` (sorted in place), as ``np.median`` computes it."""
+    b = np.sort(buf[:m])
+    if m % 2:
+        return b[m // 2]
+    return (b[m // 2 - 1] + b[m // 2]) / 2.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _spike_flags(H, start, history, mad_factor, min_relative):  # pragma: no cover - compiled
+    """:meth:`CausalSpikeRule.feed` for rows ``start:`` of ``H`` (finite frequencies, one column per curve),
+    each judged against the up to ``history`` rows before it (no decision with fewer than 3)."""
+    n, nc = H.shape
+    out = np.zeros(n - start, np.bool_)
+    col = np.empty(history)
+    for t in range(start, n):
+        lo = max(0, t - history)
+        m = t - lo
+        if m < 3:
+            continue
+        spike = True
+        for c in range(nc):
+            for i in range(m):
+                col[i] = H[lo + i, c]
+            med = _median_sorted(col, m)
+            for i in range(m):
+                col[i] = abs(H[lo + i, c] - med)
+            mad = _median_sorted(col, m)
+            dev = abs(H[t, c] - med)
+            if not (dev > mad_factor * mad and dev > min_relative * abs(med)):
+                spike = False
+        out[t - start] = spike
+    return out
 
 
 def robust_spike_intervals(

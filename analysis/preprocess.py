@@ -132,32 +132,42 @@ def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out
     (docs/preprocessing.md, bench/bench_analysis.py).
     """
     n, c = a.shape
-    nv, nd = sos_v.shape[0], sos_d.shape[0]
+    x = np.empty(c)  # the current sample of every channel, through the stages in turn
     for k in range(n):
         for j in range(c):
-            x = a[k, j] - offset[j]
-            if first and k == 0:
-                z_iv[j] = -(h * x)
-            y = z_iv[j] + h * x
-            z_iv[j] = h * x + y
-            x = y
-            for s in range(nv):
-                xn = sos_v[s, 0] * x + z_v[s, 0, j]
-                z_v[s, 0, j] = sos_v[s, 1] * x - sos_v[s, 4] * xn + z_v[s, 1, j]
-                z_v[s, 1, j] = sos_v[s, 2] * x - sos_v[s, 5] * xn
-                x = xn
-            v_out[k, j] = x
-            if first and k == 0:
-                z_id[j] = -(h * x)
-            y = z_id[j] + h * x
-            z_id[j] = h * x + y
-            x = y
-            for s in range(nd):
-                xn = sos_d[s, 0] * x + z_d[s, 0, j]
-                z_d[s, 0, j] = sos_d[s, 1] * x - sos_d[s, 4] * xn + z_d[s, 1, j]
-                z_d[s, 1, j] = sos_d[s, 2] * x - sos_d[s, 5] * xn
-                x = xn
-            d_out[k, j] = x
+            x[j] = a[k, j] - offset[j]
+        _trapezoid(x, z_iv, h, first and k == 0)
+        _sections(x, sos_v, z_v)
+        for j in range(c):
+            v_out[k, j] = x[j]
+        _trapezoid(x, z_id, h, first and k == 0)
+        _sections(x, sos_d, z_d)
+        for j in range(c):
+            d_out[k, j] = x[j]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _trapezoid(x, z, h, first):  # pragma: no cover - compiled
+    """One sample of ``lfilter([h, h], [1, -1])`` on every channel, in place (``first``: start at y = 0)."""
+    if first:
+        for j in range(x.shape[0]):
+            z[j] = -(h * x[j])
+    for j in range(x.shape[0]):
+        y = z[j] + h * x[j]
+        z[j] = h * x[j] + y
+        x[j] = y
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sections(x, sos, z):  # pragma: no cover - compiled
+    """One sample of ``sosfilt`` on every channel, in place; the channel loop innermost (vectorised)."""
+    for s in range(sos.shape[0]):
+        b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
+        for j in range(x.shape[0]):
+            y = b0 * x[j] + z[s, 0, j]
+            z[s, 0, j] = b1 * x[j] - a1 * y + z[s, 1, j]
+            z[s, 1, j] = b2 * x[j] - a2 * y
+            x[j] = y
 
 
 class CausalPreprocessor:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import rerun as rr
+import scipy.linalg
 import scipy.signal
 
 from analysis.pod import pod
@@ -47,7 +48,8 @@ class ViewSetup:
         try:
             m = RigModel.from_rig(rig)
             sensors, x = m.sensors, tuple(float(v) for v in (m.x if m.x is not None else np.arange(len(m.sensors))))
-            f1 = float(np.sqrt(np.min(np.linalg.eigvalsh(np.linalg.solve(m.M, m.K)).real.clip(1e-30)))) / (2 * np.pi)
+            # generalised symmetric problem K φ = ω² M φ (eigvalsh of M⁻¹K, not symmetric, gave 1 Hz for a 21 Hz mode)
+            f1 = float(np.sqrt(max(float(scipy.linalg.eigh(m.K, m.M, eigvals_only=True)[0]), 1e-30))) / (2 * np.pi)
         except (ValueError, np.linalg.LinAlgError):
             sensors, x, f1 = tuple(p.name for p in rig.sensors), tuple(range(len(rig.sensors))), 10.0
         chosen = wavelet_channel or _driving_point(rig, sensors)
@@ -76,6 +78,7 @@ class ViewLogger:
     def __init__(
         self, rec: rr.RecordingStream, setup: ViewSetup, bucket_hz: float = 500.0, flush_s: float = 0.5,
         pom_step_s: float = 0.5, pom_window_s: float = 0.1, history_s: float = 4.0, wavelet_record_s: float = 0.5,
+        pom_rows: int = 2048,
     ) -> None:  # fmt: skip
         self.rec = rec
         self.s = setup
@@ -100,6 +103,7 @@ class ViewLogger:
         self._modal_t: deque[float] = deque(maxlen=4096)
         self._modal_e: deque[float] = deque(maxlen=4096)
         self._wave_len = wavelet_record_s
+        self.pom_rows = max(2, pom_rows)
         self._wave_pending: list[dict] = []  # hits whose record is not all in the history yet
         self.t_now = 0.0
         self.counts: dict[str, int] = {}
@@ -154,7 +158,7 @@ class ViewLogger:
         if hist and hist[-1][0] + hist[-1][1].shape[0] != first:
             hist.clear()  # gaps break the record; keep only contiguous data
         hist.append((first, rows))
-        total = sum(r.shape[0] for _, r in hist)
+        total = hist[-1][0] + rows.shape[0] - hist[0][0]  # contiguous: the rows held are end - first
         while hist and total - hist[0][1].shape[0] >= self._hist_max:
             total -= hist.popleft()[1].shape[0]
 
@@ -177,7 +181,10 @@ class ViewLogger:
             self._log_pom(R.POM_CURRENT, end / self.s.sample_rate, x)
 
     def _log_pom(self, path: str, t: float, x: np.ndarray) -> None:
-        poms, povs = pod(x.astype(np.float64))
+        # a display shape: every q-th row keeps the covariance (and so the POMs) to display accuracy while the
+        # SVD of an event's seconds of data (16384 rows/s) would cost ms each
+        q = max(1, x.shape[0] // self.pom_rows)
+        poms, povs = pod(x[::q].astype(np.float64))
         k = min(self.s.n_nnm, poms.shape[1])
         R.log_pom(self.rec, path, t, self._x, poms[:, :k], povs[:k])
         self._count(path.rsplit("/", 1)[0] if path.startswith(R.POM_EVENTS) else path)
@@ -202,9 +209,8 @@ class ViewLogger:
             R.log_rqfep(self.rec, *R.rqfep_points(objs, np.fromiter(self._modal_t, float), np.fromiter(self._modal_e, float)))
         elif topic == "/analysis/modal":
             R.log_modal(self.rec, objs)
-            for o in objs:
-                self._modal_t.append(float(o["t_end_s"]))
-                self._modal_e.append(float(np.nansum(o["modal_energy_J"])))
+            self._modal_t.extend(float(o["t_end_s"]) for o in objs)
+            self._modal_e.extend(np.nansum(np.array([o["modal_energy_J"] for o in objs], float), axis=1).tolist())
         elif topic == "/analysis/events":
             for ev in objs:
                 self._ir_event(ev)
@@ -258,8 +264,11 @@ class ViewLogger:
         x = self._span(h, max(lo, h[0][0]) if h else lo, min(hi, end))
         if x is None or x.shape[0] < 16:
             return
-        # display resolution is enough: decimate to >= 2.5 f_max and single precision (~25 ms -> ~1.5 ms a hit)
-        freqs = np.geomspace(self.s.f_min_hz, self.s.f_max_hz, 48)
+        # display resolution is enough: decimate to >= 2.5 f_max and single precision (~25 ms -> ~1.5 ms a hit).
+        # Rows start where two periods fit in the record: below that a row is all end effect, and its 9-sigma
+        # padding (analysis/wavelet.py) made the transform ~10x longer than the record (34 ms a hit, measured)
+        f_lo = min(max(self.s.f_min_hz, 2.0 / self._wave_len), 0.5 * self.s.f_max_hz)
+        freqs = np.geomspace(f_lo, self.s.f_max_hz, 48)
         q = max(1, int(fs // (2.5 * self.s.f_max_hz)))
         sig = x[:, 0].astype(np.float64)
         if q > 1 and sig.size > 64 * q:

@@ -23,12 +23,12 @@ emitted as a warning.
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, ModalWindower, WindowFeatures, with_rq_score
@@ -146,16 +146,81 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
     blocks, live and replay add the same numbers in the same order (bit-identical results). The inputs are
     high-passed displacements with ~zero mean, so the one-pass form loses nothing that matters
     (tests/test_detection.py compares it with the two-pass SVD POD).
+
+    The segment products stay library calls (``segᵀ seg``, BLAS ``syrk``): the POMs of the smallest POVs
+    are ill-conditioned, and summing the same products in another order moves the 4th RQ frequency by
+    ~2e-6 relative (docs/detection.md, speed). Everything else — ``Σx`` per segment, the in-order window
+    sums, the formula — is one compiled pass doing the additions ``np.add.reduceat`` did, in its order
+    (~2× less time for the whole function).
     """
-    seg_s1 = np.add.reduceat(buf[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
-    seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
-    # each window's segments [i, j) summed in order by one reduceat over interleaved (i, j) pairs (a zero
-    # row appended so that j may be the end): the same additions in the same order whatever the batch
-    idx = np.searchsorted(edges, np.asarray(windows, dtype=np.int64)).ravel()
-    s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, *seg_s1.shape[1:]))]), idx, axis=0)[::2]
-    s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, *seg_s2.shape[1:]))]), idx, axis=0)[::2]
-    n = np.array([b - a for a, b in windows], float)[:, None, None]
-    return (s2 - s1[:, :, None] * s1[:, None, :] / n) / n
+    edges = np.asarray(edges, dtype=np.int64)
+    buf = np.ascontiguousarray(buf, dtype=np.float64)
+    seg_s2 = np.empty((edges.size - 1, buf.shape[1], buf.shape[1]))
+    for i in range(edges.size - 1):
+        seg = buf[edges[i] : edges[i + 1]]
+        np.matmul(seg.T, seg, out=seg_s2[i])
+    w = np.asarray(windows, dtype=np.int64).reshape(-1, 2)
+    return _lattice_covariances(buf, edges, seg_s2, np.searchsorted(edges, w), (w[:, 1] - w[:, 0]).astype(float))
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairwise(a, col, lo, n):  # pragma: no cover - compiled
+    """``a[lo:lo+n, col]`` summed as numpy's reductions sum floats (``pairwise_sum`` of
+    numpy/_core/src/umath/loops_utils.h.src: sequential below 8 terms, 8 accumulators up to 128, halves
+    above), so that the compiled window sums equal the ``np.add.reduceat`` ones bit for bit."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i, col]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = a[lo, col], a[lo + 1, col], a[lo + 2, col], a[lo + 3, col]
+        r4, r5, r6, r7 = a[lo + 4, col], a[lo + 5, col], a[lo + 6, col], a[lo + 7, col]
+        i = 8
+        while i < n - (n % 8):
+            r0 += a[lo + i, col]
+            r1 += a[lo + i + 1, col]
+            r2 += a[lo + i + 2, col]
+            r3 += a[lo + i + 3, col]
+            r4 += a[lo + i + 4, col]
+            r5 += a[lo + i + 5, col]
+            r6 += a[lo + i + 6, col]
+            r7 += a[lo + i + 7, col]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[lo + i, col]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise(a, col, lo, n2) + _pairwise(a, col, lo + n2, n - n2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _lattice_covariances(buf, edges, seg_s2, seg_idx, n):  # pragma: no cover - compiled
+    """:func:`window_covariances` after the segment products: ``Σx`` per segment, window ``w``'s segments
+    ``[seg_idx[w, 0], seg_idx[w, 1])`` added up, each sum as ``np.add.reduceat`` forms it (first term plus
+    the pairwise sum of the rest), then ``(S2 − S1 S1ᵀ/N)/N`` with ``N = n[w]``."""
+    c = buf.shape[1]
+    n_seg = edges.shape[0] - 1
+    s1 = np.empty((n_seg, c))
+    for g in range(n_seg):
+        for i in range(c):
+            s1[g, i] = buf[edges[g], i] + _pairwise(buf, i, edges[g] + 1, edges[g + 1] - edges[g] - 1)
+    s2 = seg_s2.reshape(n_seg, c * c)
+    out = np.empty((seg_idx.shape[0], c, c))
+    t1 = np.empty(c)
+    for w in range(seg_idx.shape[0]):
+        a, b = seg_idx[w, 0], seg_idx[w, 1]
+        nw = n[w]
+        for i in range(c):
+            t1[i] = s1[a, i] + _pairwise(s1, i, a + 1, b - a - 1)
+        for i in range(c):
+            for j in range(c):
+                t2 = s2[a, i * c + j] + _pairwise(s2, i * c + j, a + 1, b - a - 1)
+                out[w, i, j] = (t2 - t1[i] * t1[j] / nw) / nw
+    return out
 
 
 #: without a hammer channel, an energy jump counts as an input only this far above the quietest window

@@ -17,7 +17,6 @@ gives no numbers).
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numba
@@ -46,22 +45,23 @@ class CausalSpikeRule:
 
     def __init__(self, settings: RobustSpikeSettings) -> None:
         self.s = settings
-        self._hist: deque[FloatArray] = deque(maxlen=settings.history)
+        self._curves = list(settings.curves)
+        self._hist = np.empty((0, len(settings.curves)))  # the last ``history`` finite windows, oldest first
 
     def feed(self, freqs: FloatArray) -> bool:
         """True when this window is a partnered spike on ``curves``."""
-        f = np.asarray(freqs, float)[list(self.s.curves)]
+        f = np.asarray(freqs, float)[self._curves]
         if not np.all(np.isfinite(f)):  # a window without a usable POM (silence): neither a spike nor history
             return False
         spike = False
         if len(self._hist) >= 3:
-            h = np.array(self._hist)
+            h = self._hist
             med = np.median(h, axis=0)
             mad = np.median(np.abs(h - med), axis=0)
             dev = np.abs(f - med)
             cand = (dev > self.s.mad_factor * mad) & (dev > self.s.min_relative * np.abs(med))
             spike = bool(cand.all())  # partnered: both curves at once
-        self._hist.append(f)
+        self._hist = np.concatenate([self._hist, f[None, :]])[-self.s.history :]
         return spike
 
     def feed_many(self, freqs: FloatArray) -> np.ndarray:
@@ -71,24 +71,30 @@ class CausalSpikeRule:
         are judged against the (up to ``history``) finite windows before them — the median and MAD of an odd
         count are a middle element and of an even count the mean of the two, exactly as ``np.median``.
         """
-        F = np.asarray(freqs, float)
-        out = np.zeros(F.shape[0], bool)
-        f = F[:, list(self.s.curves)]
+        f = np.asarray(freqs, float)[:, self._curves]
         ok = np.isfinite(f).all(axis=1)
-        if not ok.any():
+        if not ok.all():
+            out = np.zeros(f.shape[0], bool)
+            if ok.any():
+                out[ok] = self.feed_many(np.asarray(freqs, float)[ok])  # the skipped windows leave no trace
             return out
-        f = f[ok]
-        n_hist = len(self._hist)
-        H = np.concatenate([np.array(self._hist).reshape(n_hist, f.shape[1]), f]) if n_hist else np.ascontiguousarray(f)
-        out[ok] = _spike_flags(H, n_hist, self.s.history, self.s.mad_factor, self.s.min_relative)
-        self._hist.extend(f[-self.s.history :])
-        return out
+        n_hist = self._hist.shape[0]
+        H = np.concatenate([self._hist, f])
+        self._hist = H[-self.s.history :]
+        return _spike_flags(H, n_hist, self.s.history, self.s.mad_factor, self.s.min_relative)
 
 
 @numba.njit(cache=True, nogil=True)
-def _median_sorted(buf, m):  # pragma: no cover - compiled
-    """Median of the first ``m`` entries of ``buf`` (sorted in place), as ``np.median`` computes it."""
-    b = np.sort(buf[:m])
+def _median_sorted(b, m):  # pragma: no cover - compiled
+    """Median of the first ``m`` entries of ``b`` (sorted in place: insertion sort, m <= history is
+    small), as ``np.median`` computes it: the middle element, or the mean of the two middle ones."""
+    for i in range(1, m):
+        v = b[i]
+        k = i - 1
+        while k >= 0 and b[k] > v:
+            b[k + 1] = b[k]
+            k -= 1
+        b[k + 1] = v
     if m % 2:
         return b[m // 2]
     return (b[m // 2 - 1] + b[m // 2]) / 2.0

@@ -403,12 +403,14 @@ class AnalysisOperator:
         self._disp = np.concatenate([self._disp, disp]) if self._disp.size else disp
         self._disp_end += disp.shape[0]
         ready: list[tuple[_Grid, int]] = []
+        runs: list[tuple[_Grid, int, int]] = []  # each grid's windows of this feed: ready[i0:i1], in order
         for g in self._grids:
+            i0 = len(ready)
             while g.next + g.length <= self._disp_end:
                 ready.append((g, g.next))
                 g.next += g.length
-        freqs_all: list[np.ndarray] = []
-        povs_all: list[np.ndarray] = []
+            if len(ready) > i0:
+                runs.append((g, i0, len(ready)))
         if ready:
             lo = min(st for _, st in ready)
             hi = max(st + g.length for g, st in ready)
@@ -419,27 +421,26 @@ class AnalysisOperator:
             spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
             C = window_covariances(self._disp, spans, edges)
             f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
-            freqs_all, povs_all = list(f), list(pv)
-        flags = [False] * len(ready)
-        for g in self._grids:  # the spike rules see each grid's windows in order, vectorised per feed
-            idx = [i for i, (gg, _) in enumerate(ready) if gg is g]
-            if idx:
-                for i, flag in zip(idx, g.rule.feed_many(np.array([freqs_all[i] for i in idx])), strict=True):
-                    flags[i] = bool(flag)
-        base_idx = [i for i, (g, _) in enumerate(ready) if g is self._base]
-        seed = dict(zip(base_idx, self._seed_rule.feed_many(np.array([freqs_all[i] for i in base_idx])), strict=True)) \
-            if base_idx else {}
-        for i, (g, start) in enumerate(ready):
-            t0, t1 = start / self.fs, (start + g.length) / self.fs
-            if flags[i]:
-                g.flagged.append((t0, t1))
-            if g is self._base:
-                self.stats.rq_windows += 1
-                self.emit("/analysis/rq", {
-                    "start": start, "stop": start + g.length, "t_start_s": t0, "t_end_s": t1,
-                    "rq_hz": freqs_all[i].tolist(), "pov_fraction": povs_all[i].tolist(), "seed_spike": bool(seed[i]),
-                })  # fmt: skip
-                self.stats.latencies_s.append(time.perf_counter() - t_arrival)
+            flags = np.zeros(len(ready), bool)
+            for g, i0, i1 in runs:  # the spike rules see each grid's windows in order, vectorised per feed
+                flags[i0:i1] = g.rule.feed_many(f[i0:i1])
+                if g is not self._base:
+                    for i in np.flatnonzero(flags[i0:i1]) + i0:
+                        g.flagged.append((ready[i][1] / self.fs, (ready[i][1] + g.length) / self.fs))
+                    continue
+                seed = self._seed_rule.feed_many(f[i0:i1])
+                rq_rows, pov_rows = f[i0:i1].tolist(), pv[i0:i1].tolist()
+                for k in range(i1 - i0):
+                    start = ready[i0 + k][1]
+                    t0, t1 = start / self.fs, (start + g.length) / self.fs
+                    if flags[i0 + k]:
+                        g.flagged.append((t0, t1))
+                    self.stats.rq_windows += 1
+                    self.emit("/analysis/rq", {
+                        "start": start, "stop": start + g.length, "t_start_s": t0, "t_end_s": t1,
+                        "rq_hz": rq_rows[k], "pov_fraction": pov_rows[k], "seed_spike": bool(seed[k]),
+                    })  # fmt: skip
+                    self.stats.latencies_s.append(time.perf_counter() - t_arrival)
                 if len(self.stats.latencies_s) > 100_000:
                     del self.stats.latencies_s[:50_000]
         keep_from = min(g.next for g in self._grids)

@@ -337,3 +337,20 @@ def test_window_covariances_equal_the_reduceat_form_bit_for_bit():
     np.testing.assert_array_equal(got, (s2 - s1[:, :, None] * s1[:, None, :] / n) / n)
     two_pass = np.stack([np.cov(buf[a:b].T, bias=True) for a, b in wins])
     np.testing.assert_allclose(got, two_pass, rtol=1e-6, atol=1e-12 * np.abs(two_pass).max())  # one-pass rounding
+
+
+def test_modal_energy_compiled_equals_the_formula():
+    """analysis.modal_filter.modal_energy: ``(q̇² + ω² q²)/2`` — for q = A cos ωt the energy is ½ω²A² at
+    every sample (rounding only), and the compiled block path gives the numpy expression's numbers exactly."""
+    from analysis.modal_filter import modal_energy
+
+    w = np.array([2 * np.pi * 20.8, 2 * np.pi * 68.4])
+    t = np.arange(4096)[:, None] / FS
+    A = np.array([1e-3, 2e-4])
+    q, qd = A * np.cos(w * t), -A * w * np.sin(w * t)
+    e = modal_energy(q, qd, w)
+    np.testing.assert_allclose(e, np.broadcast_to(0.5 * w**2 * A**2, e.shape), rtol=1e-12)
+    rng = np.random.default_rng(2)
+    q, qd = rng.standard_normal((999, 2)), rng.standard_normal((999, 2)) * 300
+    np.testing.assert_array_equal(modal_energy(q, qd, w), 0.5 * (qd**2 + w**2 * q**2))
+    np.testing.assert_array_equal(modal_energy(q[5], qd[5], w), 0.5 * (qd[5] ** 2 + w**2 * q[5] ** 2))  # numpy path

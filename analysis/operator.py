@@ -164,37 +164,55 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
 
 
 @numba.njit(cache=True, nogil=True)
-def _pairwise(a, col, lo, n):  # pragma: no cover - compiled
-    """``a[lo:lo+n, col]`` summed as numpy's reductions sum floats (``pairwise_sum`` of
-    numpy/_core/src/umath/loops_utils.h.src: sequential below 8 terms, 8 accumulators up to 128, halves
-    above), so that the compiled window sums equal the ``np.add.reduceat`` ones bit for bit."""
+def _pairwise_rows(a, lo, n, out, scratch):  # pragma: no cover - compiled
+    """``out[c] = Σ a[lo:lo+n, c]`` for every column, each column summed as numpy's reductions sum floats
+    (``pairwise_sum`` of numpy/_core/src/umath/loops_utils.h.src: sequential below 8 terms, 8 accumulators
+    up to 128, halves above), so that the compiled sums equal the ``np.add.reduceat`` ones bit for bit.
+    The columns are innermost (vectorised); ``scratch`` (≥ 8·log₂(n/128)+8 rows, a's columns) holds the
+    accumulators."""
+    ncol = a.shape[1]
     if n < 8:
-        res = 0.0
+        for c in range(ncol):
+            out[c] = 0.0
         for i in range(n):
-            res += a[lo + i, col]
-        return res
+            for c in range(ncol):
+                out[c] += a[lo + i, c]
+        return
     if n <= 128:
-        r0, r1, r2, r3 = a[lo, col], a[lo + 1, col], a[lo + 2, col], a[lo + 3, col]
-        r4, r5, r6, r7 = a[lo + 4, col], a[lo + 5, col], a[lo + 6, col], a[lo + 7, col]
+        r = scratch[:8]
+        for u in range(8):
+            for c in range(ncol):
+                r[u, c] = a[lo + u, c]
         i = 8
         while i < n - (n % 8):
-            r0 += a[lo + i, col]
-            r1 += a[lo + i + 1, col]
-            r2 += a[lo + i + 2, col]
-            r3 += a[lo + i + 3, col]
-            r4 += a[lo + i + 4, col]
-            r5 += a[lo + i + 5, col]
-            r6 += a[lo + i + 6, col]
-            r7 += a[lo + i + 7, col]
+            for u in range(8):
+                for c in range(ncol):
+                    r[u, c] += a[lo + i + u, c]
             i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        for c in range(ncol):
+            out[c] = ((r[0, c] + r[1, c]) + (r[2, c] + r[3, c])) + ((r[4, c] + r[5, c]) + (r[6, c] + r[7, c]))
         while i < n:
-            res += a[lo + i, col]
+            for c in range(ncol):
+                out[c] += a[lo + i, c]
             i += 1
-        return res
+        return
     n2 = n // 2
     n2 -= n2 % 8
-    return _pairwise(a, col, lo, n2) + _pairwise(a, col, lo + n2, n - n2)
+    left = scratch[8]
+    _pairwise_rows(a, lo, n2, left, scratch[9:])
+    _pairwise_rows(a, lo + n2, n - n2, out, scratch[9:])
+    for c in range(ncol):
+        out[c] = left[c] + out[c]
+
+
+@numba.njit(cache=True, nogil=True)
+def _scratch_rows(n):  # pragma: no cover - compiled
+    """Rows of scratch :func:`_pairwise_rows` needs for ``n`` terms: 8 accumulators plus 9 per halving."""
+    rows = 8
+    while n > 128:
+        n -= n // 2 - (n // 2) % 8  # the larger (right) half recurses deepest
+        rows += 9
+    return rows
 
 
 @numba.njit(cache=True, nogil=True)
@@ -205,21 +223,28 @@ def _lattice_covariances(buf, edges, seg_s2, seg_idx, n):  # pragma: no cover - 
     c = buf.shape[1]
     n_seg = edges.shape[0] - 1
     s1 = np.empty((n_seg, c))
+    rest = np.empty(c)
+    longest = max(np.max(edges[1:] - edges[:-1]), n_seg)
+    scratch1 = np.empty((_scratch_rows(longest), c))
     for g in range(n_seg):
+        _pairwise_rows(buf, edges[g] + 1, edges[g + 1] - edges[g] - 1, rest, scratch1)
         for i in range(c):
-            s1[g, i] = buf[edges[g], i] + _pairwise(buf, i, edges[g] + 1, edges[g + 1] - edges[g] - 1)
+            s1[g, i] = buf[edges[g], i] + rest[i]
     s2 = seg_s2.reshape(n_seg, c * c)
     out = np.empty((seg_idx.shape[0], c, c))
     t1 = np.empty(c)
+    t2 = np.empty(c * c)
+    scratch2 = np.empty((_scratch_rows(n_seg), c * c))
     for w in range(seg_idx.shape[0]):
         a, b = seg_idx[w, 0], seg_idx[w, 1]
         nw = n[w]
+        _pairwise_rows(s1, a + 1, b - a - 1, t1, scratch1)
+        _pairwise_rows(s2, a + 1, b - a - 1, t2, scratch2)
         for i in range(c):
-            t1[i] = s1[a, i] + _pairwise(s1, i, a + 1, b - a - 1)
+            t1[i] = s1[a, i] + t1[i]
         for i in range(c):
             for j in range(c):
-                t2 = s2[a, i * c + j] + _pairwise(s2, i * c + j, a + 1, b - a - 1)
-                out[w, i, j] = (t2 - t1[i] * t1[j] / nw) / nw
+                out[w, i, j] = (s2[a, i * c + j] + t2[i * c + j] - t1[i] * t1[j] / nw) / nw
     return out
 
 

@@ -319,24 +319,28 @@ def test_compiled_spike_rule_equals_the_windowwise_rule(history):
 def test_window_covariances_equal_the_reduceat_form_bit_for_bit():
     """The compiled lattice sums (analysis.operator.window_covariances) must add exactly what the
     ``np.add.reduceat`` formulation added — the POMs of the smallest POVs are ill-conditioned, so any
-    other order moves the 4th RQ frequency by ~1e-6 — and equal the two-pass covariance to rounding."""
+    other order moves the 4th RQ frequency by ~1e-6 — and equal the two-pass covariance to rounding.
+    Two lattices: the operator's (segments < 128 samples) and a coarse one (numpy's pairwise halving)."""
     from analysis.operator import window_covariances
 
     rng = np.random.default_rng(5)
     buf = rng.standard_normal((3000, 6)) * np.logspace(0, -5, 6) + 1e-3
-    edges = np.unique(np.concatenate([np.arange(o, 3001, L) for L in (354, 531) for o in (0, 88, 177, 266)]))
-    wins = [(a, a + L) for L in (354, 531) for o in (0, 88, 177, 266) for a in range(o, 3001 - L, L)]
-    got = window_covariances(buf, wins, edges)
-    # the reference: segment sums by reduceat, window sums by reduceat over interleaved (i, j) pairs
-    seg_s1 = np.add.reduceat(buf[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
-    seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
-    idx = np.array([(np.searchsorted(edges, a), np.searchsorted(edges, b)) for a, b in wins]).ravel()
-    s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, 6))]), idx, axis=0)[::2]
-    s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, 6, 6))]), idx, axis=0)[::2]
-    n = np.array([b - a for a, b in wins], float)[:, None, None]
-    np.testing.assert_array_equal(got, (s2 - s1[:, :, None] * s1[:, None, :] / n) / n)
-    two_pass = np.stack([np.cov(buf[a:b].T, bias=True) for a, b in wins])
-    np.testing.assert_allclose(got, two_pass, rtol=1e-6, atol=1e-12 * np.abs(two_pass).max())  # one-pass rounding
+    fine = np.unique(np.concatenate([np.arange(o, 3001, L) for L in (354, 531) for o in (0, 88, 177, 266)]))
+    fine_w = [(a, a + L) for L in (354, 531) for o in (0, 88, 177, 266) for a in range(o, 3001 - L, L)]
+    coarse = np.array([0, 7, 300, 1299, 1300, 2999])
+    coarse_w = [(0, 300), (7, 1300), (0, 2999), (1299, 1300), (300, 2999)]
+    for edges, wins in ((fine, fine_w), (coarse, coarse_w)):
+        got = window_covariances(buf, wins, edges)
+        # the reference: segment sums by reduceat, window sums by reduceat over interleaved (i, j) pairs
+        seg_s1 = np.add.reduceat(buf[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
+        seg_s2 = np.stack([buf[a:b].T @ buf[a:b] for a, b in itertools.pairwise(edges)])
+        idx = np.array([(np.searchsorted(edges, a), np.searchsorted(edges, b)) for a, b in wins]).ravel()
+        s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, 6))]), idx, axis=0)[::2]
+        s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, 6, 6))]), idx, axis=0)[::2]
+        n = np.array([b - a for a, b in wins], float)[:, None, None]
+        np.testing.assert_array_equal(got, (s2 - s1[:, :, None] * s1[:, None, :] / n) / n)
+        two_pass = np.stack([np.cov(buf[a:b].T, bias=True) for a, b in wins])
+        np.testing.assert_allclose(got, two_pass, rtol=1e-6, atol=1e-12 * np.abs(two_pass).max())  # one-pass rounding
 
 
 def test_modal_energy_compiled_equals_the_formula():

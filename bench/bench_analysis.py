@@ -9,6 +9,11 @@
    path (blocks coalesced into 0.5 s chunks) and the live block size, on the same data in the same run.
    Baseline in the same run: the literal batch seed method (zero-phase preprocessing + SVD POD per
    window, analysis/pod.py) over the same data.
+3. The compiled kernels beside the library calls they replace (same data, same run): the causal §4.3
+   chain (analysis/preprocess.py) against ``lfilter`` + ``sosfilt`` stage by stage, the lattice window
+   covariances (analysis/operator.py) against the ``np.add.reduceat`` form, the causal spike rule
+   (analysis/rq_spikes.py) against its per-window numpy form — ms per second of 14-channel data, and
+   whether the outputs are identical bit for bit.
 
     python bench/bench_analysis.py [--seconds 20] [--quick]
 """
@@ -87,6 +92,89 @@ def _seed_batch(model: RigModel, data: np.ndarray, fs: float) -> dict:
     return {"data_s": data.shape[0] / fs, "wall_s": wall, "x_real_time": data.shape[0] / fs / wall, "windows": r.n_windows}
 
 
+def _per_data_s(fn, data_s: float, repeat: int = 3) -> float:
+    fn()
+    t0 = time.process_time()
+    for _ in range(repeat):
+        fn()
+    return (time.process_time() - t0) / repeat / data_s * 1e3
+
+
+def _kernels(data: np.ndarray, fs: float, model: RigModel) -> dict:
+    """Each compiled kernel against the library form it replaced, on the bench data (8192-sample blocks)."""
+    import itertools
+
+    import scipy.signal
+
+    from analysis.operator import rq_from_covariance, window_covariances
+    from analysis.preprocess import CausalPreprocessor, PreprocessSettings, highpass_sos
+    from analysis.rq_spikes import CausalSpikeRule
+
+    acc = data[:, 1:].astype(np.float64)
+    secs = acc.shape[0] / fs
+    blocks = [acc[s : s + 8192] for s in range(0, acc.shape[0], 8192)]
+    out: dict = {}
+
+    def compiled_chain():
+        pre = CausalPreprocessor(fs, acc.shape[1], PreprocessSettings(mode="causal"))
+        return [pre.feed(b) for b in blocks]
+
+    def library_chain():
+        b_int, a_int = np.array([0.5 / fs, 0.5 / fs]), np.array([1.0, -1.0])
+        sv, sd = highpass_sos(18.0, fs, 3), highpass_sos(10.0, fs, 3)
+        st = [(-b_int[0] * blocks[0][0])[None, :], np.zeros((2, 2, acc.shape[1])), np.zeros((1, acc.shape[1])),
+              np.zeros((2, 2, acc.shape[1]))]  # fmt: skip
+        res = []
+        for b in blocks:
+            v, st[0] = scipy.signal.lfilter(b_int, a_int, b, axis=0, zi=st[0])
+            v, st[1] = scipy.signal.sosfilt(sv, v, axis=0, zi=st[1])
+            d, st[2] = scipy.signal.lfilter(b_int, a_int, v, axis=0, zi=st[2])
+            d, st[3] = scipy.signal.sosfilt(sd, d, axis=0, zi=st[3])
+            res.append((v, d))
+        return res
+
+    same = all(np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1])
+               for x, y in zip(compiled_chain(), library_chain(), strict=True))  # fmt: skip
+    out["preprocess_14ch"] = {"library_ms": _per_data_s(library_chain, secs), "compiled_ms": _per_data_s(compiled_chain, secs),
+                              "identical": bool(same)}  # fmt: skip
+
+    disp = np.concatenate([d for _, d in compiled_chain()])
+    base = round(0.0216 * fs)
+    grids = [(round(o * base), round(L * base)) for L in (1.0, 1.5) for o in (0.0, 0.25, 0.5, 0.75)]
+    edges = np.unique(np.concatenate([np.arange(o, disp.shape[0] + 1, L) for o, L in grids]))
+    wins = [(a, a + L) for o, L in grids for a in range(o, disp.shape[0] - L + 1, L)]
+
+    def reduceat_form():
+        seg_s1 = np.add.reduceat(disp[edges[0] : edges[-1]], edges[:-1] - edges[0], axis=0)
+        seg_s2 = np.stack([disp[a:b].T @ disp[a:b] for a, b in itertools.pairwise(edges)])
+        idx = np.searchsorted(edges, np.asarray(wins)).ravel()
+        s1 = np.add.reduceat(np.concatenate([seg_s1, np.zeros((1, seg_s1.shape[1]))]), idx, axis=0)[::2]
+        s2 = np.add.reduceat(np.concatenate([seg_s2, np.zeros((1, *seg_s2.shape[1:]))]), idx, axis=0)[::2]
+        n = np.array([b - a for a, b in wins], float)[:, None, None]
+        return (s2 - s1[:, :, None] * s1[:, None, :] / n) / n
+
+    C = window_covariances(disp, wins, edges)
+    out["window_covariances_8_grids"] = {
+        "library_ms": _per_data_s(reduceat_form, secs),
+        "compiled_ms": _per_data_s(lambda: window_covariances(disp, wins, edges), secs),
+        "identical": bool(np.array_equal(C, reduceat_form())), "windows": len(wins),
+        "eigh_ms": _per_data_s(lambda: rq_from_covariance(C, model.M, model.K, 4), secs),
+    }  # fmt: skip
+    f, _ = rq_from_covariance(C[: len(wins) // 8], model.M, model.K, 4)
+    rule = RobustSpikeSettings()
+
+    def per_window():
+        r = CausalSpikeRule(rule)
+        return np.array([r.feed(x) for x in f])
+
+    out["spike_rule_8_grids"] = {  # one grid's windows timed, x 8
+        "library_ms": _per_data_s(per_window, secs) * 8,
+        "compiled_ms": _per_data_s(lambda: CausalSpikeRule(rule).feed_many(f), secs) * 8,
+        "identical": bool(np.array_equal(per_window(), CausalSpikeRule(rule).feed_many(f))),
+    }  # fmt: skip
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
@@ -109,8 +197,11 @@ def main() -> None:
     m64 = RigModel.from_rig(open_rig("bench_64ch"))
     rows.append({"case": "64 ch x 51.2 kHz", **_run(m64, d64, ch64, fs64, 1024)})
     seed = _seed_batch(m14, d14, fs14)
+    kernels = _kernels(d14, fs14, m14)
     out["rows"] = rows
     out["seed_batch_baseline_14ch"] = seed
+    out["kernels_ms_per_data_s"] = kernels
+    out["load_avg_1_5_15"] = list(os.getloadavg())
     hdr = f"{'case':18s} {'block':>6s} {'paced':>5s} {'data s':>7s} {'wall s':>7s} {'x RT':>7s} {'cpu/s':>6s} " \
           f"{'win':>5s} {'p50 ms':>7s} {'p99 ms':>7s} {'max ms':>7s}"  # fmt: skip
     print(hdr)
@@ -122,6 +213,11 @@ def main() -> None:
     print(f"seed method, literal batch (zero-phase + SVD POD, one grid): {seed['x_real_time']:.1f}x real time; "
           f"gvtlink replay (8 grids + modal lane + events): {replay['x_real_time']:.1f}x "
           f"({replay['x_real_time'] / seed['x_real_time']:.2f}x the literal batch)")  # fmt: skip
+    print(f"{'kernel (ms per data-s, 14 ch)':32s} {'library':>8s} {'compiled':>8s} identical")
+    for name, k in kernels.items():
+        print(f"{name:32s} {k['library_ms']:8.2f} {k['compiled_ms']:8.2f} {k['identical']}")
+    print(f"(eigh + RQ of the same windows: {kernels['window_covariances_8_grids']['eigh_ms']:.2f} ms per data-s; "
+          f"load average {out['load_avg_1_5_15'][0]:.2f})")  # fmt: skip
     dest = ROOT / "bench" / "results" / "bench_analysis.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(out, indent=2))

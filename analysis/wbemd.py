@@ -38,7 +38,7 @@ import scipy.fft
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, signal
 
-from analysis.emd import _check_signal, masked_first_imf, orthogonality_index
+from analysis.emd import _check_signal, first_imf, masked_first_imf, orthogonality_index
 from analysis.wavelet import OMEGA0_DEFAULT, morlet_cwt, mwt, padded_length
 
 _KERNEL_SIGMAS = 6.0
@@ -75,6 +75,10 @@ class WbemdParams:
     trim_s: float = 0.0
     """Seconds skipped at each end in every MWT (0 = the text's definition)."""
     oversample: int = 4
+    unmasked_candidate: bool = True
+    """Also offer the unmasked first IMF (α = 0, the edge of eq. 3.7's family) to the bound test at every step, fixed
+    or optimised; it is accepted only if it satisfies the constraints with a smaller B than every masked trial
+    (docs/wbemd.md §5.1). False: the text's Fig. 3.2 exactly (fixed steps take eq. 3.6's IMF unconditionally)."""
     omega0_spacing: float | None = None
     """Not in the text. If set, step i uses ω0_i = max(ω0, omega0_spacing·ω_i/(ω_i − ω_{i+1})) for Z̃_i and C̃_i, so
     ω_{i+1} lies ≥ omega0_spacing kernel standard deviations from ω_i (None: ω0 for every step, as the text)."""
@@ -84,7 +88,8 @@ class WbemdParams:
 class ImfDiagnostics:
     """Per-component record: the bound's area B (eq. 3.10) and exponent φ, the mask multipliers, C̃/Z̃ at ω_i
     (c1), the largest leakage ratio C̃/Z̃ on (0, ω_{i+1}] (c2), EMD calls spent and whether c1, c2 and the
-    bound's feasibility hold for the accepted IMF."""
+    bound's feasibility hold for the accepted IMF. ``alpha == 0``: the unmasked IMF was accepted (``mask`` still
+    names the step's kind)."""
 
     freq_hz: float
     B: float
@@ -290,32 +295,42 @@ def _extract_step(z: NDArray[np.float64], fs: float, t: NDArray[np.float64], wi:
                   p: WbemdParams, fixed: bool = False) -> tuple[float, float, _Eval, int, str]:
     """One box of Fig. 3.2: fixed mask (eq. 3.6) if ω_i/ω_{i+1} > ratio_switch, else optimised mask (eq. 3.7).
 
-    Returns (α, β, evaluation, number of evaluations, mask kind) of the accepted IMF: the feasible trial with
-    the least B, or — if no trial is feasible — the one with the least constraint violation.
+    Returns (α, β, evaluation, number of EMD calls, mask kind) of the accepted IMF: the feasible trial with
+    the least B, or — if no trial is feasible — the one with the least constraint violation. With
+    ``unmasked_candidate`` the unmasked first IMF (α = 0) is one of the trials.
     """
     zmax = float(np.max(np.abs(z)))  # "max[z_i(t)]" of eqs. 3.6–3.7 read as max|z_i| (§3.2 [CHOICE])
     evals: list[tuple[float, float, _Eval]] = []
     cache: dict[tuple[float, float], float] = {}
 
+    calls = [0]
+
     def fun(a: float, b: float) -> float:
         key = (round(float(a), 6), round(float(b), 6))
-        if key not in cache and len(evals) >= p.max_evals:
+        if key not in cache and len(evals) >= p.max_evals + int(p.unmasked_candidate):
             return 1e9  # budget spent (scipy's DIRECT may overshoot maxfun): refuse further EMDs
         if key not in cache:
-            s = zmax * key[0] * np.sin(key[1] * wi * t)
-            ev = _evaluate(masked_first_imf(z, fs, s, mirror=p.mirror), zoom, z_mwt, w, i_at, wi, wnext, p)
+            if key[0] == 0.0:  # α = 0: no mask, plain EMD's first IMF (one EMD, not two)
+                imf = first_imf(z, p.mirror)
+                calls[0] += 1
+            else:
+                imf = masked_first_imf(z, fs, zmax * key[0] * np.sin(key[1] * wi * t), mirror=p.mirror)
+                calls[0] += 2
+            ev = _evaluate(imf, zoom, z_mwt, w, i_at, wi, wnext, p)
             evals.append((key[0], key[1], ev))
             cache[key] = ev.objective
         return cache[key]
 
+    if p.unmasked_candidate:
+        fun(0.0, 1.0)
     if fixed or wi / wnext > p.ratio_switch:
         fun(1.0, 1.0)
         kind = "fixed"
     else:
         _optimise(fun, p)
         kind = "optimised"
-    a, b, ev = min(evals, key=lambda r: r[2].objective)
-    return a, b, ev, len(evals), kind
+    a, b, ev = min(evals, key=lambda r: r[2].objective)  # ties: the earlier trial (the unmasked one first)
+    return a, b, ev, calls[0], kind
 
 
 def wbemd(x: ArrayLike, fs: float, char_freqs_hz: ArrayLike | None = None, *, n_imfs: int | None = None,
@@ -363,9 +378,9 @@ def wbemd(x: ArrayLike, fs: float, char_freqs_hz: ArrayLike | None = None, *, n_
         i_at = int(np.argmin(np.abs(grid - fi)))
         if z_mwt[i_at] <= 0:
             raise ValueError(f"wbemd: z_{i + 1} has no content at {fi:.4g} Hz; check char_freqs_hz")
-        a, b, ev, n_evals, kind = _extract_step(z, fs, t, wi, wnext, zoom, z_mwt, w, i_at, params, fixed=last)
+        a, b, ev, n_calls, kind = _extract_step(z, fs, t, wi, wnext, zoom, z_mwt, w, i_at, params, fixed=last)
         comps.append(ev.imf)
-        diags.append(ImfDiagnostics(float(fi), ev.B, ev.phi, a, b, ev.gain, ev.leakage, 2 * n_evals, ev.feasible, kind))
+        diags.append(ImfDiagnostics(float(fi), ev.B, ev.phi, a, b, ev.gain, ev.leakage, n_calls, ev.feasible, kind))
         z = z - ev.imf  # eq. 3.11
     imfs = np.asarray(comps[::-1])
     return WbemdResult(imfs=imfs, residual=z, char_freqs_hz=f_asc, diagnostics=tuple(diags[::-1]),

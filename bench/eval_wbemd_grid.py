@@ -48,6 +48,8 @@ CENTRAL = 0.1  # fraction cut at each end for the *_central scores
 
 _PARAMS: WbemdParams = WbemdParams()
 _TRIALS = 50
+_BASELINES: dict[tuple[float, float], dict] = {}
+"""EMD/EEMD scores per (A, k) from an earlier run's JSON (``--reuse-baselines``): they do not depend on WBEMD."""
 
 
 def _scores(c_hi: np.ndarray, c_lo: np.ndarray, y1: np.ndarray, y2: np.ndarray) -> dict[str, float]:
@@ -69,10 +71,13 @@ def point(args: tuple[float, float]) -> dict:
     y2 = np.sin(2 * np.pi * F1 * t)
     y = y1 + y2
     out: dict = {"A": a, "k": k}
-    c = emd(y, FS)
-    out["emd"] = _best(c, y1, y2)
-    out["emd_literal"] = _scores(c[0], c[1] if c.shape[0] > 1 else 0 * y, y1, y2)
-    out["eemd"] = _best(eemd(y, FS, trials=_TRIALS, noise_width=0.2, seed=1), y1, y2)
+    if (a, k) in _BASELINES:
+        out.update({m: _BASELINES[(a, k)][m] for m in ("emd", "emd_literal", "eemd")})
+    else:
+        c = emd(y, FS)
+        out["emd"] = _best(c, y1, y2)
+        out["emd_literal"] = _scores(c[0], c[1] if c.shape[0] > 1 else 0 * y, y1, y2)
+        out["eemd"] = _best(eemd(y, FS, trials=_TRIALS, noise_width=0.2, seed=1), y1, y2)
     t0 = time.perf_counter()
     r = wbemd(y, FS, [F1, k * F1], params=_PARAMS)
     out["wbemd_s"] = time.perf_counter() - t0
@@ -84,9 +89,38 @@ def point(args: tuple[float, float]) -> dict:
     return out
 
 
-def _init(params: WbemdParams, trials: int) -> None:
-    global _PARAMS, _TRIALS
-    _PARAMS, _TRIALS = params, trials
+CEIL_ALPHA = np.geomspace(0.02, 10.0, 20)
+CEIL_BETA = np.linspace(0.3, 3.5, 33)
+
+
+def mask_ceiling(args: tuple[float, float, float]) -> dict:
+    """Upper bound on what any stationary sinusoidal mask s = α·max|y|·sin(βω_1 t) (eq. 3.7; α = 0 is plain EMD's
+    IMF 1) can give at one grid point: the best min(PCC_hi, PCC_lo) over a 20 × 33 (α, β) box wider than the
+    optimiser's (α 0.02–10 geometric, β 0.3–3.5), scored on the whole record and on the central 80 %. No
+    constraint and no bound test: the truth picks the mask, so WBEMD's choice can only be worse or equal."""
+    a, k, duration = args
+    from analysis.emd import first_imf, masked_first_imf
+
+    t = np.arange(round(duration * FS)) / FS
+    y1 = a * np.sin(2 * np.pi * k * F1 * t)
+    y2 = np.sin(2 * np.pi * F1 * t)
+    y = y1 + y2
+    zmax = float(np.max(np.abs(y)))
+    best = {"whole": (-2.0, 0.0, 0.0), "central": (-2.0, 0.0, 0.0)}
+    trials = [(0.0, 1.0)] + [(al, be) for al in CEIL_ALPHA for be in CEIL_BETA]
+    for al, be in trials:
+        c = first_imf(y) if al == 0 else masked_first_imf(y, FS, zmax * al * np.sin(be * 2 * np.pi * k * F1 * t))
+        sc = _scores(c, y - c, y1, y2)
+        for key, v in (("whole", min(sc["hi"], sc["lo"])), ("central", min(sc["hi_central"], sc["lo_central"]))):
+            if v > best[key][0]:
+                best[key] = (v, float(al), float(be))
+    found = {key: {"pcc": v[0], "alpha": v[1], "beta": v[2]} for key, v in best.items()}
+    return {"A": a, "k": k, "duration_s": duration, **found}
+
+
+def _init(params: WbemdParams, trials: int, baselines: dict | None = None) -> None:
+    global _PARAMS, _TRIALS, _BASELINES
+    _PARAMS, _TRIALS, _BASELINES = params, trials, baselines or {}
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
@@ -138,10 +172,23 @@ def main() -> None:
     ap.add_argument("--omega0-spacing", type=float, default=None, help="WbemdParams.omega0_spacing (not in the text)")
     ap.add_argument("--optimizer", default="nelder-mead")
     ap.add_argument("--eemd-trials", type=int, default=20)
+    ap.add_argument("--unmasked-candidate", type=int, default=1, help="WbemdParams.unmasked_candidate (1/0)")
+    ap.add_argument("--mirror", type=int, default=0, help="WbemdParams.mirror (samples)")
+    ap.add_argument("--reuse-baselines", default=None,
+                    help="earlier JSON of this script (same fs, duration, EEMD settings): take its EMD/EEMD scores")
+    ap.add_argument("--ceiling", action="store_true", help="only the brute-force mask ceiling per point (mask_ceiling)")
     ap.add_argument("--json", default=str(ROOT / "bench/results/eval_wbemd_grid.json"))
     args = ap.parse_args()
     params = WbemdParams(omega0=args.omega0, trim_s=args.trim, delta=args.delta, optimizer=args.optimizer,
-                         omega0_spacing=args.omega0_spacing)
+                         omega0_spacing=args.omega0_spacing, unmasked_candidate=bool(args.unmasked_candidate),
+                         mirror=args.mirror)
+    baselines: dict = {}
+    if args.reuse_baselines:
+        old = json.loads(Path(args.reuse_baselines).read_text())
+        same = old["grid"]["fs"] == FS and old["grid"]["duration_s"] == DURATION and old["eemd"]["trials"] == args.eemd_trials
+        if not same:
+            raise SystemExit(f"--reuse-baselines {args.reuse_baselines}: fs/duration/EEMD trials differ from this run")
+        baselines = {(r["A"], r["k"]): r for r in old["rows"]}
     ks, as_ = (K_VALUES, A_VALUES)
     if args.quick:
         ks, as_ = K_FULL[::5], np.array([0.1, 0.5, 1.0, 2.0])
@@ -150,11 +197,22 @@ def main() -> None:
     grid = [(float(a), float(k)) for a in as_ for k in ks]
     t0 = time.perf_counter()
     load0 = os.getloadavg()
+    if args.ceiling:
+        with Pool(max(args.workers, 1)) as pool:
+            ceil = pool.map(mask_ceiling, [(a, k, DURATION) for a, k in grid], chunksize=2)
+        for key in ("whole", "central"):
+            v = np.array([c[key]["pcc"] for c in ceil])
+            print(f"[ceiling, {key}] mean {v.mean():.3f}  >=0.95: {(v >= 0.95).sum()} / {v.size}")
+        out = {"grid": {"k": [float(k) for k in ks], "A": [float(a) for a in as_], "f1_hz": F1, "fs": FS, "duration_s": DURATION},
+               "alpha": CEIL_ALPHA.tolist(), "beta": CEIL_BETA.tolist(), "rows": ceil, "wall_s": time.perf_counter() - t0,
+               "load_before": load0, "load_after": os.getloadavg()}
+        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+        return
     if args.workers > 1:
-        with Pool(args.workers, initializer=_init, initargs=(params, args.eemd_trials)) as pool:
+        with Pool(args.workers, initializer=_init, initargs=(params, args.eemd_trials, baselines)) as pool:
             rows = pool.map(point, grid, chunksize=4)
     else:
-        _init(params, args.eemd_trials)
+        _init(params, args.eemd_trials, baselines)
         rows = [point(g) for g in grid]
     wall = time.perf_counter() - t0
     summ = summarise(rows)

@@ -36,6 +36,7 @@ class AnalysisRun:
     seconds_of_data: float = 0.0
     wall_seconds: float = 0.0
     results: dict[str, list[dict]] = field(default_factory=dict)
+    bad_blocks: list[str] = field(default_factory=list)  # undecodable sample blocks, skipped (gaps to the operator)
 
     @property
     def events(self) -> list[dict]:
@@ -141,19 +142,31 @@ def analyze_log(
         op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit)
     except ValueError as exc:
         raise AnalyzeError(f"{path}: {exc}") from None
-    # (the replay reader holds a stream's decoded blocks in memory anyway; a streaming reader is future work)
-    blocks = [b for b in iter_log_blocks(reader) if b.stream == name]
-    total = sum(b.n_samples for b in blocks) or 1
+    # blocks are decoded as they are read (bounded memory, daq/replay.py); progress counts blocks from the index
+    total = max(1, reader.message_count(info.topic))
+    done = 0
+
+    def counted() -> Iterator[SampleBlock]:
+        nonlocal done
+        for b in iter_log_blocks(reader, [name], bad=run.bad_blocks):
+            done += 1
+            yield b
+
     t0 = time.perf_counter()
     last = t0
-    done = 0
-    for blk in coalesce(iter(blocks), max(1, round(chunk_s * info.sample_rate))):
+    blocks = coalesce(counted(), max(1, round(chunk_s * info.sample_rate)))
+    while True:
+        try:
+            blk = next(blocks)
+        except StopIteration:
+            break
+        except LogReadError as exc:
+            raise AnalyzeError(f"{exc}; 'gvt log recover' rewrites what is readable") from None
         op.feed(blk)
-        done += blk.n_samples
         run.seconds_of_data += blk.n_samples / info.sample_rate
         now = time.perf_counter()
         if progress is not None and now - last > 0.5:
-            progress(done / total)
+            progress(min(1.0, done / total))
             last = now
     op.finish()
     run.wall_seconds = time.perf_counter() - t0

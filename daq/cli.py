@@ -268,6 +268,9 @@ def replay(
 
         close_live_view(out, vtarget, vlane)
     health = "" if rep.reader.report.complete else f" (damaged log: {rep.reader.report.messages} messages salvaged)"
+    if stats.bad_blocks:
+        err.print(f"skipped {len(stats.bad_blocks)} undecodable sample block(s), replayed as gaps; first: {stats.bad_blocks[0]}",
+                  markup=False)  # fmt: skip
     for stream, n in stats.samples.items():
         gaps = stats.gaps.get(stream, [])
         out.print(
@@ -278,6 +281,8 @@ def replay(
         f"{counted['blocks']}, dropped {sub.dropped_blocks}{health}",
         markup=False,
     )
+    if stats.error:
+        fail(f"replay stopped early: {stats.error}")
 
 
 def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None):
@@ -353,6 +358,9 @@ def analyze(
             run = analyze_log(log, r, stream, AnalysisSettings(window_s=window), progress=lambda f: report("analysing", f))
     except AnalyzeError as exc:
         fail(str(exc))
+    if run.bad_blocks:
+        err.print(f"skipped {len(run.bad_blocks)} undecodable sample block(s), analysed as gaps; first: {run.bad_blocks[0]}",
+                  markup=False)  # fmt: skip
     if rrd is not None:
         from daq.view.build import build_rrd
 

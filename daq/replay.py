@@ -10,14 +10,14 @@ from __future__ import annotations
 import heapq
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from daq.blocks import BlockStatus, SampleBlock
 from daq.fanout import FanOut
-from daq.log.proto import decode_block
-from daq.log.reader import LogReader
+from daq.log.proto import BlockDecodeError, decode_block
+from daq.log.reader import LogReader, LogReadError
 
 
 @dataclass
@@ -27,24 +27,58 @@ class ReplayStats:
     gaps: dict[str, list[tuple[int, int]]] = field(default_factory=dict)
     log_seconds: float = 0.0
     wall_seconds: float = 0.0
+    error: str | None = None  # the log could not be read on from here (one line: what and where)
+    bad_blocks: list[str] = field(default_factory=list)  # undecodable blocks, skipped (gaps downstream)
 
 
-def iter_log_blocks(reader: LogReader) -> Iterator[SampleBlock]:
-    """Every sample block of every stream, merged in time order (ties: stream name)."""
-    streams = reader.streams()
+#: Blocks per stream held to put blocks back in sample order. The writer writes each stream in order, so
+#: this only matters for a log assembled out of order; it bounds replay memory (64 blocks of 1024 × 15
+#: float32 are 4 MB) where sorting a whole stream held every decoded sample of the log (3.5 GB an hour
+#: at 15 ch × 16384 Hz).
+REORDER_BLOCKS = 64
+
+
+def iter_log_blocks(
+    reader: LogReader, streams: Iterable[str] | None = None, reorder: int = REORDER_BLOCKS, bad: list[str] | None = None
+) -> Iterator[SampleBlock]:
+    """Every sample block of every stream (or of ``streams``), merged in time order (ties: stream name).
+
+    Blocks are decoded as they are read, with at most ``reorder`` blocks per stream held back to restore
+    sample order. A block further out of place than that is yielded where it is found (consumers treat
+    it like any discontinuity). A block that does not decode is skipped — a gap to the consumer, like a
+    lost block — and described in ``bad`` (one line each) when a list is given; without one it raises
+    :class:`LogReadError`.
+    """
+    infos = reader.streams()
+    names = sorted(infos) if streams is None else sorted(set(streams))
+    missing = [n for n in names if n not in infos]
+    if missing:
+        raise LogReadError(f"{reader.path}: no stream(s) {missing}; streams: {sorted(infos)}")
 
     def one(name: str) -> Iterator[tuple[float, str, int, SampleBlock]]:
-        info = streams[name]
-        decoded = []
-        for _ch, msg in reader.iter_messages([info.topic]):
-            b = decode_block(msg.data)
-            decoded.append(b)
-        decoded.sort(key=lambda b: b.first_index)
-        for b in decoded:
-            blk = SampleBlock(name, b.first_index, b.sample_rate, tuple(info.channels), b.data, BlockStatus(b.status))
-            yield (info.t0_ns / 1e9 + b.first_index / b.sample_rate, name, b.first_index, blk)
+        info = infos[name]
+        held: list[tuple[int, int, SampleBlock]] = []
 
-    for _t, _name, _i, blk in heapq.merge(*(one(n) for n in sorted(streams)), key=lambda x: x[:3]):
+        def out(b) -> tuple[float, str, int, SampleBlock]:
+            blk = SampleBlock(name, b.first_index, b.sample_rate, tuple(info.channels), b.data, BlockStatus(b.status))
+            return (info.t0_ns / 1e9 + b.first_index / b.sample_rate, name, b.first_index, blk)
+
+        for seq, (_ch, msg) in enumerate(reader.iter_messages([info.topic], time_order=True)):
+            try:
+                b = decode_block(msg.data)
+            except BlockDecodeError as exc:
+                what = f"{reader.path}: bad sample block in {info.topic} (sequence {msg.sequence}): {exc}"
+                if bad is None:
+                    raise LogReadError(what) from None
+                bad.append(what)
+                continue
+            heapq.heappush(held, (b.first_index, seq, b))
+            if len(held) > reorder:
+                yield out(heapq.heappop(held)[2])
+        while held:
+            yield out(heapq.heappop(held)[2])
+
+    for _t, _name, _i, blk in heapq.merge(*(one(n) for n in names), key=lambda x: x[:3]):
         yield blk
 
 
@@ -65,7 +99,15 @@ class Replayer:
         start_wall = time.monotonic()
         t_first: float | None = None
         last_end: dict[str, int] = {}
-        for blk in iter_log_blocks(self.reader):
+        blocks = iter_log_blocks(self.reader, bad=self.stats.bad_blocks)
+        while True:
+            try:
+                blk = next(blocks)
+            except StopIteration:
+                break
+            except LogReadError as exc:  # what came before is replayed and analysed; the caller reports the rest
+                self.stats.error = str(exc)
+                break
             if self._stop.is_set():
                 break
             t_block = streams[blk.stream].t0_ns / 1e9 + blk.first_index / blk.sample_rate

@@ -205,15 +205,23 @@ class LogReader:
         return out
 
     def iter_messages(
-        self, topics: Sequence[str] | None = None, start_ns: int | None = None, end_ns: int | None = None
+        self, topics: Sequence[str] | None = None, start_ns: int | None = None, end_ns: int | None = None,
+        time_order: bool = False,
     ) -> Iterator[tuple[Channel, Message]]:
-        """Messages in file order (log order within a stream), optionally filtered."""
+        """Messages in file order (log order within a stream), optionally filtered.
+
+        ``time_order=True`` yields them by log time instead, and reads the file a chunk at a time: mcap 1.6's
+        file-order iteration decompresses *every* chunk before it yields the first message (its queue
+        puts a chunk's messages behind all the remaining chunk indexes) — the whole log in memory,
+        measured 67 MB for a 54 MB log. Sample blocks are logged at their sample time, so for them time
+        order is sample order.
+        """  # fmt: skip
         if self._indexed:
             with open(self.path, "rb") as f:
                 r = make_reader(f)
                 try:
                     for _schema, ch, msg in r.iter_messages(
-                        topics=topics, starting_at=start_ns, ending_before=end_ns, log_time_order=False
+                        topics=topics, starting_at=start_ns, ending_before=end_ns, log_time_order=time_order
                     ):
                         yield ch, msg
                 except _EXPECTED_ERRORS as exc:
@@ -231,6 +239,15 @@ class LogReader:
             if end_ns is not None and msg.log_time >= end_ns:
                 continue
             yield ch, msg
+
+    def message_count(self, topic: str) -> int:
+        """Messages on ``topic``: from the summary's statistics (no data read) or from the salvage scan."""
+        if self._indexed:
+            counts = self.summary.statistics.channel_message_counts
+            return sum(int(counts.get(ch.id, 0)) for ch in self.summary.channels.values() if ch.topic == topic)
+        scan = self._scan()
+        ids = {cid for cid, ch in scan["channels"].items() if ch.topic == topic}
+        return sum(1 for m in scan["messages"] if m.channel_id in ids)
 
     def metadata(self) -> dict[str, dict[str, str]]:
         if self._indexed:
@@ -271,7 +288,7 @@ class LogReader:
         start_ns = None if start is None else info.t0_ns + int(np.floor(start * 1e9)) - int(1e9 * 65536 / info.sample_rate)
         end_ns = None if end is None else info.t0_ns + int(np.ceil(end * 1e9)) + 1
         parts, firsts, statuses = [], [], []
-        for _ch, msg in self.iter_messages([info.topic], start_ns, end_ns):
+        for _ch, msg in self.iter_messages([info.topic], start_ns, end_ns, time_order=True):
             try:
                 b = decode_block(msg.data)
             except BlockDecodeError as exc:

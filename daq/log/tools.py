@@ -26,7 +26,7 @@ def log_info(path: str | Path) -> dict[str, Any]:
     streams = []
     for name, info in sorted(r.streams().items()):
         firsts, counts, bad, statuses = [], [], 0, 0
-        for _ch, msg in r.iter_messages([info.topic]):
+        for _ch, msg in r.iter_messages([info.topic], time_order=True):
             try:
                 b = decode_block(msg.data)
             except BlockDecodeError:

@@ -89,7 +89,8 @@ def build_rrd(
     try:
         view = ViewLogger(rec, setup, flush_s=1.0)
         k = 0
-        for blk in iter_log_blocks(reader):
+        bad: list[str] = []
+        for blk in iter_log_blocks(reader, bad=bad):
             view.block(blk)
             summary.blocks += 1
             t = blk.end_index / blk.sample_rate
@@ -99,6 +100,8 @@ def build_rrd(
             _batched(view, items[k:j])
             k = j
         _batched(view, items[k:])
+        if bad:
+            R.log_text(rec, R.LOG_DAQ, view.t_now, f"{len(bad)} undecodable sample block(s) skipped; first: {bad[0]}", "WARN")
         if not res.get("/analysis/confirmations"):
             R.log_text(rec, R.LOG_ANALYSIS, view.t_now, "confirmations: none in this log", "INFO")
         view.finish()

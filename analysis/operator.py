@@ -155,6 +155,8 @@ def window_covariances(buf: np.ndarray, windows: list[tuple[int, int]], edges: n
     """
     edges = np.asarray(edges, dtype=np.int64)
     buf = np.ascontiguousarray(buf, dtype=np.float64)
+    if len(windows) == 0 or edges.size < 2:
+        return np.empty((0, buf.shape[1], buf.shape[1]))
     seg_s2 = np.empty((edges.size - 1, buf.shape[1], buf.shape[1]))
     for i in range(edges.size - 1):
         seg = buf[edges[i] : edges[i + 1]]

@@ -7,7 +7,15 @@ none, rrd, serve, ...) so load drift hits every variant alike; the table gives t
 and the overhead relative to the no-view median. The browser that would render the web viewer is not
 part of the measurement (none is connected).
 
+``--path record`` measures the other near-live path, a live session: ``gvt device serve`` (the simulated
+DAQ, its own process: the "hardware") streams 15 ch x 16384 Hz over a pseudo-terminal, and ``gvt record``
+reads it with the serial driver, writes the MCAP log, gates hits and runs the near-live analysis
+(confirmation off: it is a background lane and would add the same to both variants). Variants: none and
+``--view`` (the served web viewer, no browser attached). CPU is the recorder's own, with its reaped
+children (the viewer server), from ``wait4``; the device process is not counted.
+
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py [--seconds 15] [--repeats 2] [--speed 1]
+    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py --path record [--seconds 10] [--repeats 2]  # 10 and 30 s
 """
 
 from __future__ import annotations
@@ -95,13 +103,80 @@ def one_run(log: Path, variant: str, speed: float, tmp: Path) -> dict:
     }  # fmt: skip
 
 
+RIG_CHANNELS = ["hammer", *(f"a{i:02d}" for i in range(1, 15))]
+
+SESSION_TOML = """name = "bench-view-record"
+rig = "beam_ch4_exp"
+output = "{out}"
+duration = {seconds}
+
+[device]
+name = "dev0"
+driver = "serial"
+config = {{ port = "{port}", sample_rate = 16384.0, channels = {channels}, usb_cdc = true }}
+
+[trigger]
+channel = "hammer"
+level = 20.0
+record_length = 0.3
+driving_point = "a13"
+
+[analysis]
+confirm = false
+"""
+
+
+def record_run(variant: str, seconds: float, tmp: Path) -> dict:
+    """One ``gvt record`` of a separate ``gvt device serve`` process over a pty; the recorder's CPU from wait4."""
+    import re
+    import subprocess
+
+    exe = Path(sys.executable).parent / "gvt"
+    gvt = [str(exe)] if exe.exists() else [sys.executable, "-m", "daq.cli"]
+    dev = subprocess.Popen([*gvt, "device", "serve", "beam_ch4_exp", "--transport", "serial", "--hits", str(int(seconds)),
+                            "--period", "1.0", "--seconds", str(seconds + 30), "--seed", "5"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        line = dev.stdout.readline()
+        m = re.search(r"port = '([^']+)'", line)
+        if m is None:
+            err = dev.stderr.read() if dev.poll() is not None else ""
+            raise SystemExit(f"bench_view: the device did not start: {line!r} {err}")
+        cfg = tmp / "record.toml"
+        out = tmp / f"record_{variant}.mcap"
+        cfg.write_text(SESSION_TOML.format(out=out, seconds=seconds, port=m.group(1), channels=json.dumps(RIG_CHANNELS)))
+        cmd = [*gvt, "record", str(cfg), "--out", str(out)] + (["--view"] if variant == "view" else [])
+        w0 = time.perf_counter()
+        rec = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               env={**os.environ, "RERUN_TELEMETRY": "0"})  # fmt: skip
+        text = rec.stdout.read()
+        _pid, status, ru = os.wait4(rec.pid, 0)
+        rec.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - w0
+    finally:
+        dev.terminate()
+        dev.communicate(timeout=30)
+    if rec.returncode != 0:
+        raise SystemExit(f"bench_view: gvt record failed ({rec.returncode}):\n{text[-2000:]}")
+    lost = re.search(r"lost\D*(\d+)", text)
+    cpu = ru.ru_utime + ru.ru_stime
+    return {"variant": variant, "cpu_s": cpu, "child_cpu_s": 0.0, "total_cpu_s": cpu, "wall_s": wall, "data_s": seconds,
+            "lost_text": lost.group(0) if lost else "", "view_dropped_samples": 0, "view_thread_cpu_s": float("nan"),
+            "output_tail": text[-600:]}  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--speed", type=float, default=1.0, help="replay pacing: 1 = real time (near-live)")
-    ap.add_argument("--variants", default="none,rrd,serve")
+    ap.add_argument("--variants", default=None, help="replay: none,rrd,serve (default); record: none,view")
+    ap.add_argument("--path", choices=("replay", "record"), default="replay",
+                    help="replay: paced replay + analysis in this process; record: gvt record of a device process")  # fmt: skip
     args = ap.parse_args()
+    if args.path == "record":
+        return main_record(args)
+    args.variants = args.variants or "none,rrd,serve"
     tmp = Path(os.environ.get("TMPDIR", "/tmp")) / "gvt_bench_view"
     tmp.mkdir(parents=True, exist_ok=True)
     log = tmp / f"bench_view_{args.seconds:g}s.mcap"
@@ -133,6 +208,43 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"seconds_of_data": args.seconds, "speed": args.speed, "repeats": args.repeats,
                                "loadavg": load, "cpus": os.cpu_count(), "summary": rows, "runs": runs}, indent=1))  # fmt: skip
+    print(f"wrote {out}")
+
+
+def main_record(args) -> None:
+    """Two session lengths per variant: the slope is the steady CPU per second of data (the start-up —
+    imports, the numba cache, the viewer server's launch — is the intercept and is reported apart)."""
+    tmp = Path(os.environ.get("TMPDIR", "/tmp")) / "gvt_bench_view"
+    tmp.mkdir(parents=True, exist_ok=True)
+    variants = (args.variants or "none,view").split(",")
+    lengths = (args.seconds, 3 * args.seconds)
+    runs = []
+    for _ in range(args.repeats):
+        for secs in lengths:
+            for v in variants:
+                runs.append(record_run(v, secs, tmp))
+                print(f"  {v:6s} {secs:5.0f} s: recorder cpu {runs[-1]['total_cpu_s']:.2f} s, wall {runs[-1]['wall_s']:.1f} s",
+                      flush=True)  # fmt: skip
+    load = os.getloadavg()
+
+    def med(v: str, secs: float) -> float:
+        return statistics.median(r["total_cpu_s"] for r in runs if r["variant"] == v and r["data_s"] == secs)
+
+    slope = {v: (med(v, lengths[1]) - med(v, lengths[0])) / (lengths[1] - lengths[0]) for v in variants}
+    start = {v: med(v, lengths[0]) - slope[v] * lengths[0] for v in variants}
+    base = slope.get("none", float("nan"))
+    print(f"\nview overhead in a live session: gvt record of {lengths[0]:g} and {lengths[1]:g} s, 15 ch x 16384 Hz over a pty "
+          f"from a separate device process, near-live analysis on; load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on "
+          f"{os.cpu_count()} cores")  # fmt: skip
+    print(f"{'variant':8s} {'CPU/data s (slope)':>19s} {'start-up CPU s':>15s} {'overhead':>9s}")
+    rows = []
+    for v in variants:
+        over = (slope[v] - base) / base if base > 0 else float("nan")
+        print(f"{v:8s} {slope[v]:19.4f} {start[v]:15.2f} {100 * over:8.1f}%")
+        rows.append({"variant": v, "cpu_per_data_s": slope[v], "startup_cpu_s": start[v], "overhead_fraction": over})
+    out = ROOT / "bench" / "results" / "bench_view_record.json"
+    out.write_text(json.dumps({"path": "record", "lengths_s": lengths, "repeats": args.repeats, "loadavg": load,
+                               "cpus": os.cpu_count(), "summary": rows, "runs": runs}, indent=1))  # fmt: skip
     print(f"wrote {out}")
 
 

@@ -14,7 +14,12 @@ Which component is scored:
 PCC is on the whole record (primary, like the seed) and on the central 80 % (``*_central``, to show end effects).
 
     python bench/eval_wbemd_grid.py [--quick] [--workers 2] [--omega0 6.283] [--trim 0] [--delta 0.15]
-                                    [--eemd-trials 20] [--full] [--json PATH]
+                                    [--eemd-trials 20] [--full] [--unmasked-candidate 1] [--mirror 0]
+                                    [--reuse-baselines OLD.json] [--attach-ceiling CEIL.json] [--json PATH]
+    python bench/eval_wbemd_grid.py --ceiling --workers 2 --json CEIL.json   # brute-force mask bound (mask_ceiling)
+
+The results in bench/results/eval_wbemd_grid.json and docs/wbemd.md §5 come from
+``--workers 2 --reuse-baselines <previous JSON> --attach-ceiling <--ceiling JSON>``.
 """
 
 from __future__ import annotations
@@ -177,6 +182,7 @@ def main() -> None:
     ap.add_argument("--reuse-baselines", default=None,
                     help="earlier JSON of this script (same fs, duration, EEMD settings): take its EMD/EEMD scores")
     ap.add_argument("--ceiling", action="store_true", help="only the brute-force mask ceiling per point (mask_ceiling)")
+    ap.add_argument("--attach-ceiling", default=None, help="JSON of a --ceiling run: stored under 'mask_ceiling' and compared")
     ap.add_argument("--json", default=str(ROOT / "bench/results/eval_wbemd_grid.json"))
     args = ap.parse_args()
     params = WbemdParams(omega0=args.omega0, trim_s=args.trim, delta=args.delta, optimizer=args.optimizer,
@@ -226,13 +232,25 @@ def main() -> None:
         for key, v in s.items():
             if key.startswith("wbemd_worse"):
                 print(f"  {key}: {len(v)} {v[:12]}{' ...' if len(v) > 12 else ''}")
+    ceiling = None
+    if args.attach_ceiling:
+        ceiling = json.loads(Path(args.attach_ceiling).read_text())
+        cidx = {(c["A"], c["k"]): c for c in ceiling["rows"]}
+        for key, sk in (("whole", ""), ("central", "_central")):
+            v = np.array([cidx[(r["A"], r["k"])][key]["pcc"] for r in rows])
+            w = np.array([min(r["wbemd"]["hi" + sk], r["wbemd"]["lo" + sk]) for r in rows])
+            ceiling[f"summary_{key}"] = {"mean": float(v.mean()), "ge_0.95": int((v >= 0.95).sum()),
+                                         "ge_0.94": int((v >= 0.94).sum()), "wbemd_gap_mean": float((v - w).mean())}
+            print(f"[mask ceiling, {key}] mean {v.mean():.3f}  >=0.95: {(v >= 0.95).sum()}  >=0.94: {(v >= 0.94).sum()}"
+                  f"  (WBEMD below it by {(v - w).mean():.3f} on average)")
     print(f"wall {wall:.1f} s, workers {args.workers}, load before {load0}, after {os.getloadavg()}")
     out = {"grid": {"k": [float(k) for k in ks], "A": [float(a) for a in as_], "f1_hz": F1, "fs": FS, "duration_s": DURATION},
            "params": {k: (list(v) if isinstance(v, tuple) else v) for k, v in params.__dict__.items()},
            "eemd": {"trials": args.eemd_trials, "noise_width_std_rel": 0.2, "seed": 1},
            "summary_whole": summ, "summary_central": summ_c, "rows": rows,
            "wall_s": wall, "workers": args.workers, "load_before": load0, "load_after": os.getloadavg(),
-           "python": platform.python_version(), "table_whole": table(rows), "table_central": table(rows, "_central")}
+           "python": platform.python_version(), "table_whole": table(rows), "table_central": table(rows, "_central"),
+           "mask_ceiling": ceiling}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1, default=float))
 

@@ -237,7 +237,10 @@ def _run(cfg, rig, out, stop, status, result, specs, device, servers, view=None)
     if view is not None:
         from daq.view.lane import start_view_lane
 
-        vlane = start_view_lane(fan, rig, {n: r.channels for n, r in readers.items()}, fs, view)
+        # one second of blocks (64-sample serial blocks: 256, not a fixed 64 = 0.25 s that a hit's wavelet
+        # or a results batch could outlast); it is still lossy past that
+        view_blocks = max(64, int(1.0 * fs * len(specs) / min(64, block_guess)))
+        vlane = start_view_lane(fan, rig, {n: r.channels for n, r in readers.items()}, fs, view, maxsize=view_blocks)
     tee = vlane.offer if vlane is not None else (lambda topic, obj: None)
     ev_lock = threading.Lock()
     halt = threading.Event()  # the session ends: stop, duration reached, or a driver ended or died

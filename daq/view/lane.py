@@ -34,8 +34,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import rerun as rr
 
+from daq.blocks import SampleBlock
 from daq.fanout import END, FanOut, Subscription
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
@@ -57,6 +59,7 @@ class ViewTarget:
     web_url: str = ""  # browser address (serve)
     process: subprocess.Popen | None = None
     sink_delay_s: float = 0.0  # a deliberately slow viewer sink (tests, benchmarks)
+    queue_blocks: int | None = None  # the view's queue in blocks (None: about a second of the session's blocks)
 
     def close(self, stop_viewer: bool = True) -> None:
         self.rec.flush()
@@ -251,8 +254,11 @@ class ViewLane:
                     if item is END:
                         ended = True
                     elif item is not None:
-                        self.view.block(item)
-                        self.logged_blocks += 1
+                        for blk in self._coalesced(item):
+                            if blk is END:
+                                ended = True
+                                break
+                            self.view.block(blk)
                         if self.sink_delay_s:
                             time.sleep(self.sink_delay_s)
                 now = time.monotonic()
@@ -277,6 +283,35 @@ class ViewLane:
                 self.rec.flush()
             except Exception:
                 pass
+
+    def _coalesced(self, first: SampleBlock, most: int = 256) -> list:
+        """``first`` and whatever else is queued already (up to ``most``), contiguous blocks of one stream
+        joined: small device blocks (64 samples over serial: 256 a second) cost the view per call, not per
+        sample. END, if queued, comes last."""
+        got: list = [first]
+        for _ in range(most):
+            try:
+                item = self.sub.queue.get_nowait()
+            except queue.Empty:
+                break
+            got.append(item)
+            if item is END:
+                break
+        self.logged_blocks += sum(1 for b in got if b is not END)
+        out: list = []
+        run: list[SampleBlock] = []
+        for b in got:
+            if run and (b is END or b.stream != run[-1].stream or b.first_index != run[-1].end_index
+                        or b.status != run[-1].status):  # fmt: skip
+                out.append(_join(run))
+                run = []
+            if b is END:
+                out.append(END)
+            else:
+                run.append(b)
+        if run:
+            out.append(_join(run))
+        return out
 
     def _discard(self) -> bool:
         """Drop (and count) everything still queued for the view: it took too long after the end."""
@@ -317,8 +352,16 @@ class ViewLane:
                    f"and {now[1]} results not shown so far; the recording is complete", "WARN")  # fmt: skip
 
 
+def _join(run: list[SampleBlock]) -> SampleBlock:
+    if len(run) == 1:
+        return run[0]
+    b = run[0]
+    return SampleBlock(b.stream, b.first_index, b.sample_rate, b.channels, np.concatenate([r.data for r in run]), b.status)
+
+
 def start_view_lane(fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, target: ViewTarget,
                     maxsize: int = 64) -> ViewLane:  # fmt: skip
     """The view lane for a session or replay of ``rig`` (None rig: raw channels and results only)."""
     setup = ViewSetup.from_rig(rig, streams, sample_rate) if rig is not None else ViewSetup(streams, sample_rate)
-    return ViewLane(fan, setup, target.rec, maxsize=maxsize, sink_delay_s=target.sink_delay_s).start()
+    size = target.queue_blocks if target.queue_blocks is not None else maxsize
+    return ViewLane(fan, setup, target.rec, maxsize=size, sink_delay_s=target.sink_delay_s).start()

@@ -11,10 +11,14 @@ says so) and are written as ``analysis_overrun`` events at the end.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
+
+import numpy as np
 
 from analysis.exchange import IREvent
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
+from daq.blocks import SampleBlock
 from daq.fanout import FanOut, Subscription
 
 Sink = Callable[[str, dict, int | None], None]  # topic, object, log time (ns) or None
@@ -47,6 +51,24 @@ def start_analysis_lane(
     return AnalysisLane(fan, model, name, streams[name], sample_rate, sink, settings, maxsize=maxsize).start()
 
 
+def warm_up(model: RigModel, stream: str, channels: tuple[str, ...], sample_rate: float,
+            settings: AnalysisSettings | None = None) -> float:  # fmt: skip
+    """Run a throwaway operator over 0.25 s of small noise so every compiled kernel is built (or loaded from
+    the numba cache) *now*, before a device streams. Returns the seconds it took.
+
+    Compiling holds the GIL: on a fresh install (cold numba cache) the first session compiled ~3 s of
+    kernels while its device was streaming, and a paced simulated device recorded 0.78 s of a 3.2 s
+    session (tests/test_analysis_session.py in a fresh clone); a serial reader starved like that loses
+    data in the OS buffer. Warm, this costs a few milliseconds."""
+    t0 = time.perf_counter()
+    op = AnalysisOperator(model, channels, sample_rate, settings, lambda *_: None)
+    n = max(64, int(0.25 * sample_rate))
+    data = (1e-6 * np.random.default_rng(0).standard_normal((n, len(channels)))).astype(np.float32)
+    op.feed(SampleBlock(stream, 0, sample_rate, tuple(channels), data))
+    op.finish()
+    return time.perf_counter() - t0
+
+
 class AnalysisLane:
     def __init__(
         self, fan: FanOut, model: RigModel, stream: str, channels: tuple[str, ...], sample_rate: float, sink: Sink,
@@ -58,6 +80,7 @@ class AnalysisLane:
         self.error: str | None = None
         self.sub: Subscription = fan.subscribe(f"analysis:{stream}", maxsize=maxsize)
         self.op = AnalysisOperator(model, channels, sample_rate, settings, self._emit)
+        warm_up(model, stream, channels, sample_rate, settings)
         self._thread = threading.Thread(target=self._main, name=f"analysis:{stream}", daemon=True)
 
     def start(self) -> AnalysisLane:

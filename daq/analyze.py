@@ -15,12 +15,10 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from daq.analysis_lane import analysis_stream
-from daq.blocks import BlockStatus, SampleBlock
+from daq.blocks import SampleBlock, coalesce
 from daq.log.reader import LogReader, LogReadError
 from daq.replay import iter_log_blocks
 
@@ -83,30 +81,6 @@ def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:
     return name
 
 
-def coalesce(blocks: Iterator[SampleBlock], max_samples: int) -> Iterator[SampleBlock]:
-    """Join consecutive, contiguous blocks of one stream into blocks of up to ``max_samples``."""
-    pending: list[SampleBlock] = []
-    n = 0
-    for b in blocks:
-        if pending and (b.first_index != pending[-1].end_index or n + b.n_samples > max_samples):
-            yield _join(pending)
-            pending, n = [], 0
-        pending.append(b)
-        n += b.n_samples
-    if pending:
-        yield _join(pending)
-
-
-def _join(parts: list[SampleBlock]) -> SampleBlock:
-    if len(parts) == 1:
-        return parts[0]
-    status = BlockStatus.OK
-    for p in parts:
-        status |= p.status
-    p0 = parts[0]
-    return SampleBlock(p0.stream, p0.first_index, p0.sample_rate, p0.channels, np.concatenate([p.data for p in parts]), status)
-
-
 def open_for_analysis(path: str | Path, rig: Rig | None, stream: str | None) -> tuple[LogReader, Rig, RigModel, str]:
     """The log, its rig (given, or attached to the log), the rig's model and the stream that carries its sensors;
     :class:`AnalyzeError` (one line) when any of them cannot be had."""
@@ -161,7 +135,7 @@ def analyze_log(
         except StopIteration:
             break
         except LogReadError as exc:
-            raise AnalyzeError(f"{exc}; 'gvt log recover' rewrites what is readable") from None
+            raise AnalyzeError(f"{exc}; 'gvt log recover {path} fixed.mcap' rewrites what is readable") from None
         op.feed(blk)
         run.seconds_of_data += blk.n_samples / info.sample_rate
         now = time.perf_counter()

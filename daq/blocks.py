@@ -6,6 +6,7 @@ Time of sample i of a block = stream t0 + (first_index + i) / sample_rate.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import IntFlag
 
@@ -51,3 +52,32 @@ class SampleBlock:
     def end_index(self) -> int:
         """One past the last sample index of this block."""
         return self.first_index + self.n_samples
+
+
+def coalesce(blocks: Iterable[SampleBlock], max_samples: int) -> Iterator[SampleBlock]:
+    """Join consecutive, contiguous blocks of one stream into blocks of up to ``max_samples`` (statuses OR-ed).
+
+    Fewer, larger blocks cost per-call consumers less: ``gvt analyze`` feeds 0.5 s chunks, the live view
+    draws what queued up since its last turn in one go.
+    """
+    pending: list[SampleBlock] = []
+    n = 0
+    for b in blocks:
+        if pending and (b.stream != pending[-1].stream or b.first_index != pending[-1].end_index
+                        or n + b.n_samples > max_samples):  # fmt: skip
+            yield _join(pending)
+            pending, n = [], 0
+        pending.append(b)
+        n += b.n_samples
+    if pending:
+        yield _join(pending)
+
+
+def _join(parts: list[SampleBlock]) -> SampleBlock:
+    if len(parts) == 1:
+        return parts[0]
+    status = BlockStatus.OK
+    for p in parts:
+        status |= p.status
+    p0 = parts[0]
+    return SampleBlock(p0.stream, p0.first_index, p0.sample_rate, p0.channels, np.concatenate([p.data for p in parts]), status)

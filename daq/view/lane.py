@@ -34,10 +34,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import rerun as rr
 
-from daq.blocks import SampleBlock
+from daq.blocks import SampleBlock, coalesce
 from daq.fanout import END, FanOut, Subscription
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
@@ -288,30 +287,19 @@ class ViewLane:
         """``first`` and whatever else is queued already (up to ``most``), contiguous blocks of one stream
         joined: small device blocks (64 samples over serial: 256 a second) cost the view per call, not per
         sample. END, if queued, comes last."""
-        got: list = [first]
+        got: list[SampleBlock] = [first]
+        end = False
         for _ in range(most):
             try:
                 item = self.sub.queue.get_nowait()
             except queue.Empty:
                 break
-            got.append(item)
             if item is END:
+                end = True
                 break
-        self.logged_blocks += sum(1 for b in got if b is not END)
-        out: list = []
-        run: list[SampleBlock] = []
-        for b in got:
-            if run and (b is END or b.stream != run[-1].stream or b.first_index != run[-1].end_index
-                        or b.status != run[-1].status):  # fmt: skip
-                out.append(_join(run))
-                run = []
-            if b is END:
-                out.append(END)
-            else:
-                run.append(b)
-        if run:
-            out.append(_join(run))
-        return out
+            got.append(item)
+        self.logged_blocks += len(got)
+        return [*coalesce(got, max_samples=1 << 30), *([END] if end else [])]
 
     def _discard(self) -> bool:
         """Drop (and count) everything still queued for the view: it took too long after the end."""
@@ -350,13 +338,6 @@ class ViewLane:
         R.log_text(self.rec, R.LOG_DAQ, self.view.t_now,
                    f"view fell behind{' (final)' if final else ''}: {self.sub.dropped_blocks} display blocks ({now[0]} samples) "
                    f"and {now[1]} results not shown so far; the recording is complete", "WARN")  # fmt: skip
-
-
-def _join(run: list[SampleBlock]) -> SampleBlock:
-    if len(run) == 1:
-        return run[0]
-    b = run[0]
-    return SampleBlock(b.stream, b.first_index, b.sample_rate, b.channels, np.concatenate([r.data for r in run]), b.status)
 
 
 def start_view_lane(fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, target: ViewTarget,

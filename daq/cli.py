@@ -282,7 +282,7 @@ def replay(
         markup=False,
     )
     if stats.error:
-        fail(f"replay stopped early: {stats.error}")
+        fail(f"replay stopped early: {stats.error}; 'gvt log recover {log} fixed.mcap' rewrites what is readable")
 
 
 def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None):

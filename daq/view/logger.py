@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import rerun as rr
-import scipy.linalg
 import scipy.signal
 
 from analysis.pod import pod
@@ -43,13 +42,13 @@ class ViewSetup:
     def from_rig(
         cls, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, wavelet_channel: str | None = None
     ) -> ViewSetup:
+        from analysis.modal_filter import modal_basis
         from analysis.operator import RigModel
 
         try:
             m = RigModel.from_rig(rig)
             sensors, x = m.sensors, tuple(float(v) for v in (m.x if m.x is not None else np.arange(len(m.sensors))))
-            # generalised symmetric problem K φ = ω² M φ (eigvalsh of M⁻¹K, not symmetric, gave 1 Hz for a 21 Hz mode)
-            f1 = float(np.sqrt(max(float(scipy.linalg.eigh(m.K, m.M, eigvals_only=True)[0]), 1e-30))) / (2 * np.pi)
+            f1 = float(modal_basis(m.M, m.K, 1).freqs_hz[0])  # the model's first mode (the analysis' own eq. 2.15 basis)
         except (ValueError, np.linalg.LinAlgError):
             sensors, x, f1 = tuple(p.name for p in rig.sensors), tuple(range(len(rig.sensors))), 10.0
         chosen = wavelet_channel or _driving_point(rig, sensors)

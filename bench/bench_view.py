@@ -158,11 +158,15 @@ def record_run(variant: str, seconds: float, tmp: Path) -> dict:
         dev.communicate(timeout=30)
     if rec.returncode != 0:
         raise SystemExit(f"bench_view: gvt record failed ({rec.returncode}):\n{text[-2000:]}")
-    lost = re.search(r"lost\D*(\d+)", text)
+    from daq.log.reader import LogReader
+    from daq.log.tools import log_info
+
+    info = log_info(out)  # what the session itself recorded about loss: gaps, and the view's own drops
+    overrun = [e for e in LogReader(out).json_messages("/daq/events") if e.get("kind") == "view_overrun"]
     cpu = ru.ru_utime + ru.ru_stime
-    return {"variant": variant, "cpu_s": cpu, "child_cpu_s": 0.0, "total_cpu_s": cpu, "wall_s": wall, "data_s": seconds,
-            "lost_text": lost.group(0) if lost else "", "view_dropped_samples": 0, "view_thread_cpu_s": float("nan"),
-            "output_tail": text[-600:]}  # fmt: skip
+    return {"variant": variant, "cpu_s": cpu, "total_cpu_s": cpu, "wall_s": wall, "data_s": seconds,
+            "missing_samples": sum(st["missing_samples"] for st in info["streams"]),
+            "view_dropped_samples": sum(int(e.get("count", 0)) for e in overrun)}  # fmt: skip
 
 
 def main() -> None:
@@ -223,8 +227,9 @@ def main_record(args) -> None:
         for secs in lengths:
             for v in variants:
                 runs.append(record_run(v, secs, tmp))
-                print(f"  {v:6s} {secs:5.0f} s: recorder cpu {runs[-1]['total_cpu_s']:.2f} s, wall {runs[-1]['wall_s']:.1f} s",
-                      flush=True)  # fmt: skip
+                r = runs[-1]
+                print(f"  {v:6s} {secs:5.0f} s: recorder cpu {r['total_cpu_s']:.2f} s, wall {r['wall_s']:.1f} s, missing "
+                      f"{r['missing_samples']} samples, view dropped {r['view_dropped_samples']}", flush=True)  # fmt: skip
     load = os.getloadavg()
 
     def med(v: str, secs: float) -> float:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numba
@@ -59,7 +60,6 @@ class AnalysisSettings:
     #: (sim_two_devices session, docs/detection.md)
     input_jump: float = 1.5
     seed_lane: bool = True
-
     def __post_init__(self) -> None:
         if (self.window_s is not None and self.window_s <= 0) or self.n_keep < 1 or self.n_modes < 1:
             raise ValueError("analysis: window_s > 0, n_keep >= 1 and n_modes >= 1 required")
@@ -273,9 +273,15 @@ class AnalysisOperator:
 
     def __init__(
         self, model: RigModel, channels: tuple[str, ...], sample_rate: float, settings: AnalysisSettings | None = None,
-        emit: Emit | None = None,
+        emit: Emit | None = None, pipelined: bool = False,
     ) -> None:  # fmt: skip
+        """``pipelined``: run the seed lane's numerics (preprocessing, covariances, ``eigh``) on a worker
+        thread one block ahead, while this thread emits the previous block's seed results and runs the
+        modal lane. The compiled kernels and LAPACK release the GIL, so batch work (``gvt analyze``, the
+        bench) uses a second core; the emits and their order are those of the serial run, the seed ones one
+        block later. Live sessions stay serial: there each block's results should go out with it."""
         self.s = settings or AnalysisSettings()
+        self.pipelined = pipelined
         self.model = model
         self.fs = float(sample_rate)
         missing = [c for c in model.sensors if c not in channels]
@@ -293,6 +299,8 @@ class AnalysisOperator:
         self._warned: set[str] = set()
         self._check_assumptions()
         self._next_index: int | None = None
+        self._pool: ThreadPoolExecutor | None = None
+        self._inflight: tuple[Future, float] | None = None
 
     # --- public -------------------------------------------------------------------------------
     def feed(self, block: SampleBlock) -> None:
@@ -310,18 +318,48 @@ class AnalysisOperator:
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
+        if self.s.seed_lane and self.pipelined:
+            # the worker computes this block's seed numerics while this thread emits the previous
+            # block's seed results and runs this block's modal lane, in the serial order (modal k−1, seed k−1,
+            # modal k, …): the same emits in the same order, the seed ones one block later
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
+            planned = self._pool.submit(self._seed_compute, acc)
+            self._drain()
+            self._inflight = (planned, t_arrival)
+            self._modal_lane(acc, inp)
+            return
+        self._drain()
+        self._modal_lane(acc, inp)
+        if self.s.seed_lane:
+            self._seed_emit(self._seed_compute(acc), t_arrival)
+
+    def _modal_lane(self, acc: np.ndarray, inp: np.ndarray | None) -> None:
         q, qd = self._tracker.feed(acc)
         for w in self._windower.feed(q, qd, inp):
             self._modal_window(w)
-        if self.s.seed_lane:
-            _, disp = self._pre.feed(acc)
-            self._seed_windows(disp, t_arrival)
+
+    def _drain(self) -> None:
+        """Emit the seed results of the block the worker is computing (pipelined feeds), waiting for it."""
+        if self._inflight is not None:
+            planned, t_arrival = self._inflight
+            self._inflight = None
+            self._seed_emit(planned.result(), t_arrival)
 
     def finish(self) -> list[IREvent]:
         """End of stream: close open events, report robust spikes; returns every event of the run."""
         if self._next_index is not None:
             self._finish_lanes()
+        self.close()
         return self.events
+
+    def close(self) -> None:
+        """Emit what the worker thread still holds and stop it (if one was started); a later ``feed`` starts
+        a new one. ``finish`` calls this."""
+        self._drain()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
     # --- lanes --------------------------------------------------------------------------------
     def _start(self, first: int) -> None:
@@ -352,9 +390,10 @@ class AnalysisOperator:
         self._seed_rule = CausalSpikeRule(RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,)))
 
     def _finish_lanes(self) -> None:
+        self._drain()
         if self.s.seed_lane:
-            _, disp = self._pre.flush()
-            self._seed_windows(disp, time.perf_counter())
+            t = time.perf_counter()
+            self._seed_emit(self._seed_compute(None), t)
         for ev in self._detector.finish():
             self._event(ev)
         self._settle(float("inf"))
@@ -424,9 +463,13 @@ class AnalysisOperator:
         for g in self._grids:
             g.flagged = [w for w in g.flagged if w[1] >= horizon]
 
-    def _seed_windows(self, disp: np.ndarray, t_arrival: float) -> None:
+    def _seed_compute(self, acc: np.ndarray | None) -> tuple[list, list, np.ndarray, np.ndarray, int] | None:
+        """The seed lane's numerics for one block (``None``: flush the filters at the end of the stream):
+        displacement, the windows every grid completes, their covariances and POD + RQ. Touches only
+        seed-lane state, so it may run on the worker thread while the modal lane runs (``feed``)."""
+        _, disp = self._pre.feed(acc) if acc is not None else self._pre.flush()
         if disp.shape[0] == 0:
-            return
+            return None
         self._disp = np.concatenate([self._disp, disp]) if self._disp.size else disp
         self._disp_end += disp.shape[0]
         ready: list[tuple[_Grid, int]] = []
@@ -438,16 +481,36 @@ class AnalysisOperator:
                 g.next += g.length
             if len(ready) > i0:
                 runs.append((g, i0, len(ready)))
+        if not ready:
+            return ready, runs, np.empty((0, self.n_keep)), np.empty((0, self.n_keep)), self._keep_disp()
+        lo = min(st for _, st in ready)
+        hi = max(st + g.length for g, st in ready)
+        # every grid's edges in [lo, hi]: origin + k·length with k = ceil((lo − origin) / length) onwards
+        lattice = [np.arange(g.origin + max(0, -((g.origin - lo) // g.length)) * g.length, hi + 1, g.length)
+                   for g in self._grids]  # fmt: skip
+        edges = np.unique(np.concatenate(lattice)) - self._disp_start
+        spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
+        C = window_covariances(self._disp, spans, edges)
+        f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
+        return ready, runs, f, pv, self._keep_disp()
+
+    def _keep_disp(self) -> int:
+        """Drop displacement no grid needs any more; returns the first stream index still needed (every grid
+        has computed all windows that end before it)."""
+        keep_from = min(g.next for g in self._grids)
+        drop = keep_from - self._disp_start
+        if drop > 0:
+            self._disp = self._disp[drop:]
+            self._disp_start = keep_from
+        return keep_from
+
+    def _seed_emit(self, planned: tuple[list, list, np.ndarray, np.ndarray, int] | None, t_arrival: float) -> None:
+        """The seed lane's bookkeeping on the caller's thread: spike rules per grid, ``/analysis/rq``
+        emits, settling pending events up to the block's ``keep_from``."""
+        if planned is None:
+            return
+        ready, runs, f, pv, keep_from = planned
         if ready:
-            lo = min(st for _, st in ready)
-            hi = max(st + g.length for g, st in ready)
-            # every grid's edges in [lo, hi]: origin + k·length with k = ceil((lo − origin) / length) onwards
-            lattice = [np.arange(g.origin + max(0, -((g.origin - lo) // g.length)) * g.length, hi + 1, g.length)
-                       for g in self._grids]  # fmt: skip
-            edges = np.unique(np.concatenate(lattice)) - self._disp_start
-            spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
-            C = window_covariances(self._disp, spans, edges)
-            f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
             flags = np.zeros(len(ready), bool)
             for g, i0, i1 in runs:  # the spike rules see each grid's windows in order, vectorised per feed
                 flags[i0:i1] = g.rule.feed_many(f[i0:i1])
@@ -470,12 +533,7 @@ class AnalysisOperator:
                     self.stats.latencies_s.append(time.perf_counter() - t_arrival)
                 if len(self.stats.latencies_s) > 100_000:
                     del self.stats.latencies_s[:50_000]
-        keep_from = min(g.next for g in self._grids)
         self._settle(keep_from / self.fs)  # every grid has computed all windows ending before this
-        drop = keep_from - self._disp_start
-        if drop > 0:
-            self._disp = self._disp[drop:]
-            self._disp_start = keep_from
 
     def _check_assumptions(self) -> None:
         if self.model.nonlinearity_measured is False:

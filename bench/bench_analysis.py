@@ -55,9 +55,13 @@ def _data(rig_name: str, seconds: float, period: float = 2.0, seed: int = 0) -> 
 
 
 def _run(
-    model: RigModel, data: np.ndarray, chans, fs: float, block: int, paced: bool = False, settings: AnalysisSettings | None = None
+    model: RigModel, data: np.ndarray, chans, fs: float, block: int, paced: bool = False,
+    settings: AnalysisSettings | None = None, pipelined: bool | None = None,
 ) -> dict:
-    op = AnalysisOperator(model, chans, fs, settings)
+    """One run; ``pipelined`` None: as the product runs it — pipelined for replay-sized blocks (``gvt analyze``
+    feeds 0.5 s chunks), serial for device-sized ones (a live session)."""
+    pipelined = block / fs >= 0.25 if pipelined is None else pipelined
+    op = AnalysisOperator(model, chans, fs, settings, pipelined=pipelined)
     t0 = time.perf_counter()
     c0 = time.process_time()
     for s in range(0, data.shape[0], block):
@@ -73,7 +77,8 @@ def _run(
     lat = np.array(op.stats.latencies_s) * 1e3
     secs = data.shape[0] / fs
     return {
-        "block": block, "paced": paced, "data_s": secs, "wall_s": wall, "cpu_s": cpu, "x_real_time": secs / wall,
+        "block": block, "paced": paced, "pipelined": pipelined,
+        "data_s": secs, "wall_s": wall, "cpu_s": cpu, "x_real_time": secs / wall,
         "cpu_per_data_s": cpu / secs, "windows": op.stats.rq_windows, "events": op.stats.events,
         "latency_ms_p50": float(np.percentile(lat, 50)) if lat.size else float("nan"),
         "latency_ms_p99": float(np.percentile(lat, 99)) if lat.size else float("nan"),
@@ -198,6 +203,7 @@ def main() -> None:
     for block in (256, 8192):
         r = _median_run(m14, d14, ch14, fs14, block)
         rows.append({"case": "14 ch x 16384 Hz", **r})
+    rows.append({"case": "14 ch, one thread", **_median_run(m14, d14, ch14, fs14, 8192, pipelined=False)})
     one_grid = AnalysisSettings(spikes=RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,), min_fraction=1.0))
     rows.append({"case": "14 ch, 1 RQ grid", **_median_run(m14, d14, ch14, fs14, 8192, settings=one_grid)})
     modal_only = AnalysisSettings(seed_lane=False)
@@ -213,15 +219,19 @@ def main() -> None:
     out["seed_batch_baseline_14ch"] = seed
     out["kernels_ms_per_data_s"] = kernels
     out["load_avg_1_5_15"] = list(os.getloadavg())
-    hdr = f"{'case':18s} {'block':>6s} {'paced':>5s} {'data s':>7s} {'wall s':>7s} {'x RT':>7s} {'cpu/s':>6s} " \
+    hdr = f"{'case':18s} {'block':>6s} {'paced':>5s} {'pipe':>5s} {'data s':>7s} {'wall s':>7s} {'x RT':>7s} {'cpu/s':>6s} " \
           f"{'win':>5s} {'p50 ms':>7s} {'p99 ms':>7s} {'max ms':>7s}"  # fmt: skip
     print(hdr)
     for r in rows:
-        print(f"{r['case']:18s} {r['block']:6d} {r['paced']!s:>5s} {r['data_s']:7.1f} {r['wall_s']:7.2f} {r['x_real_time']:7.1f} "
+        print(f"{r['case']:18s} {r['block']:6d} {r['paced']!s:>5s} "
+              f"{r['pipelined']!s:>5s} {r['data_s']:7.1f} {r['wall_s']:7.2f} {r['x_real_time']:7.1f} "
               f"{r['cpu_per_data_s']:6.3f} {r['windows']:5d} {r['latency_ms_p50']:7.2f} {r['latency_ms_p99']:7.2f} "
               f"{r['latency_ms_max']:7.2f}")  # fmt: skip
     replay = next(r for r in rows if r["block"] == 8192 and r["case"] == "14 ch x 16384 Hz")
     print(f"replay (8192) runs: {', '.join(f'{x:.1f}' for x in replay['runs_x_real_time'])}x real time (median of 3 shown)")
+    serial = next(r for r in rows if r["case"] == "14 ch, one thread")
+    print(f"pipelined seed lane (worker thread) against one thread: {replay['x_real_time'] / serial['x_real_time']:.2f}x wall, "
+          f"{replay['cpu_per_data_s'] / serial['cpu_per_data_s']:.2f}x CPU")  # fmt: skip
     print(f"seed method, literal batch (zero-phase + SVD POD, one grid): {seed['x_real_time']:.1f}x real time; "
           f"gvtlink replay (8 grids + modal lane + events): {replay['x_real_time']:.1f}x "
           f"({replay['x_real_time'] / seed['x_real_time']:.2f}x the literal batch)")  # fmt: skip

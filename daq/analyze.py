@@ -4,7 +4,8 @@ The log's blocks go through the same :class:`~analysis.operator.AnalysisOperator
 (architecture.md: streaming is batch applied to windows as they complete), so ``gvt analyze`` of a
 session's log reproduces what the session computed live. Consecutive blocks are coalesced into chunks
 of up to ``chunk_s`` seconds before they are fed (the operator's results do not depend on the block
-split, up to rounding), which is what makes replay analysis fast. The rig comes from ``--rig`` or from
+split, up to rounding), and the operator runs pipelined (its seed lane one block ahead on a worker
+thread), which is what makes replay analysis fast. The rig comes from ``--rig`` or from
 the log's own ``rig/*.toml`` attachment.
 """
 
@@ -113,7 +114,7 @@ def analyze_log(
         run.results.setdefault(topic, []).append(obj)
 
     try:
-        op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit)
+        op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit, pipelined=True)
     except ValueError as exc:
         raise AnalyzeError(f"{path}: {exc}") from None
     # blocks are decoded as they are read (bounded memory, daq/replay.py); progress counts blocks from the index
@@ -129,19 +130,22 @@ def analyze_log(
     t0 = time.perf_counter()
     last = t0
     blocks = coalesce(counted(), max(1, round(chunk_s * info.sample_rate)))
-    while True:
-        try:
-            blk = next(blocks)
-        except StopIteration:
-            break
-        except LogReadError as exc:
-            raise AnalyzeError(f"{exc}; 'gvt log recover {path} fixed.mcap' rewrites what is readable") from None
-        op.feed(blk)
-        run.seconds_of_data += blk.n_samples / info.sample_rate
-        now = time.perf_counter()
-        if progress is not None and now - last > 0.5:
-            progress(min(1.0, done / total))
-            last = now
-    op.finish()
+    try:
+        while True:
+            try:
+                blk = next(blocks)
+            except StopIteration:
+                break
+            except LogReadError as exc:
+                raise AnalyzeError(f"{exc}; 'gvt log recover {path} fixed.mcap' rewrites what is readable") from None
+            op.feed(blk)
+            run.seconds_of_data += blk.n_samples / info.sample_rate
+            now = time.perf_counter()
+            if progress is not None and now - last > 0.5:
+                progress(min(1.0, done / total))
+                last = now
+        op.finish()
+    finally:
+        op.close()  # the pipelined operator's worker thread, also when the log breaks off
     run.wall_seconds = time.perf_counter() - t0
     return run

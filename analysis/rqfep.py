@@ -85,6 +85,46 @@ class SpikeSettings:
       least ``min_closure`` of the baseline gap f2 − f1 at its strongest point.
     * ``n_side``: off-spike points on each side whose median f2/f1 gives the ratios outside the spike.
     * ``ratios``: the m:n labels to choose from (L67: the analyst knows the likely IR ratios).
+
+    Band detector (``band``; :func:`band_windows`). The seed's 4:1 spike is "spread out over several points"
+    (L1255); on ``beam_ch4_sim`` the corresponding disturbance (P ≈ 480–610 N, docs/sweep.md) is NNM1's RQ
+    alternating by ±2–5 % from point to point with NNM2 moving the opposite way by 0.1–0.3 % — no point
+    stands out from its neighbours, so the per-point rule above misses it. A band is a run of points whose
+    NNM1 and NNM2 residuals (against the running medians of :func:`deviations`) are strongly
+    *anti*-correlated, i.e. the two RQs move toward (and away from) each other together, the "similar POMs"
+    signature of L1259, at an NNM1 amplitude far above its quiet level. Measured values quoted below are
+    from the 1000-run sweep of docs/sweep.md; the thresholds were set between the 4:1 band and everything
+    else in that sweep, not tuned to a wanted label.
+
+    * ``band_window``: points in each sliding window (odd). 9: the measured disturbance spans ~10 points;
+      the window must be shorter than the running median's ``window`` (15), or the band shifts its own
+      baseline.
+    * ``band_corr``: a window qualifies when the Pearson correlation of the NNM1 and NNM2 relative residuals
+      is ≤ −``band_corr``. 0.7: for 9 independent points P(r ≤ −0.7) ≈ 2 % (t = −2.6, 7 dof), and
+      ``band_min_run`` consecutive windows make chance far rarer; the 4:1 band measures −0.80 … −0.88.
+    * ``band_min_rel``: RMS of the relative residual over the window at least this, per curve (NNM1,
+      NNM2). NNM1 0.01: half the per-point spike floor ``min_rel[0]`` (an alternation with ±1.4 % peaks
+      has a 1 % RMS). NNM2 1e-4: a correlation with residuals at the rounding level means nothing, and
+      below 1e4 N the RQs reproduce to ≤ 1e-6 (docs/sweep.md, sensitivity caveat), so 100× that. Measured
+      in the 4:1 band: 2.4–2.8 % and 0.16–0.18 % (1000-run sweep), 1.0–2.2 % and 0.06–0.13 % on a
+      3.6× finer P spacing, where the 15-point running median follows more of the disturbance; a 0.1 %
+      NNM2 floor missed the band there.
+    * ``band_k`` / ``band_quiet_window``: NNM1's window RMS must also be ≥ ``band_k`` × its quiet level,
+      1.4826·MAD of NNM1's relative residuals over ``band_quiet_window`` points (wider than ``scale_window``
+      so that a ~10-point band is < 10 % of it and does not raise its own scale). 5 and 101: the 4:1
+      band's windows measure 20–33× (quiet level ≤ 0.12 %); the strongly nonlinear stretch from 0.7 J up,
+      where the residuals are anti-correlated almost everywhere (POM mixing), measures ≤ 4.3× (quiet level
+      2–11 %) in every window not dominated by one point (``band_max_share``), so it is the baseline there,
+      as the spike detector's local scale makes the sensitive band's scatter its baseline.
+    * ``band_max_share``: no single point may carry more than this fraction of the window's NNM1 residual
+      power. 0.5: a window containing one spike is correlated at ≈ −1 by that point alone (measured share
+      0.7–1.0 next to the 1236 N and 2159 N spikes); that is the spike detector's business. The 4:1
+      band's windows measure 0.32–0.42.
+    * ``band_min_run``: at least this many consecutive qualifying window centres. 3: one or two windows
+      is what a single large residual pair sliding through the window produces.
+
+    With ``converging`` a band must also contain one point where NNM1 is up by ≥ ``band_min_rel[0]`` and
+    NNM2 is down (the two RQs approach, L1259); an anti-correlated run that only ever diverges is dropped.
     """
 
     window: int = 15
@@ -98,6 +138,14 @@ class SpikeSettings:
     guard: int = 1
     merge_gap: int = 1
     ratios: tuple[tuple[int, int], ...] = DEFAULT_RATIOS
+    band: bool = True
+    band_window: int = 9
+    band_corr: float = 0.7
+    band_min_rel: tuple[float, float] = (0.01, 1e-4)
+    band_k: float = 5.0
+    band_quiet_window: int = 101
+    band_max_share: float = 0.5
+    band_min_run: int = 3
 
 
 @dataclass(frozen=True)
@@ -108,6 +156,9 @@ class SweepInteraction:
     below and above the spike in energy, ``bracketed`` says whether the label lies between them (the
     ratio passed through m:n across the spike, as the seed reads Fig. 4.5, L1298, L1313). ``score`` is
     the largest fraction of the baseline gap f2 − f1 that the spike closes (1 = the two RQs meet).
+    ``kind`` is ``"spike"`` (partnered per-point deviations) or ``"band"`` (a run of anti-correlated
+    NNM1/NNM2 residuals, :func:`band_windows`); for a band ``score`` is measured the same way but is small
+    (the 4:1 band closes ~1–2 % of the gap: many small moves, not one large one).
     """
 
     i_lo: int
@@ -125,7 +176,7 @@ class SweepInteraction:
     bracketed: bool
     n_points: int
     score: float
-    kind: str = "partnered"
+    kind: str = "spike"
 
     @property
     def label(self) -> str:
@@ -191,20 +242,68 @@ def nearest_ratio(
     return best, bool(inside)
 
 
+def band_windows(r1: FloatArray, r2: FloatArray, settings: SpikeSettings) -> FloatArray:
+    """Per point (centre of a ``band_window``-point window): does the window qualify as part of a band?
+
+    ``r1``, ``r2`` are the NNM1 and NNM2 relative residuals, ordered by energy. A window qualifies when the
+    two are anti-correlated (≤ −``band_corr``), both RMS residuals reach ``band_min_rel``, NNM1's RMS is
+    ≥ ``band_k`` times its quiet level and no single point carries more than ``band_max_share`` of NNM1's
+    residual power (see :class:`SpikeSettings`). Windows that do not fit inside the curve do not qualify.
+    Returns a boolean mask over window centres.
+    """
+    w = settings.band_window
+    if w < 3 or w % 2 == 0:
+        raise ValueError("band_window must be an odd number >= 3")
+    n = r1.size
+    h = w // 2
+    quiet = rolling_mad_sigma(r1, settings.band_quiet_window)
+    ok = np.zeros(n, dtype=bool)
+    for i in range(h, n - h):
+        a, b = r1[i - h : i + h + 1], r2[i - h : i + h + 1]
+        rms1, rms2 = float(np.sqrt(np.mean(a**2))), float(np.sqrt(np.mean(b**2)))
+        if rms1 < settings.band_min_rel[0] or rms2 < settings.band_min_rel[1] or rms1 < settings.band_k * quiet[i]:
+            continue
+        if float(np.max(a**2)) > settings.band_max_share * float(np.sum(a**2)):
+            continue
+        da, db = a - a.mean(), b - b.mean()
+        den = float(np.sqrt(np.sum(da**2) * np.sum(db**2)))
+        if den > 0 and float(np.sum(da * db)) / den <= -settings.band_corr:
+            ok[i] = True
+    return ok
+
+
+def _runs(mask: np.ndarray, gap: int) -> list[tuple[int, int]]:
+    """(first, last) index of each run of True in ``mask``; a True at most ``gap`` after a run extends it
+    (``gap`` = 1: consecutive points only)."""
+    events: list[tuple[int, int]] = []
+    for i in np.flatnonzero(mask):
+        if events and i - events[-1][1] <= gap:
+            events[-1] = (events[-1][0], int(i))
+        else:
+            events.append((int(i), int(i)))
+    return events
+
+
 def flag_interactions(
     energy: FloatArray,
     freqs: FloatArray,
     settings: SpikeSettings = SpikeSettings(),
     amplitudes: FloatArray | None = None,
 ) -> list[SweepInteraction]:
-    """Partnered spikes of the NNM1 and NNM2 RQ curves against energy (seed §4.2.2, L1253–L1259).
+    """Partnered spikes and anti-correlated bands of the NNM1 and NNM2 RQ curves against energy (seed
+    §4.2.2, L1253–L1259).
 
     ``energy`` (runs,) and ``freqs`` (runs, ≥ 2; columns 0 and 1 are NNM1 and NNM2) are re-ordered by
-    energy (the RQ-FEP's axis, L1251). A point is an interaction candidate when NNM1 deviates from its
+    energy (the RQ-FEP's axis, L1251). A point is a spike candidate when NNM1 deviates from its
     running-median baseline and NNM2 does too within ``partner_gap`` points (converging, by default);
     adjacent candidates merge into one interaction (the seed's first spike spans several points, L1255).
+    A band (``settings.band``) is a run of ≥ ``band_min_run`` qualifying windows (:func:`band_windows`):
+    its points are the union of those windows trimmed to the outermost points whose NNM1 residual reaches
+    ``band_min_rel[0]``; a band that overlaps a spike interaction is dropped (the spike already reports
+    it). Both kinds are labelled the same way, from f2/f1 at the nearest points outside any spike or band.
     ``amplitudes`` (the sweep's P, same order as ``energy``) only labels the result. Indices in the
     result (``i_lo``, ``i_hi``, ``i_peak``: the point that closes the gap most) refer to the input order.
+    The result is ordered by energy.
     """
     e = np.asarray(energy, dtype=float)
     f = np.asarray(freqs, dtype=float)
@@ -235,27 +334,43 @@ def flag_interactions(
         for i in np.flatnonzero(cand):
             if not ((m1[i] and r1[i] > 0) or (m2[i] and r2[i] < 0)):
                 cand[i] = False
-    events: list[tuple[int, int]] = []
-    for i in np.flatnonzero(cand):
-        if events and i - events[-1][1] <= settings.merge_gap:
-            events[-1] = (events[-1][0], i)
-        else:
-            events.append((i, i))
-    off = ~(m1 | m2)
+    def closure(lo: int, hi: int) -> FloatArray:
+        """Fraction of the baseline gap f2 − f1 closed at each point of [lo, hi]."""
+        gap = b2[lo : hi + 1] - b1[lo : hi + 1]
+        return ((f[lo : hi + 1, 0] - b1[lo : hi + 1]) - (f[lo : hi + 1, 1] - b2[lo : hi + 1])) / gap
+
+    events = [
+        (lo, hi, "spike")
+        for lo, hi in _runs(cand, settings.merge_gap)
+        if not settings.converging or closure(lo, hi).max() >= settings.min_closure
+    ]
+    in_band = np.zeros(n, dtype=bool)
+    if settings.band and n >= settings.band_window:
+        h = settings.band_window // 2
+        for c_lo, c_hi in _runs(band_windows(r1, r2, settings), 1):
+            if c_hi - c_lo + 1 < settings.band_min_run:
+                continue
+            pts = [j for j in range(c_lo - h, c_hi + h + 1) if abs(r1[j]) >= settings.band_min_rel[0]]
+            lo, hi = pts[0], pts[-1]  # non-empty: a qualifying window has RMS >= the floor
+            if settings.converging and not np.any((r1[lo : hi + 1] >= settings.band_min_rel[0]) & (r2[lo : hi + 1] < 0)):
+                continue  # anti-correlated but only ever diverging (NNM1 down, NNM2 up): not "similar POMs"
+            if any(lo <= s_hi and s_lo <= hi for s_lo, s_hi, _ in events):
+                continue
+            events.append((lo, hi, "band"))
+            in_band[lo : hi + 1] = True
+    events.sort()
+    off = ~(m1 | m2 | in_band)
     out = []
-    for lo, hi in events:
+    for lo, hi, kind in events:
         left = [j for j in range(lo - 1 - settings.guard, -1, -1) if off[j]][: settings.n_side]
         right = [j for j in range(hi + 1 + settings.guard, n) if off[j]][: settings.n_side]
         if not left or not right:
-            continue  # a spike at the edge of the sweep has no "outside" to read the ratio from
+            continue  # an interaction at the edge of the sweep has no "outside" to read the ratio from
         rl = float(np.median(f[left, 1] / f[left, 0]))
         rr = float(np.median(f[right, 1] / f[right, 0]))
         label, bracketed = nearest_ratio(rl, rr, settings.ratios)
-        gap = b2[lo : hi + 1] - b1[lo : hi + 1]
-        closed = ((f[lo : hi + 1, 0] - b1[lo : hi + 1]) - (f[lo : hi + 1, 1] - b2[lo : hi + 1])) / gap
+        closed = closure(lo, hi)  # a band is many small moves: it is not held to the spike's min_closure
         k = lo + int(np.argmax(closed))
-        if settings.converging and closed.max() < settings.min_closure:
-            continue
         out.append(
             SweepInteraction(
                 i_lo=int(order[lo]),
@@ -273,6 +388,7 @@ def flag_interactions(
                 bracketed=bracketed,
                 n_points=int(hi - lo + 1),
                 score=float(np.max(closed)),
+                kind=kind,
             )
         )
     return out

@@ -304,7 +304,8 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     for fl, ok in zip(rep.flags, rep.robust, strict=True):
         i = fl.i_peak
         ax.plot([e[i], e[i]], rep.freqs[i, :2], "o", mfc="none", mec="red" if ok else "salmon", ms=8)
-        ax.annotate(fl.label + ("" if ok else "?"), (e[i], rep.freqs[i, 1]), color="red", fontsize=8,
+        ax.annotate(fl.label + (" band" if fl.kind == "band" else "") + ("" if ok else "?"), (e[i], rep.freqs[i, 1]),
+                    color="red", fontsize=8,
                     xytext=(3, 6), textcoords="offset points")
     ax.set_xscale("log")
     top = max(float(np.max(rep.fixed_pinned_hz)), float(np.max(rep.fixed_free_hz))) * 1.25
@@ -342,11 +343,12 @@ def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
         )
     console.print(t)
     t = Table(title=f"flagged NNM1–NNM2 interactions ({len(rep.flags)})")
-    for c in ("P [N]", "energy [J]", "points", "f1 / f2 on spike [Hz]", "f2/f1 below / above", "m:n", "gap closed",
-              "1 ppm"):
+    for c in ("kind", "P [N]", "energy [J]", "points", "f1 / f2 at peak [Hz]", "f2/f1 below / above", "m:n",
+              "gap closed", "1 ppm"):
         t.add_column(c, justify="right")
     for f, ok in zip(rep.flags, rep.robust, strict=True):
         t.add_row(
+            f.kind,
             f"{f.p_lo:.4g}" + ("" if f.p_hi == f.p_lo else f"–{f.p_hi:.4g}"),
             f"{f.energy_lo:.3g}" + ("" if f.energy_hi == f.energy_lo else f"–{f.energy_hi:.3g}"),
             str(f.n_points),

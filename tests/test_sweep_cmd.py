@@ -86,6 +86,7 @@ def test_a_planted_partnered_spike_is_flagged_with_its_ratio(target, width, labe
     assert fl.ratio_left > target > fl.ratio_right  # the ratio fell through m:n across the spike
     assert fl.energy_lo == e[fl.i_lo] and fl.p_lo == p[fl.i_lo]
     assert 0.45 < fl.score < 0.55  # 0.4 + 0.1 of the gap closed
+    assert fl.kind == "spike"
 
 
 def test_a_spike_without_a_partner_or_diverging_is_not_an_interaction():
@@ -96,6 +97,79 @@ def test_a_spike_without_a_partner_or_diverging_is_not_an_interaction():
     assert flag_interactions(e, np.stack([apart1, apart2], axis=1)) == []
     # ... which the non-converging setting does accept
     assert len(flag_interactions(e, np.stack([apart1, apart2], axis=1), SpikeSettings(converging=False))) == 1
+
+
+def _band_backbones(n: int = 160):
+    """As :func:`_backbones`, but NNM2 nearly flat (23.80 → 23.86 Hz) as measured on beam_ch4_sim below 1 J,
+    where the 4:1 band sits: over a steep NNM2 a ±0.2 % alternation stays monotone and a running median
+    cannot see it at all."""
+    e, f1, _ = _backbones(n)
+    s = 0.5 * (1 + np.tanh(np.log10(e) / 1.5))
+    return e, f1, 23.80 * (1 + 0.0025 * s)
+
+
+def _plant_band(e, f1, f2, target: float, width: int, a1: float, a2: float, phase: str, seed: int = 0):
+    """``width`` points centred where f2/f1 crosses ``target``: NNM1 alternates by ±``a1`` (relative) point to
+    point; NNM2 by ``a2`` in anti-phase ("anti": the two RQs move toward/away from each other together,
+    the measured 4:1 signature of docs/sweep.md), in phase ("in"), or with its own random signs ("random")."""
+    i0 = int(np.argmin(np.abs(f2 / f1 - target)))
+    idx = np.arange(i0 - width // 2, i0 - width // 2 + width)
+    s1 = np.where(np.arange(width) % 2 == 0, 1.0, -1.0)
+    s2 = {"anti": -s1, "in": s1, "random": np.random.default_rng(seed).choice([-1.0, 1.0], size=width)}[phase]
+    g1, g2 = f1.copy(), f2.copy()
+    g1[idx] *= 1 + a1 * s1
+    g2[idx] *= 1 + a2 * s2
+    return g1, g2, idx
+
+
+def test_an_anticorrelated_band_is_flagged_with_its_ratio():
+    """The 4:1 signature measured on beam_ch4_sim (±5 % on NNM1, ∓0.2 % on NNM2 over ~10 points): no point
+    stands out, so no spike is flagged, but the band is — labelled by the ratio crossed across it."""
+    e, f1, f2 = _band_backbones()
+    g1, g2, idx = _plant_band(e, f1, f2, 4.0, 10, 0.05, 0.002, "anti")
+    p = np.logspace(1, 12, e.size)
+    flags = flag_interactions(e, np.stack([g1, g2], axis=1), amplitudes=p)
+    assert len(flags) == 1, flags
+    fl = flags[0]
+    assert fl.kind == "band" and fl.to_dict()["kind"] == "band"
+    assert fl.ratio == (4, 1) and fl.bracketed and fl.ratio_left > 4.0 > fl.ratio_right
+    # its extent: the planted points, give or take the one neighbour the running median shifts
+    assert idx[0] - 1 <= fl.i_lo <= idx[0] and idx[-1] <= fl.i_hi <= idx[-1] + 1 and 10 <= fl.n_points <= 12
+    assert fl.p_lo == p[fl.i_lo] and fl.p_hi == p[fl.i_hi]
+    assert g1[fl.i_peak] > f1[fl.i_peak] and 0 < fl.score < 0.05  # a converging point, small closure
+    # the per-point spike rule alone does not see it (why the band detector exists)
+    assert flag_interactions(e, np.stack([g1, g2], axis=1), SpikeSettings(band=False)) == []
+
+
+@pytest.mark.parametrize("phase", ["random", "in"])
+def test_an_uncorrelated_or_in_phase_band_is_not_flagged(phase):
+    """Same amplitudes, but NNM2 does not move against NNM1: not the similar-POM signature (L1259)."""
+    e, f1, f2 = _band_backbones()
+    for seed in range(5):
+        g1, g2, idx = _plant_band(e, f1, f2, 4.0, 10, 0.05, 0.002, phase, seed)
+        if phase == "random":  # the random NNM2 signs really are uncorrelated with NNM1's alternation here
+            s1 = np.sign(g1[idx] - f1[idx])
+            assert abs(np.corrcoef(s1, np.sign(g2[idx] - f2[idx]))[0, 1]) < 0.7
+        assert flag_interactions(e, np.stack([g1, g2], axis=1)) == []
+        if phase == "in":
+            break
+
+
+def test_a_band_at_the_noise_level_of_its_surroundings_is_not_flagged():
+    """Anti-correlated alternation everywhere (like the strongly nonlinear stretch of the sweep above 1 J,
+    where the residuals are anti-correlated almost everywhere): nowhere is NNM1 well above its quiet
+    level (``band_k``), so it is the baseline, not a band."""
+    e, f1, f2 = _band_backbones()
+    amp = np.random.default_rng(7).uniform(0.6, 1.4, e.size)
+    s1 = np.where(np.arange(e.size) % 2 == 0, 1.0, -1.0)
+    g1 = f1 * (1 + 0.05 * amp * s1)
+    g2 = f2 * (1 - 0.002 * amp * s1)
+    assert [fl for fl in flag_interactions(e, np.stack([g1, g2], axis=1)) if fl.kind == "band"] == []
+    # ... while the same alternation confined to 10 points of the smooth curves is one
+    i0 = int(np.argmin(np.abs(f2 / f1 - 4.0)))
+    h1, h2 = f1.copy(), f2.copy()
+    h1[i0 - 5 : i0 + 5], h2[i0 - 5 : i0 + 5] = g1[i0 - 5 : i0 + 5], g2[i0 - 5 : i0 + 5]
+    assert [fl.kind for fl in flag_interactions(e, np.stack([h1, h2], axis=1))] == ["band"]
 
 
 def test_flags_do_not_depend_on_the_input_order():
@@ -187,3 +261,4 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
     assert len(low_rows) == 4 and all(a["pass"] for a in low_rows)
     for fl in js["interactions"]:
         assert fl["ratio"] in {"2:1", "5:2", "3:1", "7:2", "4:1", "9:2", "5:1"} and isinstance(fl["robust_1ppm"], bool)
+        assert fl["kind"] in {"spike", "band"}

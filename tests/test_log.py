@@ -491,3 +491,37 @@ def test_replay_reader_memory_does_not_grow_with_the_log(tmp_path):
         tracemalloc.stop()
         assert count == n
     assert peaks[1] < 1.5 * peaks[0], peaks
+
+
+def test_recover_and_damaged_reads_hold_a_chunk_not_the_log(tmp_path):
+    """`gvt log recover` of an intact log and every read of a damaged one go through the file a chunk at a
+    time: their peak memory must not grow with the log (holding the messages, as both did, grows it 4x
+    from the short log to the long one)."""
+    import tracemalloc
+
+    peaks: dict[str, list[int]] = {"recover intact": [], "recover damaged": [], "open damaged": []}
+    for n in (40, 160):  # 240 kB and 960 kB of samples in 64 kB chunks
+        p = tmp_path / f"r{n}.mcap"
+        data = np.random.default_rng(n).standard_normal((n * 256, 6)).astype(np.float32)
+        with LogWriter(p, chunk_size=64 * 1024) as w:
+            w.add_stream("dev0", _chs(6), 2048.0, t0_ns=1_700_000_000_000_000_000)
+            names = tuple(c.name for c in _chs(6))
+            for k in range(n):
+                w.write_block(SampleBlock("dev0", k * 256, 2048.0, names, data[k * 256 : (k + 1) * 256]), wait=True)
+        cut = tmp_path / f"cut{n}.mcap"
+        raw = p.read_bytes()
+        cut.write_bytes(raw[: int(0.9 * len(raw))])
+        for key, fn in (
+            ("recover intact", lambda p=p, n=n: recover(p, tmp_path / f"ok{n}.mcap", chunk_size=64 * 1024)),
+            ("recover damaged", lambda cut=cut, n=n: recover(cut, tmp_path / f"fixed{n}.mcap", chunk_size=64 * 1024)),
+            ("open damaged", lambda cut=cut: LogReader(cut).message_count("/daq/dev0/samples")),
+        ):
+            tracemalloc.start()
+            fn()
+            peaks[key].append(tracemalloc.get_traced_memory()[1])
+            tracemalloc.stop()
+        assert LogReader(tmp_path / f"ok{n}.mcap").read_stream("dev0").data.tobytes() == data.tobytes()
+        salvaged = LogReader(tmp_path / f"fixed{n}.mcap").read_stream("dev0")
+        assert salvaged.data.tobytes() == data[: len(salvaged.index)].tobytes() and len(salvaged.index) >= 0.7 * len(data)
+    for key, (short, long) in peaks.items():
+        assert long < 1.5 * short, (key, peaks)

@@ -119,16 +119,9 @@ class LogReader:
         return self._indexed
 
     # --- tolerant path -----------------------------------------------------------------------
-    def _scan(self) -> dict[str, Any]:
-        """Linear scan of everything readable; cached. Fills ``self.report``."""
-        if self._scan_cache is not None:
-            return self._scan_cache
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        messages: list[Message] = []
-        metadata: list[Metadata] = []
-        attachments: list[Attachment] = []
-        rep = self.report
+    def _records(self, rep: SalvageReport) -> Iterator[Any]:
+        """Every readable record in file order, a chunk's contents flattened in place of the chunk; a chunk
+        that fails its CRC or does not decompress is skipped and counted. Streams: one chunk in memory."""
         with open(self.path, "rb") as f:
             reader = StreamReader(f, emit_chunks=True, record_size_limit=max(self.file_size, 1 << 20))
             it = reader.records
@@ -141,7 +134,6 @@ class LogReader:
                     rep.stopped_because = _describe(exc)
                     break
                 rep.bytes_scanned = f.tell()
-                records = [rec]
                 if isinstance(rec, Chunk):
                     try:
                         records = breakup_chunk(rec, validate_crc=True)
@@ -149,24 +141,40 @@ class LogReader:
                         rep.chunks_bad += 1
                         continue
                     rep.chunks_ok += 1
-                for r in records:  # a chunk's records and top-level ones alike (DataEnd, Footer: nothing to keep)
-                    if isinstance(r, Schema):
-                        schemas[r.id] = r
-                    elif isinstance(r, Channel):
-                        channels[r.id] = r
-                    elif isinstance(r, Message):
-                        messages.append(r)
-                    elif isinstance(r, Metadata):
-                        metadata.append(r)
-                    elif isinstance(r, Attachment):
-                        attachments.append(r)
-        rep.messages = len(messages)
+                    yield from records
+                else:
+                    yield rec
+
+    def _scan(self) -> dict[str, Any]:
+        """Linear scan of everything readable; cached. Fills ``self.report``. Keeps schemas, channels,
+        metadata, attachments and per-channel message counts — not the messages: a damaged log of an hour
+        is gigabytes (``iter_messages`` scans again, a chunk at a time)."""
+        if self._scan_cache is not None:
+            return self._scan_cache
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        counts: dict[int, int] = {}
+        metadata: list[Metadata] = []
+        attachments: list[Attachment] = []
+        rep = self.report
+        for r in self._records(rep):  # DataEnd, Footer, indexes: nothing to keep
+            if isinstance(r, Message):
+                counts[r.channel_id] = counts.get(r.channel_id, 0) + 1
+            elif isinstance(r, Schema):
+                schemas[r.id] = r
+            elif isinstance(r, Channel):
+                channels[r.id] = r
+            elif isinstance(r, Metadata):
+                metadata.append(r)
+            elif isinstance(r, Attachment):
+                attachments.append(r)
+        rep.messages = sum(counts.values())
         if rep.stopped_because is None and rep.bytes_scanned < self.file_size - 8:
             rep.stopped_because = "footer or summary unreadable"
         self._scan_cache = {
             "schemas": schemas,
             "channels": channels,
-            "messages": messages,
+            "counts": counts,
             "metadata": metadata,
             "attachments": attachments,
         }
@@ -216,7 +224,7 @@ class LogReader:
         measured 67 MB for a 54 MB log. Sample blocks are logged at their sample time, so for them time
         order is sample order.
         """  # fmt: skip
-        if self._indexed:
+        if self._indexed and (topics is not None or time_order):
             with open(self.path, "rb") as f:
                 r = make_reader(f)
                 try:
@@ -227,10 +235,13 @@ class LogReader:
                 except _EXPECTED_ERRORS as exc:
                     raise LogReadError(f"{self.path}: {_describe(exc)}") from None
             return
-        scan = self._scan()
-        chans = scan["channels"]
+        # the whole log in file order (gvt log recover), or a damaged log: one linear pass, a chunk at a time
+        chans = {ch.id: ch for ch in self.channels()}
         want = set(topics) if topics else None
-        for msg in scan["messages"]:
+        rep = SalvageReport(complete=self._indexed, file_size=self.file_size)
+        for msg in self._records(rep):
+            if not isinstance(msg, Message):
+                continue
             ch = chans.get(msg.channel_id)
             if ch is None or (want is not None and ch.topic not in want):
                 continue
@@ -239,6 +250,9 @@ class LogReader:
             if end_ns is not None and msg.log_time >= end_ns:
                 continue
             yield ch, msg
+        if self._indexed and (rep.stopped_because is not None or rep.chunks_bad):
+            why = rep.stopped_because or f"{rep.chunks_bad} chunk(s) fail their CRC or do not decompress"
+            raise LogReadError(f"{self.path}: {why}")
 
     def message_count(self, topic: str) -> int:
         """Messages on ``topic``: from the summary's statistics (no data read) or from the salvage scan."""
@@ -247,7 +261,7 @@ class LogReader:
             return sum(int(counts.get(ch.id, 0)) for ch in self.summary.channels.values() if ch.topic == topic)
         scan = self._scan()
         ids = {cid for cid, ch in scan["channels"].items() if ch.topic == topic}
-        return sum(1 for m in scan["messages"] if m.channel_id in ids)
+        return sum(n for cid, n in scan["counts"].items() if cid in ids)
 
     def metadata(self) -> dict[str, dict[str, str]]:
         if self._indexed:

@@ -99,8 +99,9 @@ def _health(rep: SalvageReport) -> str:
     )
 
 
-def recover(src: str | Path, dst: str | Path) -> SalvageReport:
-    """Rewrite every readable record of ``src`` into a new indexed file ``dst``."""
+def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> SalvageReport:
+    """Rewrite every readable record of ``src`` into a new indexed file ``dst`` (``chunk_size``: uncompressed
+    bytes per output chunk). Reads and writes a chunk at a time: memory does not grow with the log."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise LogReadError(f"{dst}: output must differ from the input")
@@ -108,7 +109,7 @@ def recover(src: str | Path, dst: str | Path) -> SalvageReport:
     schemas = r.schemas()
     tmp = dst.with_name(dst.name + ".part")
     with open(tmp, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
+        w = Writer(f, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         w.start(profile=layout.PROFILE, library="gvtlink recover")
         schema_ids: dict[int, int] = {}
         channel_ids: dict[int, int] = {}

@@ -229,7 +229,7 @@ def replay(
         rep = Replayer(log, fan, speed=speed or None)
     except LogReadError as exc:
         fail(str(exc))
-    vtarget, vlane = _replay_view(rep, fan, rig, view, connect)
+    vtarget, vlane = _replay_view(rep, fan, rig, view, connect, recorded_topics(analysis and confirm))
     clane_box: list = []
     lane = _replay_lane(rep, fan, rig, vlane, clane_box) if analysis else None
     if lane is not None and confirm:
@@ -285,8 +285,16 @@ def replay(
         fail(f"replay stopped early: {stats.error}; 'gvt log recover {log} fixed.mcap' rewrites what is readable")
 
 
-def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None):
-    """The live view of a replay (``--view`` / ``--connect``): target and lane, or (None, None)."""
+def recorded_topics(confirming: bool) -> tuple[str, ...]:
+    """The log's own results a replay view shows as recorded: hits and driver events always (a replay does not
+    detect them again); the recorded confirmations only when the replay does not confirm its events anew —
+    otherwise each would be drawn twice."""
+    return ("/daq/hits", "/daq/events") + (() if confirming else ("/analysis/confirmations",))
+
+
+def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None, topics: tuple[str, ...] = ()):
+    """The live view of a replay (``--view`` / ``--connect``): target and lane, or (None, None); the log's
+    ``topics`` are offered to it as recorded."""
     if not view and not connect:
         return None, None
     from daq.analyze import AnalyzeError, rig_from_log
@@ -304,7 +312,7 @@ def _replay_view(rep, fan, rig_arg: str | None, view: bool, connect: str | None)
         r = None
     fs = next(iter(infos.values())).sample_rate if infos else 1.0
     vlane = start_view_lane(fan, r, {n: tuple(i.channels) for n, i in infos.items()}, fs, target)
-    for topic in ("/daq/hits", "/daq/events", "/analysis/confirmations"):  # recorded results: shown as they are
+    for topic in topics:  # recorded results: shown as they are
         for obj in rep.reader.json_messages(topic):
             vlane.offer(topic, obj)
     return target, vlane

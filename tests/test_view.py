@@ -215,3 +215,41 @@ def test_gvt_replay_view_and_analyze_rrd(session_log, tmp_path):
     assert r.exit_code == 0, r.output
     assert "open it:" in r.output and rrd_verify(out).returncode == 0
     assert {"/rq/nnm", "/rqfep", "/modal/energy"} <= rrd_entity_paths(out)
+
+
+def test_a_confirming_replay_does_not_show_the_recorded_confirmations_again():
+    from daq.cli import recorded_topics
+
+    assert "/analysis/confirmations" not in recorded_topics(confirming=True)
+    assert "/analysis/confirmations" in recorded_topics(confirming=False)
+    assert {"/daq/hits", "/daq/events"} <= set(recorded_topics(True)) & set(recorded_topics(False))
+
+
+def test_the_view_draws_in_frames_and_catches_up_after_a_burst(tmp_path):
+    """A serial device's 64-sample blocks (256 a second) are drawn a frame (0.25 s) at a time, not one wake-up
+    each; a start-up backlog larger than a frame's worth is caught up early instead of overflowing the queue."""
+    from daq.blocks import SampleBlock
+    from daq.fanout import FanOut
+    from daq.view.lane import ViewLane, open_view
+    from daq.view.logger import ViewSetup
+
+    fs, chans = 16384.0, ("hammer", "a01", "a02")
+    target = open_view("save", str(tmp_path / "frames.rrd"))
+    fan = FanOut()
+    lane = ViewLane(fan, ViewSetup({"dev0": chans}, fs, hammer="hammer"), target.rec, maxsize=256).start()
+    data = np.random.default_rng(0).standard_normal((64, 3)).astype(np.float32)
+    k = 0
+    for _ in range(200):  # a backlog: 200 blocks at once (0.8 s of data; a frame of steady input is 64)
+        fan.publish(SampleBlock("dev0", 64 * k, fs, chans, data))
+        k += 1
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 2.0:  # then 2 s at the device's pace
+        fan.publish(SampleBlock("dev0", 64 * k, fs, chans, data))
+        k += 1
+        time.sleep(max(0.0, t0 + (k - 200) * 64 / fs - time.monotonic()))
+    fan.close()
+    lane.join()
+    target.close()
+    assert lane.sub.dropped_blocks == 0 and lane.logged_blocks == k
+    assert lane.frames <= 2.0 / lane.frame_s + 4, lane.frames  # one wake-up per block would be ~700
+

@@ -24,6 +24,11 @@ class Subscription:
     dropped_blocks: int = 0
     dropped_samples: int = 0
     dropped_ranges: list[tuple[str, int, int]] = field(default_factory=list)
+    #: when > 0, ``wake`` is set as soon as this many items are queued (and when the source ends): a
+    #: subscriber that lets blocks pile up on purpose (the view, drawing in frames) waits on it instead of a
+    #: timer, so a burst cannot overflow its queue while it waits
+    high_water: int = 0
+    wake: threading.Event = field(default_factory=threading.Event)
 
     def get(self, timeout: float | None = None) -> SampleBlock | object:
         """Next block, or ``END``; raises ``queue.Empty`` on timeout."""
@@ -59,6 +64,8 @@ class FanOut:
                 sub.dropped_blocks += 1
                 sub.dropped_samples += block.n_samples
                 sub.dropped_ranges.append((block.stream, block.first_index, block.end_index))
+            if sub.high_water and sub.queue.qsize() >= sub.high_water:
+                sub.wake.set()
         self.published_blocks += 1
 
     def close(self) -> None:
@@ -70,6 +77,7 @@ class FanOut:
         with self._lock:
             subs = list(self._subs)
         for sub in subs:
+            sub.wake.set()
             while True:
                 try:
                     sub.queue.put_nowait(END)

@@ -525,3 +525,20 @@ def test_recover_and_damaged_reads_hold_a_chunk_not_the_log(tmp_path):
         assert salvaged.data.tobytes() == data[: len(salvaged.index)].tobytes() and len(salvaged.index) >= 0.7 * len(data)
     for key, (short, long) in peaks.items():
         assert long < 1.5 * short, (key, peaks)
+
+
+def test_fanout_wakes_a_subscriber_at_its_high_water():
+    """A subscriber that lets blocks pile up on purpose (the view's frames) is woken when its queue reaches
+    ``high_water`` or the source ends — not by a timer, which a burst can outrun."""
+    fan = FanOut()
+    sub = fan.subscribe("frames", maxsize=8)
+    sub.high_water = 3
+    blk = SampleBlock("dev0", 0, 1000.0, ("a",), np.zeros((4, 1), np.float32))
+    fan.publish(blk)
+    fan.publish(blk)
+    assert not sub.wake.is_set()
+    fan.publish(blk)
+    assert sub.wake.is_set()
+    sub.wake.clear()
+    fan.close()
+    assert sub.wake.is_set()

@@ -171,6 +171,7 @@ class ViewLane:
         sink_delay_s: float = 0.0, report_every_s: float = 1.0, results_every_s: float = 0.5, frame_s: float = 0.25,
     ) -> None:  # fmt: skip
         self.sub: Subscription = fan.subscribe("view", maxsize=maxsize)
+        self.sub.high_water = max(1, maxsize // 4)  # ends a frame early (_rest_of_frame)
         self.results: queue.Queue = queue.Queue(maxsize=max(1, result_maxsize))
         self.dropped_results = 0
         self.logged_blocks = 0
@@ -181,8 +182,8 @@ class ViewLane:
         # at most one wake-up per frame: a serial device delivers 256 blocks a second, and waking the view for each
         # cost more (GIL hand-offs with the reader, writer and analysis threads) than drawing them; what arrives
         # within a frame is joined (_coalesced). Raw envelopes and results go out every 0.5 s anyway, so a 0.25 s
-        # frame delays nothing on screen. The wait is on the abandon event, not a sleep (it ends at once then), and
-        # ends early when the queue is a quarter full (_rest_of_frame).
+        # frame delays nothing on screen. The wait is on an event the fan-out sets when the queue is a quarter full
+        # (or the source ends), not a sleep (_rest_of_frame).
         self.frame_s = frame_s
         self.rec = rec
         self.view = ViewLogger(rec, setup)
@@ -221,6 +222,7 @@ class ViewLane:
         self._thread.join(drain_s)
         if self._thread.is_alive():
             self._abandon.set()
+            self.sub.wake.set()
             self._thread.join(10.0)
 
     @property
@@ -295,15 +297,14 @@ class ViewLane:
                 pass
 
     def _rest_of_frame(self, frame0: float) -> None:
-        """Let blocks queue until the frame (``frame_s`` from ``frame0``) is over — in four slices, leaving early
-        once the queue is a quarter full: a serial device's start-up backlog arrives at thousands of blocks a
-        second and would overflow a queue nobody looked at for a whole frame (measured: 187 blocks dropped)."""
-        q = self.sub.queue
-        while not self._abandon.is_set() and q.qsize() < q.maxsize // 4:
-            rest = self.frame_s - (time.monotonic() - frame0)
-            if rest <= 0:
-                return
-            self._abandon.wait(min(rest, self.frame_s / 4))
+        """Let blocks queue until the frame (``frame_s`` from ``frame0``) is over, or until the queue is a quarter
+        full (the fan-out sets ``sub.wake`` then) or the view is abandoned: a serial device's start-up backlog
+        arrives at thousands of blocks a second, and a timed wait alone dropped it (measured: 187 blocks)."""
+        sub = self.sub
+        sub.wake.clear()
+        rest = self.frame_s - (time.monotonic() - frame0)
+        if rest > 0 and sub.queue.qsize() < sub.high_water and not self._abandon.is_set():
+            sub.wake.wait(rest)
 
     def _coalesced(self, first: SampleBlock, most: int = 256) -> list:
         """``first`` and whatever else is queued already (up to ``most``), contiguous blocks of one stream

@@ -125,6 +125,32 @@ class SpikeSettings:
 
     With ``converging`` a band must also contain one point where NNM1 is up by ≥ ``band_min_rel[0]`` and
     NNM2 is down (the two RQs approach, L1259); an anti-correlated run that only ever diverges is dropped.
+
+    Modal labels and locks (:func:`find_locks`). The RQ uses the linear K, which has no term for the tip
+    spring, so the RQ ratio f2/f1 is not the NNMs' frequency ratio (docs/sweep.md, "Which m:n is the
+    band?"); the sweep therefore also measures each run's mean frequencies of the two lowest linear modes
+    from their modal phase advance (``analysis.model.sweep.ModalProbe``), and labels every flag by that
+    *modal* ratio too (``modal_ratio`` of :class:`SweepInteraction`, the same :func:`nearest_ratio` rule on
+    the modal ratio at the points just below and above the flag). An internal resonance is a frequency
+    *lock*: the seed's m:n IR holds the slow phase m·θ1 − n·θ2 non-time-like (L1296–L1298), i.e. the ratio
+    f2/f1 stays at m/n while the energy changes — a plateau of the modal ratio against energy.
+
+    * ``lock``: run the lock detector.
+    * ``lock_tol``: a point is on an m:n plateau when |ratio − m/n| ≤ ``lock_tol``·m/n. 0.03: the brief's
+      value; the measured 3:1 plateau is 2.99–3.03 (±1 %), so 3 % holds it with margin for the record-mean's
+      wobble. It is not a discriminator on its own: a ratio falling steadily at ~1 % per sweep point (the
+      sweep's spacing, P × 1.026) stays within ±3 % of any m/n for ~6 points, hence ``lock_flatness``.
+    * ``lock_min_points``: at least this many consecutive points (by energy) inside the tolerance. 3: the
+      fewest for which a slope inside the run means anything.
+    * ``lock_context`` / ``lock_flatness``: the ratio's slope against log10(energy) inside the run (least
+      squares over the run) must be ≤ ``lock_flatness`` × the slope on *each* side, measured by least squares
+      over the run's edge point and the ``lock_context`` points beyond it (so the entry and exit are in the
+      side slopes: a plateau entered or left by a jump has steep sides). 0.5 and 5: a ratio passing m:n at a
+      steady slope has the same slope inside and out (ratio ≈ 1); a plateau has ≪ 1. Measured on the 1000-run
+      sweep (docs/sweep.md, "Locks"): the 3:1 plateau 0.25; the runs within ±3 % of 5:1, 9:2, 4:1 and 5:2 are
+      1.23, 1.71, 0.78 and 1.35 (passages; 4:1's is slowed, not flat). Not tuned to find 4:1: it needs 1.0 here,
+      or ``lock_tol`` 0.01.
+    * ``lock_ratios``: the candidates (default: the labeller's ``ratios``).
     """
 
     window: int = 15
@@ -146,6 +172,12 @@ class SpikeSettings:
     band_quiet_window: int = 101
     band_max_share: float = 0.5
     band_min_run: int = 3
+    lock: bool = True
+    lock_tol: float = 0.03
+    lock_min_points: int = 3
+    lock_context: int = 5
+    lock_flatness: float = 0.5
+    lock_ratios: tuple[tuple[int, int], ...] = DEFAULT_RATIOS
 
 
 @dataclass(frozen=True)
@@ -177,6 +209,60 @@ class SweepInteraction:
     n_points: int
     score: float
     kind: str = "spike"
+    modal_ratio: tuple[int, int] | None = None
+    modal_ratio_left: float = float("nan")
+    modal_ratio_right: float = float("nan")
+    modal_ratio_peak: float = float("nan")
+    modal_bracketed: bool = False
+
+    @property
+    def rq_label(self) -> str:
+        """The label from the RQ ratio f2/f1 (``ratio``), kept for comparison."""
+        return f"{self.ratio[0]}:{self.ratio[1]}"
+
+    @property
+    def modal_label(self) -> str | None:
+        return None if self.modal_ratio is None else f"{self.modal_ratio[0]}:{self.modal_ratio[1]}"
+
+    @property
+    def label(self) -> str:
+        """The flag's m:n: from the modal ratio when the sweep measured it, else from the RQ ratio."""
+        return self.modal_label or self.rq_label
+
+    def to_dict(self) -> dict:
+        """JSON fields: ``ratio`` is :attr:`label` (modal when measured), ``rq_ratio`` the RQ label,
+        ``modal_ratio`` the modal one (or None); ``ratio_left``/``ratio_right`` stay the RQ ratios."""
+        d = asdict(self)
+        d["ratio"] = self.label
+        d["rq_ratio"] = self.rq_label
+        d["modal_ratio"] = self.modal_label
+        d["label_source"] = "rq" if self.modal_ratio is None else "modal"
+        return d
+
+
+@dataclass(frozen=True)
+class RatioLock:
+    """A plateau of the modal ratio f2/f1 at one m:n over consecutive sweep points (:func:`find_locks`).
+
+    Indices refer to the input order; ``slope_in`` / ``slope_below`` / ``slope_above`` are |d ratio / d log10 E|
+    inside the run and on its low- and high-energy sides (least squares).
+    """
+
+    i_lo: int
+    i_hi: int
+    p_lo: float
+    p_hi: float
+    energy_lo: float
+    energy_hi: float
+    ratio: tuple[int, int]
+    ratio_mean: float
+    ratio_min: float
+    ratio_max: float
+    n_points: int
+    slope_in: float
+    slope_below: float
+    slope_above: float
+    kind: str = "lock"
 
     @property
     def label(self) -> str:
@@ -289,6 +375,7 @@ def flag_interactions(
     freqs: FloatArray,
     settings: SpikeSettings = SpikeSettings(),
     amplitudes: FloatArray | None = None,
+    modal_ratio: FloatArray | None = None,
 ) -> list[SweepInteraction]:
     """Partnered spikes and anti-correlated bands of the NNM1 and NNM2 RQ curves against energy (seed
     §4.2.2, L1253–L1259).
@@ -301,7 +388,10 @@ def flag_interactions(
     its points are the union of those windows trimmed to the outermost points whose NNM1 residual reaches
     ``band_min_rel[0]``; a band that overlaps a spike interaction is dropped (the spike already reports
     it). Both kinds are labelled the same way, from f2/f1 at the nearest points outside any spike or band.
-    ``amplitudes`` (the sweep's P, same order as ``energy``) only labels the result. Indices in the
+    ``amplitudes`` (the sweep's P, same order as ``energy``) only labels the result. ``modal_ratio`` (runs,),
+    the per-run modal f2/f1 (``analysis.model.sweep``), gives each flag a second label, ``modal_ratio``:
+    :func:`nearest_ratio` of the modal ratio at the nearest measured points just below and just above the
+    flag (no guard: POD mixing on a spike disturbs the RQs, not the modal phases). Indices in the
     result (``i_lo``, ``i_hi``, ``i_peak``: the point that closes the gap most) refer to the input order.
     The result is ordered by energy.
     """
@@ -315,6 +405,11 @@ def flag_interactions(
         return []
     order = np.argsort(e, kind="stable")
     e, f, p = e[order], f[order], p[order]
+    mr = None if modal_ratio is None else np.asarray(modal_ratio, dtype=float)
+    if mr is not None:
+        if mr.shape != (n,):
+            raise ValueError("modal_ratio must be (runs,), like energy")
+        mr = mr[order]
     b1, r1, m1 = deviations(f[:, 0], settings, 0)
     b2, r2, m2 = deviations(f[:, 1], settings, 1)
     g = settings.partner_gap
@@ -371,6 +466,15 @@ def flag_interactions(
         label, bracketed = nearest_ratio(rl, rr, settings.ratios)
         closed = closure(lo, hi)  # a band is many small moves: it is not held to the spike's min_closure
         k = lo + int(np.argmax(closed))
+        modal: dict = {}
+        if mr is not None:
+            below = [j for j in range(lo - 1, -1, -1) if np.isfinite(mr[j])][:1]
+            above = [j for j in range(hi + 1, n) if np.isfinite(mr[j])][:1]
+            if below and above:
+                ml, mh = float(mr[below[0]]), float(mr[above[0]])
+                mlab, mbr = nearest_ratio(ml, mh, settings.ratios)
+                modal = {"modal_ratio": mlab, "modal_ratio_left": ml, "modal_ratio_right": mh,
+                         "modal_ratio_peak": float(mr[k]), "modal_bracketed": mbr}  # fmt: skip
         out.append(
             SweepInteraction(
                 i_lo=int(order[lo]),
@@ -389,6 +493,80 @@ def flag_interactions(
                 n_points=int(hi - lo + 1),
                 score=float(np.max(closed)),
                 kind=kind,
+                **modal,
             )
         )
+    return out
+
+
+def _ls_slope(x: FloatArray, y: FloatArray) -> float:
+    """|least-squares slope| of y on x (NaN when x does not vary)."""
+    dx = x - x.mean()
+    den = float(np.sum(dx * dx))
+    return abs(float(np.sum(dx * (y - y.mean()))) / den) if den > 0 else float("nan")
+
+
+def find_locks(
+    energy: FloatArray,
+    modal_ratio: FloatArray,
+    settings: SpikeSettings = SpikeSettings(),
+    amplitudes: FloatArray | None = None,
+) -> list[RatioLock]:
+    """Plateaus of the per-run modal ratio f2/f1 at a candidate m:n: the sweep's internal resonances as
+    frequency locks (the seed's m:n IR keeps m·θ1 − n·θ2 non-time-like, L1296–L1298, so f2/f1 = m/n on it).
+
+    Points are ordered by energy (the RQ-FEP's axis, L1251). For each candidate of ``lock_ratios``, every
+    run of ≥ ``lock_min_points`` consecutive points with |ratio − m/n| ≤ ``lock_tol``·m/n is a lock when its
+    least-squares slope against log10(energy) is ≤ ``lock_flatness`` × the slope on each side (least squares
+    over the run's edge point and ``lock_context`` points beyond it): a ratio passing m:n at a steady slope
+    is not a lock. A run without ``lock_context`` points on a side (the sweep's ends) is not judged. NaN
+    ratios (no modal measurement) break runs. The result is ordered by energy; indices refer to the input.
+    """
+    e = np.asarray(energy, dtype=float)
+    r0 = np.asarray(modal_ratio, dtype=float)
+    if e.ndim != 1 or r0.shape != e.shape:
+        raise ValueError("energy and modal_ratio must both be (runs,)")
+    if settings.lock_min_points < 2 or settings.lock_context < 1 or settings.lock_tol <= 0:
+        raise ValueError("lock_min_points must be >= 2, lock_context >= 1 and lock_tol > 0")
+    n = e.size
+    p = np.full(n, np.nan) if amplitudes is None else np.asarray(amplitudes, dtype=float)
+    order = np.argsort(e, kind="stable")
+    x = np.log10(np.maximum(e[order], np.finfo(float).tiny))
+    r, pp, ee = r0[order], p[order], e[order]
+    c = settings.lock_context
+    out: list[RatioLock] = []
+    for m, k in settings.lock_ratios:
+        target = m / k
+        inside = np.isfinite(r) & (np.abs(r - target) <= settings.lock_tol * target)
+        for lo, hi in _runs(inside, 1):
+            if hi - lo + 1 < settings.lock_min_points or lo - c < 0 or hi + c >= n:
+                continue
+            side_lo, side_hi = slice(lo - c, lo + 1), slice(hi, hi + c + 1)
+            if not (np.isfinite(r[side_lo]).all() and np.isfinite(r[side_hi]).all()):
+                continue
+            s_in = _ls_slope(x[lo : hi + 1], r[lo : hi + 1])
+            s_b, s_a = _ls_slope(x[side_lo], r[side_lo]), _ls_slope(x[side_hi], r[side_hi])
+            if not s_in <= settings.lock_flatness * min(s_b, s_a):  # NaN compares False: not judged a lock
+                continue
+            seg = r[lo : hi + 1]
+            finite_p = np.isfinite(pp[lo : hi + 1]).any()
+            out.append(
+                RatioLock(
+                    i_lo=int(order[lo]),
+                    i_hi=int(order[hi]),
+                    p_lo=float(np.nanmin(pp[lo : hi + 1])) if finite_p else float("nan"),
+                    p_hi=float(np.nanmax(pp[lo : hi + 1])) if finite_p else float("nan"),
+                    energy_lo=float(ee[lo]),
+                    energy_hi=float(ee[hi]),
+                    ratio=(m, k),
+                    ratio_mean=float(seg.mean()),
+                    ratio_min=float(seg.min()),
+                    ratio_max=float(seg.max()),
+                    n_points=int(hi - lo + 1),
+                    slope_in=s_in,
+                    slope_below=s_b,
+                    slope_above=s_a,
+                )
+            )
+    out.sort(key=lambda lk: lk.energy_lo)
     return out

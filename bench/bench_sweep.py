@@ -2,7 +2,8 @@
 
 P = logspace(1, 12, 1000) (L1215), 1 s per run, 100 translational outputs at 16384 Hz, order 4, Dask local
 cluster with 2 single-threaded workers; then POD + RQ of the first four POMs, asymptote errors against the
-fixed-free / fixed-pinned frequencies, and the flagged NNM1–NNM2 interactions with their 1 ppm re-check.
+fixed-free / fixed-pinned frequencies, the flagged NNM1–NNM2 interactions with their 1 ppm re-check (labelled by
+the per-run modal ratio f2/f1 of linear modes 1–2, RQ label beside it) and the modal-ratio locks.
 Prints a table, writes bench/results/bench_sweep.json and bench/results/sweep/{rqfep.csv,rqfep.png,sweep.json}.
 
     python bench/bench_sweep.py [--runs 1000] [--duration 1.0]
@@ -54,7 +55,8 @@ def main() -> None:
     print(
         f"\nwall {rep.wall_s:.0f} s (target <= 300 s on 2 idle cores), peak RSS client {rep.peak_rss_mb:.0f} MB / "
         f"largest worker {summary['peak_rss_largest_worker_mb']:.0f} MB; worst low-end asymptote error "
-        f"{100 * worst_low:.2f} %; {len(rep.flags)} flags ({sum(rep.robust)} robust to 1 ppm of P)"
+        f"{100 * worst_low:.2f} %; {len(rep.flags)} flags ({sum(rep.robust)} robust to 1 ppm of P); "
+        f"{len(rep.locks)} modal-ratio locks ({', '.join(f'{lk.label} at {lk.p_lo:.4g}–{lk.p_hi:.4g} N' for lk in rep.locks)})"
     )
     print(f"wrote {RESULTS / 'bench_sweep.json'}")
 

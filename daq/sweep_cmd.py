@@ -9,6 +9,11 @@ against input energy, its low/high-energy asymptotes checked against the fixed-f
 Every flag is re-checked by replacing its peak run with runs at P·(1 ± 1e-6): in the strongly nonlinear
 band a 1 ppm change of P can move RQ2 by 60 % (docs/simulator.md §3), so a spike that such a change
 removes is a property of that one trajectory, not of the structure; the flag says which it is.
+
+Per run the sweep also measures the mean frequencies of the two lowest linear modes from their modal phase
+advance (``analysis.model.sweep.ModalProbe``): the RQ uses the linear K, without the tip spring, so the RQ
+ratio is not the NNMs' frequency ratio (docs/sweep.md). Every flag carries the label from that modal ratio
+beside the RQ one, and plateaus of the modal ratio at an m:n are reported as locks (``analysis.rqfep.find_locks``).
 """
 
 from __future__ import annotations
@@ -28,8 +33,16 @@ import numpy as np
 from analysis.model.modal import structure_modes
 from analysis.model.rig import Rig
 from analysis.model.simulate import ImpactSimulator, MomentResult
-from analysis.model.sweep import sweep_moments
-from analysis.rqfep import SpikeSettings, SweepInteraction, flag_interactions, pod_from_covariance, rq_fep
+from analysis.model.sweep import MODAL_WINDOW_NAMES, ModalProbe, SweepMoments, run_with_modal_phase, sweep_moments
+from analysis.rqfep import (
+    RatioLock,
+    SpikeSettings,
+    SweepInteraction,
+    find_locks,
+    flag_interactions,
+    pod_from_covariance,
+    rq_fep,
+)
 
 N_KEEP = 4  # "the RQ-FEP for the first four POMs" (L1251)
 JITTER = 1e-6  # relative change of P for the robustness re-check (docs/simulator.md §3: "1 ppm")
@@ -85,6 +98,18 @@ class SweepReport:
     robust: list[bool]
     wall_s: float
     peak_rss_mb: float
+    locks: list[RatioLock] = field(default_factory=list)
+
+    @property
+    def modal_hz(self) -> np.ndarray | None:
+        """(runs, n_windows, 2) mean frequencies of linear modes 1–2 from their phase advance, or None."""
+        return getattr(self.result, "modal_freq_hz", None)
+
+    @property
+    def modal_ratio(self) -> np.ndarray | None:
+        """Per-run f2/f1 of the modal phase advance over the whole-record window (``MODAL_WINDOWS_S[0]``)."""
+        m = self.modal_hz
+        return None if m is None else m[:, 0, 1] / m[:, 0, 0]
 
     def summary(self) -> dict[str, Any]:
         s = self.spec
@@ -108,6 +133,10 @@ class SweepReport:
             "asymptotes": self.asymptotes,
             "spike_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s.settings).items()},
             "interactions": [dict(f.to_dict(), robust_1ppm=r) for f, r in zip(self.flags, self.robust, strict=True)],
+            "modal_windows_s": dict(
+                zip(MODAL_WINDOW_NAMES, map(list, getattr(self.result, "modal_windows_s", ())), strict=False)
+            ),
+            "locks": [lk.to_dict() for lk in self.locks],
         }
 
 
@@ -183,18 +212,21 @@ def run_sweep(
     spec = SweepSpec(**{**vars(spec), "order": sim.order})
     force = rig.hammer_force()
     g = rig.guyan(dofs)
+    probe = ModalProbe.from_guyan(g.M, g.K, 2)  # linear modes 1–2 at the outputs (eq. 2.15)
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # distributed's "port 8787 in use" for a dashboard we do not use
         warnings.filterwarnings("ignore", message="Port .* is already in use")
-        res = _sweep(sim, force, spec, rig.sample_rate, progress)
+        res = _sweep(sim, force, spec, rig.sample_rate, progress, probe)
     poms, _ = pod_from_covariance(res.covariance)
     freqs = rq_fep(poms, g.M, g.K, N_KEEP)
-    flags = flag_interactions(res.input_work, freqs, spec.settings, res.amplitudes)
+    mratio = _modal_ratio(res)
+    flags = flag_interactions(res.input_work, freqs, spec.settings, res.amplitudes, mratio)
+    locks = find_locks(res.input_work, mratio, spec.settings, res.amplitudes) if spec.settings.lock and mratio is not None else []
     robust = []
     for k, fl in enumerate(flags):
         if progress:
             progress("re-checking flags at P (1 ± 1 ppm)", k / len(flags))
-        robust.append(_survives_jitter(sim, force, spec, rig.sample_rate, g, res, freqs, fl))
+        robust.append(_survives_jitter(sim, force, spec, rig.sample_rate, g, res, freqs, fl, probe))
     wall = time.perf_counter() - t0
     lo, hi = limit_frequencies(rig)
     return SweepReport(
@@ -210,10 +242,16 @@ def run_sweep(
         robust=robust,
         wall_s=wall,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        locks=locks,
     )
 
 
-def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress) -> MomentResult:
+def _modal_ratio(res: MomentResult) -> np.ndarray | None:
+    m = getattr(res, "modal_freq_hz", None)
+    return None if m is None else m[:, 0, 1] / m[:, 0, 0]
+
+
+def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress, probe: ModalProbe | None = None) -> SweepMoments:
     return sweep_moments(
         sim,
         force,
@@ -224,21 +262,31 @@ def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress) ->
         n_workers=spec.workers,
         chunk_size=max(1, min(20, spec.n // (4 * spec.workers))),
         progress=(lambda d, t: progress("simulating", d / t)) if progress else None,
+        probe=probe,
     )
 
 
-def _survives_jitter(sim, force, spec: SweepSpec, fs: float, g, res: MomentResult, freqs: np.ndarray, fl) -> bool:
+def _survives_jitter(
+    sim, force, spec: SweepSpec, fs: float, g, res: MomentResult, freqs: np.ndarray, fl, probe: ModalProbe | None = None
+) -> bool:
     """Replace the flag's peak run by P·(1 − 1e-6) and by P·(1 + 1e-6): is the point still flagged both times?"""
     i = fl.i_peak
     p = float(res.amplitudes[i])
-    jit = sim.run_moments(force, spec.duration, fs, [p * (1 - JITTER), p * (1 + JITTER)])
+    amps = [p * (1 - JITTER), p * (1 + JITTER)]
+    jit = run_with_modal_phase(sim, force, spec.duration, fs, np.asarray(amps), probe) if probe else \
+        sim.run_moments(force, spec.duration, fs, amps)  # fmt: skip
     fj = rq_fep(pod_from_covariance(jit.covariance)[0], g.M, g.K, N_KEEP)
+    mr, mj = _modal_ratio(res), _modal_ratio(jit)
     for r in range(2):
         f2 = freqs.copy()
         e2 = res.input_work.copy()
         f2[i] = fj[r]
         e2[i] = jit.input_work[r]
-        again = flag_interactions(e2, f2, spec.settings, res.amplitudes)
+        m2 = None
+        if mr is not None and mj is not None:
+            m2 = mr.copy()
+            m2[i] = mj[r]
+        again = flag_interactions(e2, f2, spec.settings, res.amplitudes, m2)
         if not any(a.energy_lo <= e2[i] <= a.energy_hi for a in again):  # events are contiguous in energy
             return False
     return True
@@ -263,16 +311,21 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
     paths = {"csv": out_dir / "rqfep.csv", "png": out_dir / "rqfep.png", "json": out_dir / "sweep.json"}
     res = rep.result
     tmp = paths["csv"].with_suffix(".csv.part")
+    mod = rep.modal_hz
+    mcols = [] if mod is None else [f"f{j + 1}_modal{'' if w == 'whole' else '_' + w}_hz"
+                                    for w in MODAL_WINDOW_NAMES[: mod.shape[1]] for j in range(2)] + ["modal_ratio"]  # fmt: skip
     with open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["P_N", "input_energy_J", *[f"f{j + 1}_hz" for j in range(rep.freqs.shape[1])], "substep_cap_hits"])
+        w.writerow(["P_N", "input_energy_J", *[f"f{j + 1}_hz" for j in range(rep.freqs.shape[1])], "substep_cap_hits", *mcols])
         for k in range(res.amplitudes.size):
+            extra = [] if mod is None else [*[f"{x:.6f}" for x in mod[k].ravel()], f"{mod[k, 0, 1] / mod[k, 0, 0]:.6f}"]
             w.writerow(
                 [
                     f"{res.amplitudes[k]:.9g}",
                     f"{res.input_work[k]:.9g}",
                     *[f"{x:.6f}" for x in rep.freqs[k]],
                     int(res.substep_cap_hits[k]),
+                    *extra,
                 ]
             )
     tmp.replace(paths["csv"])
@@ -304,9 +357,13 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     for fl, ok in zip(rep.flags, rep.robust, strict=True):
         i = fl.i_peak
         ax.plot([e[i], e[i]], rep.freqs[i, :2], "o", mfc="none", mec="red" if ok else "salmon", ms=8)
-        ax.annotate(fl.label + (" band" if fl.kind == "band" else "") + ("" if ok else "?"), (e[i], rep.freqs[i, 1]),
+        text = fl.label + ("" if fl.modal_label is None else f" (RQ {fl.rq_label})")
+        ax.annotate(text + (" band" if fl.kind == "band" else "") + ("" if ok else "?"), (e[i], rep.freqs[i, 1]),
                     color="red", fontsize=8,
                     xytext=(3, 6), textcoords="offset points")
+    for lk in rep.locks:
+        ax.axvspan(lk.energy_lo, lk.energy_hi, color="tab:green", alpha=0.15, lw=0)
+        ax.annotate(f"{lk.label} lock", (lk.energy_lo, 2.0), color="darkgreen", fontsize=8, rotation=90, va="bottom")
     ax.set_xscale("log")
     top = max(float(np.max(rep.fixed_pinned_hz)), float(np.max(rep.fixed_free_hz))) * 1.25
     ax.set_ylim(0, top)
@@ -314,7 +371,8 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     ax.set_ylabel("RQ frequency [Hz]")
     ax.set_title(
         f"{rep.rig}: RQ-FEP, {rep.spec.n} runs, P = {rep.spec.pmin:g} … {rep.spec.pmax:g} N\n"
-        "black: fixed-free, gray: fixed-pinned; red: flagged NNM1–NNM2 interaction (? = not robust to 1 ppm of P)",
+        "black: fixed-free, gray: fixed-pinned; red: flagged NNM1–NNM2 interaction, m:n from the modal ratio "
+        "(? = not robust to 1 ppm of P); green: modal-ratio lock",
         fontsize=9,
     )
     ax.legend(loc="upper left", fontsize=8, markerscale=3)
@@ -343,8 +401,8 @@ def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
         )
     console.print(t)
     t = Table(title=f"flagged NNM1–NNM2 interactions ({len(rep.flags)})")
-    for c in ("kind", "P [N]", "energy [J]", "points", "f1 / f2 at peak [Hz]", "f2/f1 below / above", "m:n",
-              "gap closed", "1 ppm"):
+    for c in ("kind", "P [N]", "energy [J]", "points", "RQ f1 / f2 at peak [Hz]", "RQ f2/f1 below / above", "m:n RQ",
+              "modal f2/f1 below / peak / above", "m:n modal", "gap closed", "1 ppm"):
         t.add_column(c, justify="right")
     for f, ok in zip(rep.flags, rep.robust, strict=True):
         t.add_row(
@@ -354,11 +412,25 @@ def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
             str(f.n_points),
             f"{f.f1_hz:.2f} / {f.f2_hz:.2f}",
             f"{f.ratio_left:.2f} / {f.ratio_right:.2f}",
-            f.label + ("" if f.bracketed else " (nearest)"),
+            f.rq_label + ("" if f.bracketed else " (nearest)"),
+            "–" if f.modal_label is None else f"{f.modal_ratio_left:.2f} / {f.modal_ratio_peak:.2f} / {f.modal_ratio_right:.2f}",
+            "–" if f.modal_label is None else f.modal_label + ("" if f.modal_bracketed else " (nearest)"),
             f"{100 * f.score:.0f} %",
             "robust" if ok else "not robust",
         )
     console.print(t)
+    if rep.modal_hz is not None:
+        s = rep.spec.settings
+        t = Table(title=f"modal-ratio locks ({len(rep.locks)}): |f2/f1 − m/n| ≤ {100 * s.lock_tol:g} % over ≥ "
+                        f"{s.lock_min_points} points, slope ≤ {s.lock_flatness:g} × each side's")  # fmt: skip
+        for c in ("kind", "m:n", "P [N]", "energy [J]", "points", "modal f2/f1 mean (min–max)",
+                  "slope in / below / above [per decade of E]"):
+            t.add_column(c, justify="right")
+        for lk in rep.locks:
+            t.add_row(lk.kind, lk.label, f"{lk.p_lo:.4g}–{lk.p_hi:.4g}", f"{lk.energy_lo:.3g}–{lk.energy_hi:.3g}",
+                      str(lk.n_points), f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
+                      f"{lk.slope_in:.3f} / {lk.slope_below:.3f} / {lk.slope_above:.3f}")  # fmt: skip
+        console.print(t)
     caps = int(rep.result.substep_cap_hits.sum())
     console.print(
         f"{rep.spec.n} runs x {rep.spec.duration:g} s, {len(rep.output_dofs)} outputs, order {rep.spec.order}, "

@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from analysis.rqfep import SpikeSettings, flag_interactions, nearest_ratio, pod_from_covariance, rq_fep
+from analysis.rqfep import SpikeSettings, find_locks, flag_interactions, nearest_ratio, pod_from_covariance, rq_fep
 from tests.conftest import gvt_command
 
 # ---------------------------------------------------------------- kernels
@@ -188,6 +188,123 @@ def test_nearest_ratio_prefers_the_ratio_crossed():
     assert nearest_ratio(3.6, 2.4)[0] in ((3, 1), (5, 2), (7, 2)) and nearest_ratio(3.6, 2.4)[1]
 
 
+# ---------------------------------------------------------------- modal labels and locks
+
+
+def _modal_curve(n: int = 200, slope: float = -0.01, start: float = 5.0):
+    """A modal ratio falling steadily by ``slope`` (relative) per point, like the sweep's ~1 % per point."""
+    e = np.logspace(-4, 4, n)
+    return e, start * (1 + slope) ** np.arange(n)
+
+
+def test_a_planted_plateau_is_a_lock_with_its_ratio():
+    """The measured 3:1 signature (docs/sweep.md): f2/f1 flat at 3.00 ± 1 % over 16 points, the falling curve
+    around it jumping onto and off the plateau."""
+    e, r = _modal_curve()
+    i0 = int(np.argmin(np.abs(r - 3.1)))
+    rng = np.random.default_rng(2)
+    plateau = 3.0 * (1 + 0.008 * rng.uniform(-1, 1, 16))
+    r2 = r.copy()
+    r2[i0 : i0 + 16] = plateau
+    r2[i0 + 16 :] = r[i0 + 16 :] * r[i0] / r[i0 + 16] * 0.93  # the curve resumes below the plateau (2.88)
+    p = np.logspace(1, 12, e.size)
+    locks = find_locks(e, r2, amplitudes=p)
+    assert [lk.label for lk in locks] == ["3:1"], locks
+    lk = locks[0]
+    assert lk.kind == "lock" and lk.to_dict()["ratio"] == "3:1"
+    assert lk.i_lo == i0 and lk.i_hi == i0 + 15 and lk.n_points == 16
+    assert lk.p_lo == p[i0] and lk.p_hi == p[i0 + 15] and lk.energy_lo == e[i0]
+    assert abs(lk.ratio_mean - 3.0) < 0.01 and 2.97 < lk.ratio_min <= lk.ratio_max < 3.03
+    assert lk.slope_in < 0.5 * min(lk.slope_below, lk.slope_above)
+    # order does not matter
+    perm = np.random.default_rng(4).permutation(e.size)
+    again = find_locks(e[perm], r2[perm], amplitudes=p[perm])
+    assert len(again) == 1 and perm[again[0].i_lo] == i0 and again[0].n_points == 16
+
+
+@pytest.mark.parametrize("slope", [-0.01, -0.005, 0.008])
+def test_a_ratio_passing_through_at_a_steady_slope_is_not_a_lock(slope):
+    """Falling (or rising) by 0.5–1 % per point, the ratio is within 3 % of 4, 7:2, 3 … for 6–12 points in a row:
+    the tolerance alone would call each a lock; the flatness test does not."""
+    e, r = _modal_curve(slope=slope, start=5.0 if slope < 0 else 2.0)
+    near = np.abs(r - 3.0) <= 0.03 * 3.0
+    assert near.sum() >= 6  # the tolerance alone is met
+    assert find_locks(e, r) == []
+    assert find_locks(e, r, SpikeSettings(lock_flatness=1.5)) != []  # ... and is what a flatness-free rule flags
+
+
+def test_a_plateau_at_the_sweep_edge_or_off_candidate_is_not_judged():
+    e, r = _modal_curve()
+    r2 = r.copy()
+    r2[:10] = 5.0  # flat at 5:1, but from the first point: no low-energy side to compare with
+    assert find_locks(e, r2) == []
+    i0 = int(np.argmin(np.abs(r - 2.9)))
+    r3 = np.concatenate([r[:i0] * 1.1, np.full(12, 2.88), r[i0 + 12 :] * 0.97])  # flat, 4 % below 3: no candidate
+    assert find_locks(e, r3) == []
+    assert [lk.label for lk in find_locks(e, r3, SpikeSettings(lock_tol=0.05))] == ["3:1"]
+
+
+def test_a_nan_modal_ratio_breaks_a_plateau():
+    e, r = _modal_curve()
+    i0 = int(np.argmin(np.abs(r - 3.1)))
+    r2 = r.copy()
+    r2[i0 : i0 + 12] = 3.0
+    r2[i0 + 12 :] *= 0.95
+    assert len(find_locks(e, r2)) == 1
+    r2[i0 + 1 :: 2][:6] = np.nan
+    assert find_locks(e, r2) == []
+
+
+def test_flags_are_labelled_by_the_modal_ratio_with_the_rq_label_beside_it():
+    """The RQ ratio crosses 4 at the spike, the modal ratio (the modes' phase advance) crosses 3 there: the
+    flag's label is 3:1, the RQ label 4:1 is kept (docs/sweep.md: the RQ omits the tip spring)."""
+    e, f1, f2 = _backbones()
+    g1, g2, _ = _plant(e, f1, f2, 4.0, 2, up=0.4, down=0.1)
+    modal = 3.0 * (f2 / f1) / 4.0  # 3.0 where the RQ ratio is 4.0
+    fl = flag_interactions(e, np.stack([g1, g2], axis=1), modal_ratio=modal)[0]
+    assert fl.ratio == (4, 1) and fl.rq_label == "4:1"
+    assert fl.modal_ratio == (3, 1) and fl.modal_bracketed and fl.label == "3:1"
+    assert fl.modal_ratio_left > 3.0 > fl.modal_ratio_right
+    assert fl.modal_ratio_left == modal[fl.i_lo - 1] and fl.modal_ratio_right == modal[fl.i_hi + 1]
+    assert fl.modal_ratio_peak == modal[fl.i_peak]
+    d = fl.to_dict()
+    assert d["ratio"] == "3:1" and d["rq_ratio"] == "4:1" and d["modal_ratio"] == "3:1" and d["label_source"] == "modal"
+    # without a modal ratio the RQ label stands, as before
+    plain = flag_interactions(e, np.stack([g1, g2], axis=1))[0]
+    assert plain.label == "4:1" and plain.modal_ratio is None and plain.to_dict()["label_source"] == "rq"
+    # a modal ratio that stays off every candidate's bracket: the nearest, marked not bracketed
+    off = flag_interactions(e, np.stack([g1, g2], axis=1), modal_ratio=np.full(e.size, 2.7))[0]
+    assert off.modal_ratio == (5, 2) and not off.modal_bracketed
+    with pytest.raises(ValueError):
+        flag_interactions(e, np.stack([g1, g2], axis=1), modal_ratio=modal[:-1])
+
+
+def test_run_with_modal_phase_keeps_the_moments_and_measures_the_linear_modes(rigs):
+    """One small real run: the moments are run_moments' bit for bit, and at P = 1 mN (linear) the modal phase
+    advance gives the Guyan modes' frequencies (3.807 / 23.861 Hz, damped: a shade lower)."""
+    from analysis.model.sweep import ModalProbe, run_with_modal_phase
+    from daq.sweep_cmd import _simulator, output_dofs
+
+    rig = rigs("beam_ch4_sim")
+    dofs = output_dofs(rig, "translational")
+    sim = _simulator(rig, dofs, None)
+    g = rig.guyan(dofs)
+    probe = ModalProbe.from_guyan(g.M, g.K, 2)
+    amps = np.array([1e-3, 150.0])
+    res = run_with_modal_phase(sim, rig.hammer_force(), 0.5, rig.sample_rate, amps, probe)
+    ref = sim.run_moments(rig.hammer_force(), 0.5, rig.sample_rate, amps)
+    assert np.array_equal(res.covariance, ref.covariance) and np.array_equal(res.input_work, ref.input_work)
+    assert np.array_equal(res.substep_cap_hits, ref.substep_cap_hits)
+    assert res.modal_freq_hz.shape == (2, 2, 2)
+    lin = res.modal_freq_hz[0]
+    assert np.allclose(lin, [[3.807, 23.861], [3.807, 23.861]], rtol=3e-3), lin
+    hard = res.modal_freq_hz[1, 0]  # the tip spring stiffens NNM1 much more than NNM2 (docs/sweep.md: ~6.2 / 25 Hz)
+    assert 5.5 < hard[0] < 7.0 and 24.3 < hard[1] < 25.6 and 3.6 < hard[1] / hard[0] < 4.4, hard
+    # a window the record is too short for is NaN, not an extrapolation
+    short = run_with_modal_phase(sim, rig.hammer_force(), 0.2, rig.sample_rate, amps[:1], probe)
+    assert np.isfinite(short.modal_freq_hz[0, 0]).all() and np.isnan(short.modal_freq_hz[0, 1]).all()
+
+
 # ---------------------------------------------------------------- the command end to end
 
 
@@ -238,8 +355,12 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
 
     rows = np.loadtxt(tmp_path / "rqfep.csv", delimiter=",", skiprows=1)
     header = (tmp_path / "rqfep.csv").read_text().splitlines()[0].split(",")
-    assert header == ["P_N", "input_energy_J", "f1_hz", "f2_hz", "f3_hz", "f4_hz", "substep_cap_hits"]
-    assert rows.shape == (40, 7)
+    assert header == ["P_N", "input_energy_J", "f1_hz", "f2_hz", "f3_hz", "f4_hz", "substep_cap_hits", "f1_modal_hz",
+                      "f2_modal_hz", "f1_modal_early_hz", "f2_modal_early_hz", "modal_ratio"]  # fmt: skip
+    assert rows.shape == (40, 12)
+    assert np.allclose(rows[:, 11], rows[:, 8] / rows[:, 7], rtol=1e-5)
+    # P = 10 N: near the linear modes, the hardening tip spring already a shade above (measured 3.844 / 23.872 Hz)
+    assert np.allclose(rows[0, 7:9], [3.807, 23.861], rtol=0.02) and rows[0, 7] > 3.807
     assert np.allclose(rows[:, 0], np.logspace(1, 12, 40), rtol=1e-8)
     f = rows[:, 2:6]
     assert np.all(np.diff(f, axis=1) >= 0)  # sorted ascending (L1251)
@@ -262,3 +383,5 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
     for fl in js["interactions"]:
         assert fl["ratio"] in {"2:1", "5:2", "3:1", "7:2", "4:1", "9:2", "5:1"} and isinstance(fl["robust_1ppm"], bool)
         assert fl["kind"] in {"spike", "band"}
+        assert fl["label_source"] == "modal" and fl["rq_ratio"] in {"2:1", "5:2", "3:1", "7:2", "4:1", "9:2", "5:1"}
+    assert all(lk["kind"] == "lock" for lk in js["locks"]) and js["modal_windows_s"]["whole"] == [0.05, -0.05]

@@ -5,29 +5,210 @@ Each run keeps only what an RQ-FEP needs — the mean and 1/n covariance of the 
 work (the energy axis, L1251) — so memory is O(n_out^2) per run however long the record. Chunks of
 amplitudes run as Dask tasks: a local cluster by default, any scheduler address to scale out
 (architecture.md, "Where it grows").
+
+Per run it can also measure the mean frequencies of the two lowest *linear* modes from their phase
+advance (``ModalProbe``): the modal filter of :mod:`analysis.modal_filter` (``q = ΦᵀM x`` with the Guyan
+modes at the outputs, θ = atan2(−q̇/ω, q)) applied to every output sample, unwrapped, read at window
+edges. The RQ uses the linear K, which has no term for the tip spring, so the RQ ratio f2/f1 is not the
+NNMs' frequency ratio (docs/sweep.md, "Which m:n is the band?"); the phase advance is. The seed labels an
+internal resonance by its slow phase m·θ1 − n·θ2 (L1296–L1298), i.e. by these frequencies. What is
+kept per run is still O(n_out² + windows); the probe adds one reused buffer of one run's reduced record
+(n_samples × n_basis, ~6 MB for 1 s of beam_ch4_sim) per worker, since the simulator's moment kernel has no
+per-sample hook (``analysis.model._integrator``, not changed here).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
+from analysis.model._integrator import _integrate
 from analysis.model.forces import Force
 from analysis.model.simulate import ImpactSimulator, MomentResult
 
+FloatArray = np.ndarray
+
+#: windows (start_s, end_s) of the per-run modal phase advance; a negative end counts back from the record's
+#: end. "whole": 0.05 s (after the 0.6 ms pulse and the modes' first swing) to 0.05 s before the end, as in
+#: bench/eval_sweep_band.py; "early": 0.05–0.3 s, before most of the decay (0.3 s is the seed's end guard, L1426).
+MODAL_WINDOWS_S: tuple[tuple[float, float], ...] = ((0.05, -0.05), (0.05, 0.3))
+MODAL_WINDOW_NAMES: tuple[str, ...] = ("whole", "early")
+
+
+@dataclass(frozen=True)
+class ModalProbe:
+    """What the per-run modal phase needs: the modal filter of the lowest linear modes at the outputs.
+
+    ``projector`` is ``ΦᵀM`` (r, n_out) of the Guyan model at the output DOFs and ``omega`` (r,) its
+    natural frequencies in rad/s (``analysis.modal_filter.modal_basis``; eq. 2.15).
+    """
+
+    projector: FloatArray
+    omega: FloatArray
+    windows_s: tuple[tuple[float, float], ...] = MODAL_WINDOWS_S
+
+    @classmethod
+    def from_guyan(cls, M: FloatArray, K: FloatArray, n_modes: int = 2,
+                   windows_s: tuple[tuple[float, float], ...] = MODAL_WINDOWS_S) -> ModalProbe:  # fmt: skip
+        from analysis.modal_filter import modal_basis
+
+        b = modal_basis(M, K, n_modes)
+        return cls(projector=np.ascontiguousarray(b.projector), omega=np.ascontiguousarray(b.omega), windows_s=windows_s)
+
+    def marks(self, n_samples: int, sample_rate: float) -> np.ndarray:
+        """Sample indices (n_windows, 2) of each window's edges; −1 where the window does not fit the record."""
+        out = np.full((len(self.windows_s), 2), -1, dtype=np.int64)
+        for k, (a, b) in enumerate(self.windows_s):
+            i0 = round(a * sample_rate)
+            i1 = round((n_samples / sample_rate + b) * sample_rate) if b < 0 else round(b * sample_rate)
+            if 0 <= i0 < i1 <= n_samples - 1:
+                out[k] = (i0, i1)
+        return out
+
+
+@dataclass(frozen=True)
+class SweepMoments(MomentResult):
+    """:class:`MomentResult` plus, with a :class:`ModalProbe`, each run's mean modal frequencies.
+
+    ``modal_freq_hz`` (B, n_windows, r): phase advance of linear mode j over window w divided by 2π·length
+    (NaN where the window does not fit the record); ``modal_windows_s`` the windows.
+    """
+
+    modal_freq_hz: FloatArray | None = None
+    modal_windows_s: tuple[tuple[float, float], ...] = ()
+
+
+@njit(cache=True)
+def _moments_and_phase(q, v, A, omega, marks):  # pragma: no cover - compiled
+    """One pass over a run's reduced states: Σq and Σqqᵀ in the simulator's own order (bit-identical to
+    ``run_moments``), and the unwrapped modal phases θ_j = atan2(−ż_j/ω_j, z_j), z = A q, read at ``marks``."""
+    n, n_r = q.shape
+    r = A.shape[0]
+    sum_q = np.zeros(n_r)
+    sum_qq = np.zeros((n_r, n_r))
+    theta = np.zeros(r)
+    prev = np.zeros(r)
+    at = np.full((marks.shape[0], 2, r), np.nan)
+    for k in range(n):
+        for i in range(n_r):
+            sum_q[i] += q[k, i]
+            for j in range(n_r):
+                sum_qq[i, j] += q[k, i] * q[k, j]
+        for m in range(r):
+            z = 0.0
+            zd = 0.0
+            for i in range(n_r):
+                z += A[m, i] * q[k, i]
+                zd += A[m, i] * v[k, i]
+            ph = math.atan2(-zd / omega[m], z)
+            if k > 0:
+                d = ph - prev[m]
+                if d > math.pi:
+                    d -= 2.0 * math.pi
+                elif d <= -math.pi:
+                    d += 2.0 * math.pi
+                theta[m] += d
+            prev[m] = ph
+        for w in range(marks.shape[0]):
+            for e in range(2):
+                if marks[w, e] == k:
+                    for m in range(r):
+                        at[w, e, m] = theta[m]
+    return sum_q, sum_qq, at
+
+
+@njit(cache=True, parallel=True)
+def _run_record(amp, model, force, stepping, q_out, v_out, g_out, work_out, diss_out):  # pragma: no cover - compiled
+    """One amplitude into preallocated record buffers (the simulator's ``_integrate``, ``record=True``), reused
+    run after run. Compiled with ``parallel=True`` around a one-item ``prange`` like the simulator's
+    ``integrate_batch_moments``: measured on beam_ch4_sim (1 s, one thread) 0.196 s per run this way against
+    0.240 s from a plain ``@njit`` wrapper of the same call (numba's parfor pipeline optimises the inlined
+    integrator differently); ``integrate_batch_moments`` takes 0.199 s."""
+    omega2, cdamp, phi_f, B, law, kc, pe = model
+    fkind, fstart, fdur, ftt, fff, fcum = force
+    gammas, dt_out, n_min, n_max, om_base2, theta = stepping
+    d1 = np.zeros(1)
+    d2 = np.zeros((1, 1))
+    work = np.zeros(1)
+    diss = np.zeros(1)
+    steps = np.zeros(1, dtype=np.int64)
+    capped = np.zeros(1, dtype=np.int64)
+    for b in prange(1):
+        work[b], diss[b], steps[b], capped[b] = _integrate(
+            amp, omega2, cdamp, phi_f, B, law, kc, pe, fkind, fstart, fdur, ftt, fff, fcum, gammas, dt_out, n_min, n_max,
+            om_base2, theta, q_out.shape[0], q_out, v_out, g_out, work_out, diss_out, d1, d2, True)  # fmt: skip
+    return work[0], diss[0], steps[0], capped[0]
+
+
+def run_with_modal_phase(
+    sim: ImpactSimulator, force: Force, duration: float, sample_rate: float, amps: np.ndarray, probe: ModalProbe
+) -> SweepMoments:
+    """``sim.run_moments`` (same moments, bit for bit) plus each run's mean modal frequencies per window.
+
+    Memory: one run's reduced record (n_samples × n_basis states, ~6 MB for 1 s of ``beam_ch4_sim``), a
+    buffer reused for every run of the chunk and reduced to the moments and the phases at the window edges;
+    nothing grows with the number of runs. (O(1) in the record length would need the phase accumulated inside
+    ``analysis.model._integrator._integrate``.)
+    """
+    n, model, fdesc, stepping, amps = sim._prepare(force, duration, sample_rate, amps)
+    A = np.ascontiguousarray(probe.projector @ sim.reduced.rows(sim.output_dofs))
+    marks = probe.marks(n, sample_rate)
+    n_r = model[0].shape[0]
+    B = amps.size
+    sq, sqq = np.zeros((B, n_r)), np.zeros((B, n_r, n_r))
+    work, diss = np.zeros(B), np.zeros(B)
+    steps, capped = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
+    fmod = np.full((B, len(probe.windows_s), probe.omega.size), np.nan)
+    q, v = np.empty((n, n_r)), np.empty((n, n_r))
+    g_out, w_out, d_out = np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n)
+    for b in range(B):
+        work[b], diss[b], steps[b], capped[b] = _run_record(float(amps[b]), model, fdesc, stepping, q, v, g_out, w_out, d_out)
+        sq[b], sqq[b], at = _moments_and_phase(q, v, A, probe.omega, marks)
+        for k, (i0, i1) in enumerate(marks):
+            if i0 >= 0:
+                fmod[b, k] = (at[k, 1] - at[k, 0]) * sample_rate / (2.0 * math.pi * (i1 - i0))
+    mq = sq / n
+    cq = sqq / n - mq[:, :, None] * mq[:, None, :]
+    P = sim.reduced.rows(sim.output_dofs)
+    return SweepMoments(
+        amplitudes=amps,
+        mean=mq @ P.T,
+        covariance=np.einsum("ir,brs,js->bij", P, cq, P),
+        input_work=work,
+        dissipated=diss,
+        n_samples=n,
+        output_names=sim.output_names,
+        steps_per_sample=steps / (n - 1),
+        substep_cap_hits=capped,
+        modal_freq_hz=fmod,
+        modal_windows_s=probe.windows_s,
+    )
+
 
 def _run_chunk(
-    sim: ImpactSimulator, force: Force, duration: float, sample_rate: float, amps: np.ndarray, threads: int
+    sim: ImpactSimulator,
+    force: Force,
+    duration: float,
+    sample_rate: float,
+    amps: np.ndarray,
+    threads: int,
+    probe: ModalProbe | None = None,
 ) -> MomentResult:
     import numba
 
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    if probe is not None:
+        return run_with_modal_phase(sim, force, duration, sample_rate, amps, probe)
     return sim.run_moments(force, duration, sample_rate, amps)
 
 
 def _concat(parts: Sequence[MomentResult]) -> MomentResult:
-    return MomentResult(
+    modal = all(isinstance(p, SweepMoments) and p.modal_freq_hz is not None for p in parts)
+    return SweepMoments(
         amplitudes=np.concatenate([p.amplitudes for p in parts]),
         mean=np.concatenate([p.mean for p in parts]),
         covariance=np.concatenate([p.covariance for p in parts]),
@@ -37,6 +218,8 @@ def _concat(parts: Sequence[MomentResult]) -> MomentResult:
         output_names=parts[0].output_names,
         steps_per_sample=np.concatenate([p.steps_per_sample for p in parts]),
         substep_cap_hits=np.concatenate([p.substep_cap_hits for p in parts]),
+        modal_freq_hz=np.concatenate([p.modal_freq_hz for p in parts]) if modal else None,  # type: ignore[attr-defined]
+        modal_windows_s=parts[0].modal_windows_s if modal else (),  # type: ignore[attr-defined]
     )
 
 
@@ -51,8 +234,12 @@ def sweep_moments(
     n_workers: int = 2,
     chunk_size: int = 20,
     progress: Callable[[int, int], None] | None = None,
-) -> MomentResult:
+    probe: ModalProbe | None = None,
+) -> SweepMoments:
     """Run every amplitude; results come back in the order of ``amplitudes``.
+
+    With ``probe`` each run also yields its mean modal frequencies (``SweepMoments.modal_freq_hz``,
+    :func:`run_with_modal_phase`); without, ``modal_freq_hz`` is None.
 
     ``scheduler=None`` starts a local cluster of ``n_workers`` single-threaded processes bound to
     127.0.0.1 and closes it afterwards; an address connects to an existing scheduler. ``progress`` is
@@ -75,7 +262,8 @@ def sweep_moments(
     try:
         sim_f = client.scatter(sim, broadcast=True)
         futures = {
-            client.submit(_run_chunk, sim_f, force, duration, sample_rate, c, 1, pure=False): i for i, c in enumerate(chunks)
+            client.submit(_run_chunk, sim_f, force, duration, sample_rate, c, 1, probe, pure=False): i
+            for i, c in enumerate(chunks)
         }
         parts: dict[int, MomentResult] = {}
         done = 0

@@ -371,8 +371,8 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     ax.set_ylabel("RQ frequency [Hz]")
     ax.set_title(
         f"{rep.rig}: RQ-FEP, {rep.spec.n} runs, P = {rep.spec.pmin:g} … {rep.spec.pmax:g} N\n"
-        "black: fixed-free, gray: fixed-pinned; red: flagged NNM1–NNM2 interaction, m:n from the modal ratio "
-        "(? = not robust to 1 ppm of P); green: modal-ratio lock",
+        "black: fixed-free, gray: fixed-pinned; green: modal-ratio lock\n"
+        "red: flagged NNM1–NNM2 interaction, m:n from the modal ratio, RQ label in brackets (? = not robust to 1 ppm of P)",
         fontsize=9,
     )
     ax.legend(loc="upper left", fontsize=8, markerscale=3)

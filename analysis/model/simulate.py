@@ -247,17 +247,20 @@ class ImpactSimulator:
         """
         n, model, fdesc, stepping, amps = self._prepare(force, duration, sample_rate, amplitudes)
         sq, sqq, work, diss, steps, capped = integrate_batch_moments(amps, model, fdesc, stepping, n)
+        return MomentResult(**self.moment_fields(amps, n, sq, sqq, work, diss, steps, capped))
+
+    def moment_fields(
+        self, amps: FloatArray, n: int, sq: FloatArray, sqq: FloatArray, work: FloatArray, diss: FloatArray,
+        steps: FloatArray, capped: FloatArray,
+    ) -> dict:  # fmt: skip
+        """The :class:`MomentResult` fields from per-run sums ``Σq`` (B, r) and ``Σqqᵀ`` (B, r, r) over ``n``
+        samples in the reduced coordinates: mean and 1/n covariance mapped to the outputs (exact for the
+        linear map ``x = P q``). Shared with the sweep's modal-phase runs (analysis.model.sweep)."""
         mq = sq / n
         cq = sqq / n - mq[:, :, None] * mq[:, None, :]
         P = self._phi_out
-        return MomentResult(
-            amplitudes=amps,
-            mean=mq @ P.T,
-            covariance=np.einsum("ir,brs,js->bij", P, cq, P),
-            input_work=work,
-            dissipated=diss,
-            n_samples=n,
-            output_names=self.output_names,
-            steps_per_sample=steps / (n - 1),
-            substep_cap_hits=capped,
-        )
+        return {
+            "amplitudes": amps, "mean": mq @ P.T, "covariance": np.einsum("ir,brs,js->bij", P, cq, P),
+            "input_work": work, "dissipated": diss, "n_samples": n, "output_names": self.output_names,
+            "steps_per_sample": steps / (n - 1), "substep_cap_hits": capped,
+        }  # fmt: skip

@@ -171,21 +171,8 @@ def run_with_modal_phase(
         for k, (i0, i1) in enumerate(marks):
             if i0 >= 0:
                 fmod[b, k] = (at[k, 1] - at[k, 0]) * sample_rate / (2.0 * math.pi * (i1 - i0))
-    mq = sq / n
-    cq = sqq / n - mq[:, :, None] * mq[:, None, :]
-    P = sim.reduced.rows(sim.output_dofs)
     return SweepMoments(
-        amplitudes=amps,
-        mean=mq @ P.T,
-        covariance=np.einsum("ir,brs,js->bij", P, cq, P),
-        input_work=work,
-        dissipated=diss,
-        n_samples=n,
-        output_names=sim.output_names,
-        steps_per_sample=steps / (n - 1),
-        substep_cap_hits=capped,
-        modal_freq_hz=fmod,
-        modal_windows_s=probe.windows_s,
+        **sim.moment_fields(amps, n, sq, sqq, work, diss, steps, capped), modal_freq_hz=fmod, modal_windows_s=probe.windows_s
     )
 
 

@@ -544,3 +544,26 @@ def test_fanout_wakes_a_subscriber_at_its_high_water():
     fan.close()
     assert sub.wake.is_set()
 
+
+def test_recover_skips_a_corrupt_chunk_of_an_indexed_log_and_says_data_was_lost(tmp_path):
+    """A log whose footer and index are intact but one chunk's bytes are damaged (a bad sector, a bit flip):
+    recover rewrites every other chunk and exits 3; a plain whole-log read is one clear error."""
+    p = tmp_path / "flip.mcap"
+    data = _chunked_log(p, 40)
+    with open(p, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) >= 4
+    raw = bytearray(p.read_bytes())
+    mid = chunks[2].chunk_start_offset + chunks[2].chunk_length // 2
+    raw[mid : mid + 64] = bytes(64)
+    p.write_bytes(bytes(raw))
+    r = LogReader(p)
+    assert r.indexed
+    with pytest.raises(LogReadError, match="gvt log recover"):
+        list(r.iter_messages())
+    proc = subprocess.run([*gvt_command(), "log", "recover", str(p), str(tmp_path / "fixed.mcap")],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 3 and "data was lost" in proc.stderr and "Traceback" not in proc.stderr
+    got = LogReader(tmp_path / "fixed.mcap").read_stream("dev0")
+    assert 0 < len(got.index) < len(data) and got.gaps  # the damaged chunk's blocks are a gap, the rest is there
+    assert got.data.tobytes() == data[got.index].tobytes()

@@ -20,6 +20,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from zstandard import ZstdError
 
 from daq.log import layout
 from daq.log.proto import BlockDecodeError, decode_block
@@ -77,7 +78,9 @@ class StreamData:
         return self.index / self.info.sample_rate
 
 
-_EXPECTED_ERRORS = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, MemoryError, OverflowError)
+#: what reading a damaged file raises, besides mcap's own errors: a corrupt zstd chunk raises zstandard's
+#: ZstdError from deep inside mcap's chunk decompression (found with a zeroed stretch inside a chunk)
+_EXPECTED_ERRORS = (McapError, ZstdError, EOFError, ValueError, OSError, KeyError, IndexError, MemoryError, OverflowError)
 
 
 class LogReader:
@@ -214,9 +217,14 @@ class LogReader:
 
     def iter_messages(
         self, topics: Sequence[str] | None = None, start_ns: int | None = None, end_ns: int | None = None,
-        time_order: bool = False,
+        time_order: bool = False, salvage: bool = False,
     ) -> Iterator[tuple[Channel, Message]]:
         """Messages in file order (log order within a stream), optionally filtered.
+
+        A chunk that fails its CRC or does not decompress in an indexed log ends the whole-log pass with a
+        :class:`LogReadError`, unless ``salvage`` (``gvt log recover``): then it is skipped and ``self.report``
+        says what the pass read (``messages``, ``chunks_bad``, so ``data_lost``). Damaged logs are always read
+        that way.
 
         ``time_order=True`` yields them by log time instead, and reads the file a chunk at a time: mcap 1.6's
         file-order iteration decompresses *every* chunk before it yields the first message (its queue
@@ -239,9 +247,11 @@ class LogReader:
         chans = {ch.id: ch for ch in self.channels()}
         want = set(topics) if topics else None
         rep = SalvageReport(complete=self._indexed, file_size=self.file_size)
+        read = 0
         for msg in self._records(rep):
             if not isinstance(msg, Message):
                 continue
+            read += 1
             ch = chans.get(msg.channel_id)
             if ch is None or (want is not None and ch.topic not in want):
                 continue
@@ -252,7 +262,10 @@ class LogReader:
             yield ch, msg
         if self._indexed and (rep.stopped_because is not None or rep.chunks_bad):
             why = rep.stopped_because or f"{rep.chunks_bad} chunk(s) fail their CRC or do not decompress"
-            raise LogReadError(f"{self.path}: {why}")
+            if not salvage:
+                raise LogReadError(f"{self.path}: {why}; 'gvt log recover {self.path} fixed.mcap' rewrites what is readable")
+            self.report.messages, self.report.chunks_bad, self.report.stopped_because = read, rep.chunks_bad, why
+            self.report.chunks_ok = rep.chunks_ok
 
     def message_count(self, topic: str) -> int:
         """Messages on ``topic``: from the summary's statistics (no data read) or from the salvage scan."""

@@ -119,7 +119,7 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
             w.add_metadata(name, data)
         for name, (media, data) in r.attachments().items():
             w.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=data)
-        for ch, msg in r.iter_messages():
+        for ch, msg in r.iter_messages(salvage=True):
             if ch.id not in channel_ids:
                 channel_ids[ch.id] = w.register_channel(
                     ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), dict(ch.metadata)

@@ -20,9 +20,15 @@ Choices (the seed leaves them open; ``docs/slowflow.md`` says how they were cali
   runs from the first to the last reversal of the chain. A first version used a fixed sliding window
   (spec §5 CHOICE); it missed the beam's ~1 s capture because any window long enough to hold two loops of
   the slower synthetic wobble also reached into the drift on both sides (docs/slowflow.md).
-* Intervals closer than ``end_guard`` to either end of the record are kept but marked ``end_effect``: the
-  seed distrusts loops near the signal ends (L1314) and accepts one only with ≥ 0.3 s of signal after
-  the escape (L1426). They never confirm an IR.
+* Net drift: a drift Φ = Dt + A·sin(ωt) with A·ω > D reverses every wobble period, and its short
+  backward swings form chains, yet Φ advances every period; a captured Φ librates about a centre
+  (eq. 4.2, L1275). Chains whose loops advance on balance by more than ``max_net_drift`` of their Φ path
+  are dropped (:func:`net_drift`).
+* Reversals closer than ``end_guard`` to either end of the record are not trusted: the seed distrusts
+  loops near the signal ends (L1314) and accepts one only with ≥ 0.3 s of signal after the escape
+  (L1426). A chain reaching into the guard is kept whole but marked ``end_effect`` (never confirms), and
+  its reversals outside the guard form a trusted interval if at least ``min_sign_changes`` remain. A
+  record no longer than two guards cannot be tested, and the Confirmation's reason says so.
 * Ratio test (L1296–L1298): for an m:n label the candidates (m−2 … m+2):n (reduced fractions only) are
   scanned; the best candidate must have a captured interval, and the bracketing rule must hold inside it:
   the drift of (m−1):n and (m+1):n runs in opposite directions (Φ̇ < 0 below, > 0 above the true ratio).
@@ -61,9 +67,18 @@ class DetectorParams:
     the filter's start-up transient chain onto a capture seconds later and drag it into the end guard).
     ``dead_band_rel``: Φ̇ must leave ±dead_band_rel·m·mean(ω_a) for a sign change to count (rejects
     rounding chatter about zero, e.g. a linear 1:1 pair whose Φ̇ is identically ~0).
-    ``end_guard_s``: intervals starting or ending this close to the record ends are ``end_effect``;
-    ``None`` means max(``end_guard_min_s``, 1/cut-off) — the seed's 0.3 s (L1426) or the filter's own
-    end transient, whichever is longer.
+    ``end_guard_s``: reversals this close to the record ends are not trusted; a chain reaching into the
+    guard is reported whole as ``end_effect`` and, trimmed to its reversals outside the guard, as a trusted
+    interval when enough reversals remain. ``None`` means max(``end_guard_min_s``, 1/cut-off) — the seed's
+    0.3 s (L1426) or the filter's own end transient, whichever is longer.
+    ``max_net_drift``: a chain whose loops advance Φ on balance by more than this fraction of their Φ
+    path is a drift with a wobble, not a capture (:func:`net_drift`; a chain of two reversals is judged
+    with its neighbouring reversals, a single loop of three is not judged). A captured slow angle
+    librates about a fixed or slowly moving centre, so its loops close (L986; eq. 4.2, L1275:
+    mθ̂_1 − nθ̂_2 ≈ const), while a time-like drift Φ = Dt + A·sin(ωt) with A·ω > D reverses every wobble
+    period yet advances a = 2πD/ω per loop. With b its backward swing the fraction is a/(2b + a), and
+    1/3 ⇔ a = b ⇔ successive loops overlap by half their Φ range: a capture's loops must overlap by more.
+    Calibration in docs/slowflow.md.
     """
 
     max_phase_range: float = 2.0 * math.pi
@@ -72,10 +87,13 @@ class DetectorParams:
     dead_band_rel: float = 0.002
     end_guard_s: float | None = None
     end_guard_min_s: float = 0.3
+    max_net_drift: float = 1.0 / 3.0
 
     def __post_init__(self) -> None:
         if self.max_gap_cycles <= 0 or self.max_phase_range <= 0 or self.min_sign_changes < 2:
             raise ValueError("DetectorParams: max_gap_cycles and max_phase_range must be > 0, min_sign_changes >= 2")
+        if not 0 < self.max_net_drift <= 1:
+            raise ValueError("DetectorParams: max_net_drift must lie in (0, 1]")
         if self.dead_band_rel < 0 or self.end_guard_min_s < 0:
             raise ValueError("DetectorParams: dead_band_rel and end_guard_min_s must be >= 0")
 
@@ -107,7 +125,8 @@ class Interval:
     strength: float  # reversals × (1 − median Φ excursion between reversals / max_phase_range)
     sign_changes: int  # Φ̇ reversals inside [start_s, end_s]
     phase_range: float  # rad, range of Φ inside [start_s, end_s]
-    end_effect: bool  # too close to a record end to be trusted (L1314, L1426)
+    end_effect: bool  # reaches into the end guard, never trusted (L1314, L1426)
+    net_drift: float = math.nan  # net advance / Φ path over its loops (:func:`net_drift`); nan: not judged
 
 
 @dataclass(frozen=True)
@@ -231,6 +250,13 @@ def _sign_flips(x: FloatArray, dead_band: float) -> NDArray[np.bool_]:
 
 
 def end_guard_s(lowpass_hz: float, params: DetectorParams) -> float:
+    """Time (s) at each record end in which reversals are not trusted (L1314, L1426; ``DetectorParams``).
+
+    1/cut-off stays the filter term. Measured from the impulse response of the zero-phase 3rd-order
+    Butterworth (what ``sosfiltfilt`` leaves at an end), |response| stays above 5 % of its peak until
+    0.88/cut-off, above 2 % until 0.97/cut-off and above 1 % until 1.43/cut-off: a settling time taken
+    from it at the usual 2–5 % levels is 1/cut-off within 12 %, so it would not shorten the guard.
+    """
     if params.end_guard_s is not None:
         return params.end_guard_s
     return max(params.end_guard_min_s, 1.0 / lowpass_hz)
@@ -245,6 +271,11 @@ def detect_non_time_like(traj: Trajectory, params: DetectorParams = DetectorPara
     chain successive reversals whose Φ excursion is under ``max_phase_range`` and whose spacing is under
     ``max_gap_cycles`` cut-off periods, and report chains of at least ``min_sign_changes`` reversals as
     [first reversal, last reversal]. The loop period is a property of the data, so no fixed window is used.
+
+    Two further rules (docs/slowflow.md): a chain whose loops advance Φ on balance by more than
+    ``max_net_drift`` of their path is a wobbling drift and is dropped (:func:`net_drift`); a chain
+    reaching into the end guard (L1314, L1426) is reported whole as ``end_effect`` and, trimmed to its
+    reversals outside the guard, as a trusted interval if at least ``min_sign_changes`` of them remain.
     """
     t, phi, phi_dot = traj.t, traj.phi, traj.phi_dot
     if t.size < 8:
@@ -253,23 +284,83 @@ def detect_non_time_like(traj: Trajectory, params: DetectorParams = DetectorPara
     if flips.size < params.min_sign_changes:
         return ()
     fs = (t.size - 1) / (t[-1] - t[0])
-    max_gap = params.max_gap_cycles / traj.lowpass_hz * fs
+    near = np.diff(flips) <= params.max_gap_cycles / traj.lowpass_hz * fs  # successive reversals close in time
     exc = np.abs(np.diff(phi[flips]))
-    link = (exc < params.max_phase_range) & (np.diff(flips) <= max_gap)
+    link = (exc < params.max_phase_range) & near
     guard = end_guard_s(traj.lowpass_hz, params)
+    ok = (t[flips] - t[0] >= guard) & (t[-1] - t[np.minimum(flips + 1, t.size - 1)] >= guard)  # reversal outside the guard
     out: list[Interval] = []
     for s, e in _runs(link):  # links s..e join reversals s..e+1
-        k = e - s + 2
-        if k < params.min_sign_changes:
+        idx = np.arange(s, e + 2)
+        if idx.size < params.min_sign_changes:
             continue
-        i0, i1 = int(flips[s]), int(flips[e + 1]) + 1
-        seg = phi[i0: i1 + 1]
-        med = float(np.median(exc[s: e + 1]))
-        strength = k * max(0.0, 1.0 - med / params.max_phase_range)
-        start, end = float(t[i0]), float(t[i1])
-        end_effect = start - t[0] < guard or t[-1] - end < guard
-        out.append(Interval(start, end, strength, int(k), float(seg.max() - seg.min()), bool(end_effect)))
-    return tuple(out)
+        kept = idx[ok[idx]]  # ok is True on one contiguous block of reversals
+        drift = _chain_drift(phi, flips, kept, near) if kept.size else math.nan
+        if drift > params.max_net_drift:  # the trustworthy part is a wobbling drift: nothing to show
+            continue
+        if not (ok[idx[0]] and ok[idx[-1]]):  # reaches into the guard: shown whole, never trusted
+            whole = _chain_drift(phi, flips, idx, near)
+            if not whole > params.max_net_drift:
+                out.append(_interval(traj, flips, idx, exc, params, True, whole))
+        if kept.size >= params.min_sign_changes:
+            out.append(_interval(traj, flips, kept, exc, params, False, drift))
+    return tuple(sorted(out, key=lambda iv: (iv.start_s, iv.end_effect)))
+
+
+def _chain_drift(phi: FloatArray, flips: NDArray[np.intp], idx: NDArray[np.intp], near: NDArray[np.bool_]) -> float:
+    """:func:`net_drift` of the chain of reversals ``idx`` (indices into ``flips``); nan when not judged.
+
+    A chain of three reversals is one loop and is not judged: one loop's advance cannot tell a wobble
+    period from a capture inside a passage, whose centre moves with the sweeping detuning (0.32 on the
+    synthetic one-loop passage of tests/test_slowflow.py); what marks a drift is the same advance
+    repeated, so a longer chain is judged on its own loops. A chain of two reversals is judged together
+    with the reversals just before and after it when they are ``near`` (inside the end guard too: they
+    only ever reject): a wobbling drift whose forward swings exceed ``max_phase_range`` breaks into such
+    two-reversal chains, and only the neighbouring reversals show that it advances every period — the
+    loop they form contains a swing beyond ``max_phase_range``, so it is never a capture's own loop.
+    """
+    lo, hi = int(idx[0]), int(idx[-1])
+    if hi - lo == 2:
+        return math.nan
+    if hi - lo < 2:
+        if lo > 0 and near[lo - 1]:
+            lo -= 1
+        if hi + 1 < flips.size and near[hi]:
+            hi += 1
+    return net_drift(phi[flips[lo: hi + 1]])
+
+
+def _interval(
+    traj: Trajectory, flips: NDArray[np.intp], idx: NDArray[np.intp], exc: FloatArray, params: DetectorParams,
+    end_effect: bool, drift: float,
+) -> Interval:  # fmt: skip
+    """The interval from the first to the last reversal of the chain ``idx`` (indices into ``flips``)."""
+    t, phi = traj.t, traj.phi
+    i0, i1 = int(flips[idx[0]]), int(flips[idx[-1]]) + 1
+    seg = phi[i0: i1 + 1]
+    med = float(np.median(exc[idx[0]: idx[-1]]))
+    k = int(idx.size)
+    strength = k * max(0.0, 1.0 - med / params.max_phase_range)
+    return Interval(float(t[i0]), float(t[i1]), strength, k, float(seg.max() - seg.min()), end_effect, drift)
+
+
+def net_drift(phi_at_reversals: ArrayLike) -> float:
+    """Net advance of Φ per loop as a fraction of the Φ path per loop, over successive reversals.
+
+    Each loop — three successive reversals r_i, r_i+1, r_i+2 — advances Φ(r_i+2) − Φ(r_i) over a path
+    |Φ(r_i+1) − Φ(r_i)| + |Φ(r_i+2) − Φ(r_i+1)|; the result is |Σ advances| / Σ paths, in [0, 1], nan for
+    fewer than three reversals (no loop, no evidence of drift). A libration about a fixed or slowly moving
+    centre gives ≈ 0 (eq. 4.2, L1275: mθ̂_1 − nθ̂_2 ≈ const); a drift Φ = Dt + A·sin(ωt) with A·ω > D gives
+    a/(2b + a) with a = 2πD/ω its advance per period and b its backward swing. Summing before dividing
+    keeps one irregular loop (a start-up wiggle, a noisy reversal) from hiding a drift over many loops.
+    """
+    p = np.asarray(phi_at_reversals, dtype=np.float64)
+    if p.size < 3:
+        return math.nan
+    swing = np.abs(np.diff(p))
+    path = float(np.sum(swing[:-1] + swing[1:]))
+    adv = float(np.sum(p[2:] - p[:-2]))
+    return abs(adv) / path if path > 0 else 0.0
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -327,8 +418,14 @@ def test_ratios(
     live = [rt for rt in tests if rt.trusted]
     if not live:
         tr = trajs.get((m, n)) or trajectory(comp_low, comp_high, fs, m, n, lp, params, t0)
-        return _confirmation("not_confirmed", m, n, math.nan, math.nan, tests, False,
-                             "no candidate has a non-time-like interval away from the record ends", tr)  # fmt: skip
+        guard, span_s = end_guard_s(lp, params), float(tr.t[-1] - tr.t[0])
+        if span_s <= 2.0 * guard:  # no reversal can lie outside both guards: say so instead of a bare "no"
+            why = f"record too short for the slow-flow test: needs > 2×guard = {2.0 * guard:.2f} s, got {span_s:.2f} s"
+            if params.end_guard_s is None:
+                why += f" (guard = max({params.end_guard_min_s:g} s, 1/cut-off = 1/{lp:.2f} Hz))"
+        else:
+            why = "no candidate has a non-time-like interval away from the record ends"
+        return _confirmation("not_confirmed", m, n, math.nan, math.nan, tests, False, why, tr)
     best = max(live, key=lambda rt: rt.strength)
     iv = max(best.trusted, key=lambda x: x.strength)
     signs = []

@@ -176,6 +176,28 @@ def run_with_modal_phase(
     )
 
 
+def run_modal_phases(
+    sim: ImpactSimulator, force: Force, duration: float, sample_rate: float, amp: float, probe: ModalProbe
+) -> tuple[float, FloatArray]:
+    """One run of the sweep's own simulation at amplitude ``amp`` → (input work J, phases (r, n_samples)).
+
+    The same compiled integrator call as :func:`run_with_modal_phase` (``_run_record``), so the record is the
+    one the sweep reduced to its moments and modal frequencies (the input work is bit-identical, tested); here
+    the probe's modal phases θ_j = atan2(−ż_j/ω_j, z_j), z = A q (eq. 2.15 basis), are kept at every output
+    sample, unwrapped, for the slow-flow test of a candidate capture (``analysis.sweep_capture``). Memory: one
+    run's reduced record (~6 MB for 1 s of ``beam_ch4_sim``) plus r × n_samples phases.
+    """
+    n, model, fdesc, stepping, amps = sim._prepare(force, duration, sample_rate, [float(amp)])
+    A = np.ascontiguousarray(probe.projector @ sim.reduced.rows(sim.output_dofs))
+    n_r = model[0].shape[0]
+    q, v = np.empty((n, n_r)), np.empty((n, n_r))
+    g_out, w_out, d_out = np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n)
+    work, _, _, _ = _run_record(float(amps[0]), model, fdesc, stepping, q, v, g_out, w_out, d_out)
+    z, zd = q @ A.T, v @ A.T
+    theta = np.unwrap(np.arctan2(-zd / probe.omega[None, :], z), axis=0)
+    return float(work), np.ascontiguousarray(theta.T)
+
+
 def _run_chunk(
     sim: ImpactSimulator,
     force: Force,

@@ -3,7 +3,9 @@
 P = logspace(1, 12, 1000) (L1215), 1 s per run, 100 translational outputs at 16384 Hz, order 4, Dask local
 cluster with 2 single-threaded workers; then POD + RQ of the first four POMs, asymptote errors against the
 fixed-free / fixed-pinned frequencies, the flagged NNM1–NNM2 interactions with their 1 ppm re-check (labelled by
-the per-run modal ratio f2/f1 of linear modes 1–2, RQ label beside it) and the modal-ratio locks.
+the per-run modal ratio f2/f1 of linear modes 1–2, RQ label beside it), the modal-ratio locks, and the slow-flow
+captures of the second stage (``analysis.sweep_capture``: re-simulated runs at the candidate passages; its run count
+and wall time are printed, the extra cost over the sweep).
 Prints a table, writes bench/results/bench_sweep.json and bench/results/sweep/{rqfep.csv,rqfep.png,sweep.json}.
 
     python bench/bench_sweep.py [--runs 1000] [--duration 1.0]
@@ -31,7 +33,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=1000, help="amplitudes (the seed: 1000)")
     ap.add_argument("--duration", type=float, default=1.0, help="seconds per run (the seed: 1)")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2, help="local Dask workers (1 on a shared machine)")
     args = ap.parse_args()
     rig = open_rig("beam_ch4_sim")
     spec = SweepSpec(n=args.runs, duration=args.duration, workers=args.workers)
@@ -58,6 +60,13 @@ def main() -> None:
         f"{100 * worst_low:.2f} %; {len(rep.flags)} flags ({sum(rep.robust)} robust to 1 ppm of P); "
         f"{len(rep.locks)} modal-ratio locks ({', '.join(f'{lk.label} at {lk.p_lo:.4g}–{lk.p_hi:.4g} N' for lk in rep.locks)})"
     )
+    if rep.capture is not None:
+        c = rep.capture
+        print(
+            f"slow-flow stage: {c.runs} runs re-simulated at {len(c.passages)} passages ({len(c.untested)} untested) in "
+            f"{c.wall_s:.1f} s ({100 * c.wall_s / rep.wall_s:.1f} % of the wall); {len(c.captures)} captures: "
+            + ", ".join(f"{cp.label} at {cp.p_lo:.4g}–{cp.p_hi:.4g} N ({cp.n_confirmed}/{cp.n_tested})" for cp in c.captures)
+        )
     print(f"wrote {RESULTS / 'bench_sweep.json'}")
 
 

@@ -14,6 +14,11 @@ Per run the sweep also measures the mean frequencies of the two lowest linear mo
 advance (``analysis.model.sweep.ModalProbe``): the RQ uses the linear K, without the tip spring, so the RQ
 ratio is not the NNMs' frequency ratio (docs/sweep.md). Every flag carries the label from that modal ratio
 beside the RQ one, and plateaus of the modal ratio at an m:n are reported as locks (``analysis.rqfep.find_locks``).
+
+A second stage (``analysis.sweep_capture``) re-simulates a few runs where the modal ratio passes within a
+tolerance of a seed ratio m:n and runs the seed's slow-flow test on them (Φ_{m:n} non-time-like, its
+neighbours bracketing it, L1296–L1298); a confirmed one is reported as ``kind = "capture"``. It runs in this
+process after the Dask cluster has closed: a handful of runs at ~0.25 s each (docs/sweep.md has the cost).
 """
 
 from __future__ import annotations
@@ -33,7 +38,14 @@ import numpy as np
 from analysis.model.modal import structure_modes
 from analysis.model.rig import Rig
 from analysis.model.simulate import ImpactSimulator, MomentResult
-from analysis.model.sweep import MODAL_WINDOW_NAMES, ModalProbe, SweepMoments, run_with_modal_phase, sweep_moments
+from analysis.model.sweep import (
+    MODAL_WINDOW_NAMES,
+    ModalProbe,
+    SweepMoments,
+    run_modal_phases,
+    run_with_modal_phase,
+    sweep_moments,
+)
 from analysis.rqfep import (
     RatioLock,
     SpikeSettings,
@@ -43,6 +55,7 @@ from analysis.rqfep import (
     pod_from_covariance,
     rq_fep,
 )
+from analysis.sweep_capture import CaptureReport, CaptureSettings, confirm_captures
 
 N_KEEP = 4  # "the RQ-FEP for the first four POMs" (L1251)
 JITTER = 1e-6  # relative change of P for the robustness re-check (docs/simulator.md §3: "1 ppm")
@@ -61,6 +74,7 @@ class SweepSpec:
     workers: int = 2
     edge_fraction: float = 0.05  # runs at each end of the sweep used for the asymptote check
     settings: SpikeSettings = field(default_factory=SpikeSettings)
+    capture: CaptureSettings = field(default_factory=CaptureSettings)
 
     def validate(self) -> None:
         """Raise ValueError with one line for anything a user can fix."""
@@ -99,6 +113,12 @@ class SweepReport:
     wall_s: float
     peak_rss_mb: float
     locks: list[RatioLock] = field(default_factory=list)
+    capture: CaptureReport | None = None  # the slow-flow stage (None: not run, or no modal ratio)
+
+    @property
+    def captures(self) -> list:
+        """Confirmed slow-flow captures (``analysis.sweep_capture.SweepCapture``, ``kind = "capture"``)."""
+        return [] if self.capture is None else self.capture.captures
 
     @property
     def modal_hz(self) -> np.ndarray | None:
@@ -137,6 +157,11 @@ class SweepReport:
                 zip(MODAL_WINDOW_NAMES, map(list, getattr(self.result, "modal_windows_s", ())), strict=False)
             ),
             "locks": [lk.to_dict() for lk in self.locks],
+            "capture_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s.capture).items()
+                                 if k != "detector"} | {"detector": vars(s.capture.detector)},
+            "captures": [c.to_dict() for c in self.captures],
+            "capture_stage": None if self.capture is None else {
+                k: v for k, v in self.capture.to_dict().items() if k != "captures"},
         }
 
 
@@ -227,6 +252,14 @@ def run_sweep(
         if progress:
             progress("re-checking flags at P (1 ± 1 ppm)", k / len(flags))
         robust.append(_survives_jitter(sim, force, spec, rig.sample_rate, g, res, freqs, fl, probe))
+    cap = None
+    if spec.capture.capture and mratio is not None:
+        def phases(p: float) -> tuple[float, np.ndarray]:
+            return run_modal_phases(sim, force, spec.duration, rig.sample_rate, p, probe)
+
+        cap = confirm_captures(res.input_work, mratio, res.amplitudes, phases, rig.sample_rate, spec.capture,
+                               progress=(lambda d, t: progress("slow-flow test at candidate passages", d / t)) if progress
+                               else None)  # fmt: skip
     wall = time.perf_counter() - t0
     lo, hi = limit_frequencies(rig)
     return SweepReport(
@@ -243,6 +276,7 @@ def run_sweep(
         wall_s=wall,
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         locks=locks,
+        capture=cap,
     )
 
 
@@ -364,6 +398,11 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     for lk in rep.locks:
         ax.axvspan(lk.energy_lo, lk.energy_hi, color="tab:green", alpha=0.15, lw=0)
         ax.annotate(f"{lk.label} lock", (lk.energy_lo, 2.0), color="darkgreen", fontsize=8, rotation=90, va="bottom")
+    for cp in rep.captures:  # slow-flow captures: a magenta diamond on POM 1 at every confirmed run
+        idx = cp.confirmed_indices
+        ax.plot(e[idx], rep.freqs[idx, 0], "D", mfc="none", mec="magenta", ms=7, mew=1.2)
+        ax.annotate(f"{cp.label} capture", (e[cp.i_peak], rep.freqs[cp.i_peak, 0]), color="darkmagenta", fontsize=8,
+                    rotation=90, xytext=(0, 8), textcoords="offset points", va="bottom", ha="center")  # fmt: skip
     ax.set_xscale("log")
     top = max(float(np.max(rep.fixed_pinned_hz)), float(np.max(rep.fixed_free_hz))) * 1.25
     ax.set_ylim(0, top)
@@ -371,7 +410,7 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     ax.set_ylabel("RQ frequency [Hz]")
     ax.set_title(
         f"{rep.rig}: RQ-FEP, {rep.spec.n} runs, P = {rep.spec.pmin:g} … {rep.spec.pmax:g} N\n"
-        "black: fixed-free, gray: fixed-pinned; green: modal-ratio lock\n"
+        "black: fixed-free, gray: fixed-pinned; green: modal-ratio lock; magenta \u25c7: slow-flow capture (on POM 1)\n"
         "red: flagged NNM1–NNM2 interaction, m:n from the modal ratio, RQ label in brackets (? = not robust to 1 ppm of P)",
         fontsize=9,
     )
@@ -430,6 +469,25 @@ def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
             t.add_row(lk.kind, lk.label, f"{lk.p_lo:.4g}–{lk.p_hi:.4g}", f"{lk.energy_lo:.3g}–{lk.energy_hi:.3g}",
                       str(lk.n_points), f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
                       f"{lk.slope_in:.3f} / {lk.slope_below:.3f} / {lk.slope_above:.3f}")  # fmt: skip
+        console.print(t)
+    if rep.capture is not None:
+        c = rep.capture
+        t = Table(title=f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like in [{rep.spec.capture.end_guard_s:g} s, "
+                        f"T − {rep.spec.capture.end_guard_s:g} s], (m∓1):n bracketing; {c.runs} runs re-simulated at "
+                        f"{len(c.passages)} passages within {100 * rep.spec.capture.passage_tol:g} % of m:n, "
+                        f"{len(c.untested)} untested, {c.wall_s:.1f} s")  # fmt: skip
+        for col in ("kind", "m:n", "P [N] confirmed", "energy [J]", "runs ok / tested", "passage P [N]", "passage f2/f1",
+                    "interval [s]", "chain [s]", "strength", "reversals", "Φ range [rad]", "Φ̇ (m−1) / (m+1) [rad/s]"):
+            t.add_column(col, justify="right")
+        for cp in c.captures:
+            br = list(cp.bracket.values())
+            t.add_row(cp.kind, cp.label, f"{cp.p_lo:.4g}" + ("" if cp.p_hi == cp.p_lo else f"–{cp.p_hi:.4g}"),
+                      f"{cp.energy_lo:.3g}" + ("" if cp.energy_hi == cp.energy_lo else f"–{cp.energy_hi:.3g}"),
+                      f"{cp.n_confirmed} / {cp.n_tested}", f"{cp.passage_p[0]:.4g}–{cp.passage_p[1]:.4g}",
+                      f"{cp.passage_ratio[0]:.3f}–{cp.passage_ratio[1]:.3f}",
+                      f"{cp.interval_s[0]:.2f}–{cp.interval_s[1]:.2f}", f"{cp.chain_s[0]:.2f}–{cp.chain_s[1]:.2f}",
+                      f"{cp.strength:.2f}", str(cp.sign_changes), f"{cp.phase_range:.2f}",
+                      " / ".join(f"{v:+.0f}" for v in br))  # fmt: skip
         console.print(t)
     caps = int(rep.result.substep_cap_hits.sum())
     console.print(

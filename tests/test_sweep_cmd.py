@@ -348,7 +348,7 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
     assert np.allclose(ff, [3.807, 23.861, 66.811, 130.923], rtol=2e-4)  # method-detection.md §2.3
     assert np.allclose(fp, [16.70, 54.11, 112.89, 193.05], rtol=3e-4)
 
-    r = _gvt("sweep", "beam_ch4_sim", "--n", "40", "--duration", "1", "--out", str(tmp_path), "--json")
+    r = _gvt("sweep", "beam_ch4_sim", "--n", "40", "--duration", "1", "--workers", "1", "--out", str(tmp_path), "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert summary["runs"] == 40 and summary["n_outputs"] == 100 and summary["order"] == 4
@@ -385,3 +385,14 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
         assert fl["kind"] in {"spike", "band"}
         assert fl["label_source"] == "modal" and fl["rq_ratio"] in {"2:1", "5:2", "3:1", "7:2", "4:1", "9:2", "5:1"}
     assert all(lk["kind"] == "lock" for lk in js["locks"]) and js["modal_windows_s"]["whole"] == [0.05, -0.05]
+    # the slow-flow stage ran on its candidate passages, within its budget, and every capture carries its evidence
+    stage = js["capture_stage"]
+    assert js["capture_settings"]["passage_tol"] == 0.03 and stage["runs"] <= js["capture_settings"]["max_runs"]
+    assert stage["runs"] == sum(len(ps["tested"]) for ps in stage["passages"])
+    for ps in stage["passages"]:
+        t = int(ps["ratio"].split(":")[0]) / int(ps["ratio"].split(":")[1])
+        assert ps["ratio_min"] >= 0.97 * t - 1e-9 and ps["ratio_max"] <= 1.03 * t + 1e-9
+    for cp in js["captures"]:
+        assert cp["kind"] == "capture" and cp["n_confirmed"] >= 1 and cp["p_lo"] <= cp["p_hi"]
+        assert cp["passage_p"][0] <= cp["p_lo"] and cp["p_hi"] <= cp["passage_p"][1]
+        assert cp["interval_s"][0] >= 0.3 - 1e-9 and cp["interval_s"][1] <= 0.7 + 1e-9 and len(cp["bracket"]) == 2

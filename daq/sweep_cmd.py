@@ -401,7 +401,7 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     for cp in rep.captures:  # slow-flow captures: a magenta diamond on POM 1 at every confirmed run
         idx = cp.confirmed_indices
         ax.plot(e[idx], rep.freqs[idx, 0], "D", mfc="none", mec="magenta", ms=7, mew=1.2)
-        ax.annotate(f"{cp.label} capture", (e[cp.i_peak], rep.freqs[cp.i_peak, 0]), color="darkmagenta", fontsize=8,
+        ax.annotate(cp.label, (e[cp.i_peak], rep.freqs[cp.i_peak, 0]), color="darkmagenta", fontsize=7,
                     rotation=90, xytext=(0, 8), textcoords="offset points", va="bottom", ha="center")  # fmt: skip
     ax.set_xscale("log")
     top = max(float(np.max(rep.fixed_pinned_hz)), float(np.max(rep.fixed_free_hz))) * 1.25
@@ -472,8 +472,9 @@ def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
         console.print(t)
     if rep.capture is not None:
         c = rep.capture
-        t = Table(title=f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like in [{rep.spec.capture.end_guard_s:g} s, "
-                        f"T − {rep.spec.capture.end_guard_s:g} s], (m∓1):n bracketing; {c.runs} runs re-simulated at "
+        g = rep.spec.capture.end_guard_s
+        t = Table(title=f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like (reversals ≥ {g:g} s "
+                        f"from the record ends), (m∓1):n bracketing (slowflow.test_ratios); {c.runs} runs re-simulated at "
                         f"{len(c.passages)} passages within {100 * rep.spec.capture.passage_tol:g} % of m:n, "
                         f"{len(c.untested)} untested, {c.wall_s:.1f} s")  # fmt: skip
         for col in ("kind", "m:n", "P [N] confirmed", "energy [J]", "runs ok / tested", "passage P [N]", "passage f2/f1",

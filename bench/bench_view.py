@@ -126,13 +126,70 @@ confirm = false
 """
 
 
+#: the recorder runs the normal CLI, with one bench-only addition: each Python thread gives its name to the OS
+#: thread (prctl PR_SET_NAME, 15 bytes), so the sampler below can tell the view's threads from the recorder's own
+RECORDER = """import ctypes, sys, threading
+_prctl = ctypes.CDLL(None).prctl
+_inner = threading.Thread._bootstrap_inner
+def _named(self):
+    _prctl(15, self.name.encode()[:15], 0, 0, 0)
+    _inner(self)
+threading.Thread._bootstrap_inner = _named
+from daq.cli import main
+sys.argv[0] = "gvt"
+sys.exit(main())
+"""
+
+#: OS thread names that are the view's: its logging thread, rerun-sdk's own threads, the viewer server child
+VIEW_THREADS = ("view", "ChunkBatcher", "RecordingStream", "message_proxy", "tokio-rt", "jemalloc_bg", "child:rerun")
+
+
+def _task_cpu(stat: Path) -> float:
+    fields = stat.read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def sample_threads(pid: int, last: dict) -> None:
+    """CPU so far of every thread of ``pid`` and of its child processes, by id (the last sample before a
+    thread ends is what it is charged: at most one sampling period is lost per thread)."""
+    base = Path(f"/proc/{pid}/task")
+    try:
+        tasks = list(base.iterdir())
+    except OSError:
+        return
+    for d in tasks:
+        try:
+            last[("t", int(d.name))] = ((d / "comm").read_text().strip(), _task_cpu(d / "stat"))
+            for c in (d / "children").read_text().split():
+                last[("c", int(c))] = ("child:" + Path(f"/proc/{c}/comm").read_text().strip(), _task_cpu(Path(f"/proc/{c}/stat")))
+        except (OSError, IndexError, ValueError):
+            continue
+
+
+def by_role(last: dict) -> dict[str, float]:
+    """Sampled CPU (s) summed by thread name with digits folded (read:dev0 and read:dev1 are one role)."""
+    import re
+
+    out: dict[str, float] = {}
+    for name, cpu in last.values():
+        key = re.sub(r"\d+", "#", name)
+        out[key] = out.get(key, 0.0) + cpu
+    return out
+
+
+def view_share(roles: dict[str, float]) -> float:
+    return sum(v for k, v in roles.items() if k.startswith(VIEW_THREADS))
+
+
 def record_run(variant: str, seconds: float, tmp: Path) -> dict:
-    """One ``gvt record`` of a separate ``gvt device serve`` process over a pty; the recorder's CPU from wait4."""
+    """One ``gvt record`` of a separate ``gvt device serve`` process over a pty; the recorder's CPU from wait4,
+    and per thread (by name) from /proc, sampled every 0.25 s."""
     import re
     import subprocess
 
     exe = Path(sys.executable).parent / "gvt"
     gvt = [str(exe)] if exe.exists() else [sys.executable, "-m", "daq.cli"]
+    recorder = [sys.executable, "-c", RECORDER]
     dev = subprocess.Popen([*gvt, "device", "serve", "beam_ch4_exp", "--transport", "serial", "--hits", str(int(seconds)),
                             "--period", "1.0", "--seconds", str(seconds + 30), "--seed", "5"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -145,11 +202,22 @@ def record_run(variant: str, seconds: float, tmp: Path) -> dict:
         cfg = tmp / "record.toml"
         out = tmp / f"record_{variant}.mcap"
         cfg.write_text(SESSION_TOML.format(out=out, seconds=seconds, port=m.group(1), channels=json.dumps(RIG_CHANNELS)))
-        cmd = [*gvt, "record", str(cfg), "--out", str(out)] + (["--view"] if variant == "view" else [])
+        cmd = [*recorder, "record", str(cfg), "--out", str(out)] + (["--view"] if variant == "view" else [])
         w0 = time.perf_counter()
         rec = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env={**os.environ, "RERUN_TELEMETRY": "0"})  # fmt: skip
+                               env={**os.environ, "RERUN_TELEMETRY": "0"}, cwd=ROOT)  # fmt: skip
+        last: dict = {}
+        done = threading.Event()
+
+        def poll() -> None:
+            while not done.wait(0.25):
+                sample_threads(rec.pid, last)
+
+        sampler = threading.Thread(target=poll, daemon=True)
+        sampler.start()
         text = rec.stdout.read()
+        done.set()
+        sampler.join()
         _pid, status, ru = os.wait4(rec.pid, 0)
         rec.returncode = os.waitstatus_to_exitcode(status)
         wall = time.perf_counter() - w0
@@ -162,10 +230,14 @@ def record_run(variant: str, seconds: float, tmp: Path) -> dict:
     from daq.log.tools import log_info
 
     info = log_info(out)  # what the session itself recorded about loss: gaps, and the view's own drops
-    overrun = [e for e in LogReader(out).json_messages("/daq/events") if e.get("kind") == "view_overrun"]
+    events = list(LogReader(out).json_messages("/daq/events"))
+    overrun = [e for e in events if e.get("kind") == "view_overrun"]
+    loss = [e for e in events if e.get("kind") != "view_overrun"][:20]  # gaps, overruns, CRC errors: kept to explain them
     cpu = ru.ru_utime + ru.ru_stime
+    roles = by_role(last)
     return {"variant": variant, "cpu_s": cpu, "total_cpu_s": cpu, "wall_s": wall, "data_s": seconds,
-            "missing_samples": sum(st["missing_samples"] for st in info["streams"]),
+            "roles_cpu_s": roles, "view_own_cpu_s": view_share(roles), "sampled_cpu_s": sum(roles.values()),
+            "missing_samples": sum(st["missing_samples"] for st in info["streams"]), "events": loss,
             "view_dropped_samples": sum(int(e.get("count", 0)) for e in overrun)}  # fmt: skip
 
 
@@ -247,9 +319,31 @@ def main_record(args) -> None:
         over = (slope[v] - base) / base if base > 0 else float("nan")
         print(f"{v:8s} {slope[v]:19.4f} {start[v]:15.2f} {100 * over:8.1f}%")
         rows.append({"variant": v, "cpu_per_data_s": slope[v], "startup_cpu_s": start[v], "overhead_fraction": over})
+    # per thread: what the view's own threads cost, against what the rest of the same recorder cost
+    longest = [r for r in runs if r["data_s"] == lengths[1]]
+    roles = sorted({k for r in longest for k in r["roles_cpu_s"]},
+                   key=lambda k: -max(r["roles_cpu_s"].get(k, 0) for r in longest))  # fmt: skip
+    print(f"\nper thread, {lengths[1]:g} s runs, CPU-s per data-s (median of {args.repeats}; sampled every 0.25 s):")
+    print(f"{'thread':18s}" + "".join(f"{v:>10s}" for v in variants))
+    per_role = {}
+    for k in roles:
+        per_role[k] = {v: statistics.median(r["roles_cpu_s"].get(k, 0.0) for r in longest if r["variant"] == v) / lengths[1]
+                       for v in variants}  # fmt: skip
+        if max(per_role[k].values()) >= 5e-4:
+            print(f"{k[:18]:18s}" + "".join(f"{per_role[k][v]:10.4f}" for v in variants))
+    direct = {}
+    for v in variants:
+        rs = [r for r in longest if r["variant"] == v]
+        own = statistics.median(r["view_own_cpu_s"] for r in rs)
+        rest = statistics.median(r["total_cpu_s"] - r["view_own_cpu_s"] for r in rs)
+        direct[v] = {"view_own_cpu_per_data_s": own / lengths[1], "rest_cpu_per_data_s": rest / lengths[1],
+                     "view_own_over_rest": own / rest if rest > 0 else float("nan")}  # fmt: skip
+        print(f"{v:8s} view's own threads {own / lengths[1]:.4f} CPU-s/data-s = {100 * direct[v]['view_own_over_rest']:.1f} % "
+              f"of the rest of the recorder ({rest / lengths[1]:.4f})")  # fmt: skip
     out = ROOT / "bench" / "results" / "bench_view_record.json"
     out.write_text(json.dumps({"path": "record", "lengths_s": lengths, "repeats": args.repeats, "loadavg": load,
-                               "cpus": os.cpu_count(), "summary": rows, "runs": runs}, indent=1))  # fmt: skip
+                               "cpus": os.cpu_count(), "summary": rows, "per_thread": per_role, "direct": direct,
+                               "runs": runs}, indent=1))  # fmt: skip
     print(f"wrote {out}")
 
 

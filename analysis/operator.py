@@ -60,6 +60,7 @@ class AnalysisSettings:
     #: (sim_two_devices session, docs/detection.md)
     input_jump: float = 1.5
     seed_lane: bool = True
+
     def __post_init__(self) -> None:
         if (self.window_s is not None and self.window_s <= 0) or self.n_keep < 1 or self.n_modes < 1:
             raise ValueError("analysis: window_s > 0, n_keep >= 1 and n_modes >= 1 required")

@@ -358,7 +358,7 @@ def band_windows(r1: FloatArray, r2: FloatArray, settings: SpikeSettings) -> Flo
     return ok
 
 
-def _runs(mask: np.ndarray, gap: int) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray, gap: int = 1) -> list[tuple[int, int]]:
     """(first, last) index of each run of True in ``mask``; a True at most ``gap`` after a run extends it
     (``gap`` = 1: consecutive points only)."""
     events: list[tuple[int, int]] = []
@@ -436,13 +436,13 @@ def flag_interactions(
 
     events = [
         (lo, hi, "spike")
-        for lo, hi in _runs(cand, settings.merge_gap)
+        for lo, hi in true_runs(cand, settings.merge_gap)
         if not settings.converging or closure(lo, hi).max() >= settings.min_closure
     ]
     in_band = np.zeros(n, dtype=bool)
     if settings.band and n >= settings.band_window:
         h = settings.band_window // 2
-        for c_lo, c_hi in _runs(band_windows(r1, r2, settings), 1):
+        for c_lo, c_hi in true_runs(band_windows(r1, r2, settings)):
             if c_hi - c_lo + 1 < settings.band_min_run:
                 continue
             pts = [j for j in range(c_lo - h, c_hi + h + 1) if abs(r1[j]) >= settings.band_min_rel[0]]
@@ -538,7 +538,7 @@ def find_locks(
     for m, k in settings.lock_ratios:
         target = m / k
         inside = np.isfinite(r) & (np.abs(r - target) <= settings.lock_tol * target)
-        for lo, hi in _runs(inside, 1):
+        for lo, hi in true_runs(inside):
             if hi - lo + 1 < settings.lock_min_points or lo - c < 0 or hi + c >= n:
                 continue
             side_lo, side_hi = slice(lo - c, lo + 1), slice(hi, hi + c + 1)

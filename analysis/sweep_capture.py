@@ -35,6 +35,7 @@ sweep's own simulator (``analysis.model.sweep.run_modal_phases``), which reprodu
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
@@ -42,7 +43,7 @@ import numpy as np
 
 import analysis.slowflow as sf
 from analysis.model.beam import FloatArray
-from analysis.rqfep import DEFAULT_RATIOS
+from analysis.rqfep import DEFAULT_RATIOS, true_runs
 
 
 @dataclass(frozen=True)
@@ -240,8 +241,7 @@ def candidate_passages(
     for m, n in settings.ratios:
         t = m / n
         inside = np.isfinite(r) & (np.abs(r - t) <= settings.passage_tol * t)
-        d = np.diff(np.concatenate(([0], inside.astype(np.int8), [0])))
-        for lo, hi in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1, strict=True):
+        for lo, hi in true_runs(inside):
             idx = order[lo : hi + 1]
             ps = Passage((m, n), tuple(int(i) for i in idx), float(p0[idx].min()), float(p0[idx].max()),
                          float(e[idx].min()), float(e[idx].max()), float(r0[idx].min()), float(r0[idx].max()))  # fmt: skip
@@ -297,7 +297,7 @@ def capture_test(
     return {
         **out, "confirmed": confirmed, "reason": reason, "best": f"{c.m}:{c.n}", "interval_s": (iv.start_s, iv.end_s),
         "strength": iv.strength, "sign_changes": iv.sign_changes, "phase_range": iv.phase_range,
-        "net_drift": float(getattr(iv, "net_drift", math.nan)), "captured_fraction": rt.captured_fraction,
+        "net_drift": iv.net_drift, "captured_fraction": rt.captured_fraction,
         "chain_s": (ch.start_s, ch.end_s), "chain_sign_changes": ch.sign_changes, "chain_end_effect": ch.end_effect,
         "bracket": bracket,
     }  # fmt: skip
@@ -339,8 +339,6 @@ def confirm_captures(
     ``simulate(p)`` returns (input work J, unwrapped phases (2, n_samples) of linear modes 1–2 at ``fs``)
     for the sweep's run at amplitude ``p``. ``progress`` gets (passages done, passages).
     """
-    import time
-
     t0 = time.perf_counter()
     e = np.asarray(energy, dtype=float)
     r = np.asarray(modal_ratio, dtype=float)

@@ -24,6 +24,9 @@ NNM1's ~9–12 Hz, so the Hilbert ripple at 2·f1 is filtered) and the guard is 
 repo's detector discards a loop chain that *touches* a guard (``end_effect``), while the seed accepts a
 capture spanning "almost the entire simulation" (L1298); so each candidate is judged twice: *strict*
 (``slowflow.ratio_test`` on the whole record) and *central* (the same detector on [0.3, 0.7] s only).
+(That was the detector when the results in docs/sweep.md were taken. Since commit 50de697 slowflow also
+keeps such a chain trimmed to its reversals outside the guard, so *strict* now finds those captures too;
+``analysis.sweep_capture`` is the sweep's own version of this test.)
 
     python bench/eval_sweep_band.py [--json PATH] [--lowpass 4]
 

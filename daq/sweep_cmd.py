@@ -128,8 +128,7 @@ class SweepReport:
     @property
     def modal_ratio(self) -> np.ndarray | None:
         """Per-run f2/f1 of the modal phase advance over the whole-record window (``MODAL_WINDOWS_S[0]``)."""
-        m = self.modal_hz
-        return None if m is None else m[:, 0, 1] / m[:, 0, 0]
+        return _modal_ratio(self.result)
 
     def summary(self) -> dict[str, Any]:
         s = self.spec
@@ -281,6 +280,7 @@ def run_sweep(
 
 
 def _modal_ratio(res: MomentResult) -> np.ndarray | None:
+    """Per-run f2/f1 of the modal phase advance over the whole-record window, or None without a probe."""
     m = getattr(res, "modal_freq_hz", None)
     return None if m is None else m[:, 0, 1] / m[:, 0, 0]
 
@@ -345,14 +345,14 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
     paths = {"csv": out_dir / "rqfep.csv", "png": out_dir / "rqfep.png", "json": out_dir / "sweep.json"}
     res = rep.result
     tmp = paths["csv"].with_suffix(".csv.part")
-    mod = rep.modal_hz
+    mod, mratio = rep.modal_hz, rep.modal_ratio
     mcols = [] if mod is None else [f"f{j + 1}_modal{'' if w == 'whole' else '_' + w}_hz"
                                     for w in MODAL_WINDOW_NAMES[: mod.shape[1]] for j in range(2)] + ["modal_ratio"]  # fmt: skip
     with open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["P_N", "input_energy_J", *[f"f{j + 1}_hz" for j in range(rep.freqs.shape[1])], "substep_cap_hits", *mcols])
         for k in range(res.amplitudes.size):
-            extra = [] if mod is None else [*[f"{x:.6f}" for x in mod[k].ravel()], f"{mod[k, 0, 1] / mod[k, 0, 0]:.6f}"]
+            extra = [] if mod is None else [*[f"{x:.6f}" for x in mod[k].ravel()], f"{mratio[k]:.6f}"]
             w.writerow(
                 [
                     f"{res.amplitudes[k]:.9g}",

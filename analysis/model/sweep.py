@@ -144,6 +144,15 @@ def _run_record(amp, model, force, stepping, q_out, v_out, g_out, work_out, diss
     return work[0], diss[0], steps[0], capped[0]
 
 
+def _record_buffers(sim: ImpactSimulator, probe: ModalProbe, n: int, model: tuple) -> tuple[FloatArray, tuple[FloatArray, ...]]:
+    """The probe's modal filter in the simulator's reduced coordinates (``A = ΦᵀM · rows``, z = A q) and the
+    record buffers ``_run_record`` fills, reused run after run: q, q̇ (n, n_basis), the nonlinear springs' forces
+    (n, springs), and the running input work and dissipation (n,)."""
+    A = np.ascontiguousarray(probe.projector @ sim.reduced.rows(sim.output_dofs))
+    n_r = model[0].shape[0]
+    return A, (np.empty((n, n_r)), np.empty((n, n_r)), np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n))
+
+
 def run_with_modal_phase(
     sim: ImpactSimulator, force: Force, duration: float, sample_rate: float, amps: np.ndarray, probe: ModalProbe
 ) -> SweepMoments:
@@ -155,7 +164,8 @@ def run_with_modal_phase(
     ``analysis.model._integrator._integrate``.)
     """
     n, model, fdesc, stepping, amps = sim._prepare(force, duration, sample_rate, amps)
-    A = np.ascontiguousarray(probe.projector @ sim.reduced.rows(sim.output_dofs))
+    A, bufs = _record_buffers(sim, probe, n, model)
+    q, v = bufs[0], bufs[1]
     marks = probe.marks(n, sample_rate)
     n_r = model[0].shape[0]
     B = amps.size
@@ -163,10 +173,8 @@ def run_with_modal_phase(
     work, diss = np.zeros(B), np.zeros(B)
     steps, capped = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
     fmod = np.full((B, len(probe.windows_s), probe.omega.size), np.nan)
-    q, v = np.empty((n, n_r)), np.empty((n, n_r))
-    g_out, w_out, d_out = np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n)
     for b in range(B):
-        work[b], diss[b], steps[b], capped[b] = _run_record(float(amps[b]), model, fdesc, stepping, q, v, g_out, w_out, d_out)
+        work[b], diss[b], steps[b], capped[b] = _run_record(float(amps[b]), model, fdesc, stepping, *bufs)
         sq[b], sqq[b], at = _moments_and_phase(q, v, A, probe.omega, marks)
         for k, (i0, i1) in enumerate(marks):
             if i0 >= 0:
@@ -188,12 +196,9 @@ def run_modal_phases(
     run's reduced record (~6 MB for 1 s of ``beam_ch4_sim``) plus r × n_samples phases.
     """
     n, model, fdesc, stepping, amps = sim._prepare(force, duration, sample_rate, [float(amp)])
-    A = np.ascontiguousarray(probe.projector @ sim.reduced.rows(sim.output_dofs))
-    n_r = model[0].shape[0]
-    q, v = np.empty((n, n_r)), np.empty((n, n_r))
-    g_out, w_out, d_out = np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n)
-    work, _, _, _ = _run_record(float(amps[0]), model, fdesc, stepping, q, v, g_out, w_out, d_out)
-    z, zd = q @ A.T, v @ A.T
+    A, bufs = _record_buffers(sim, probe, n, model)
+    work, _, _, _ = _run_record(float(amps[0]), model, fdesc, stepping, *bufs)
+    z, zd = bufs[0] @ A.T, bufs[1] @ A.T
     theta = np.unwrap(np.arctan2(-zd / probe.omega[None, :], z), axis=0)
     return float(work), np.ascontiguousarray(theta.T)
 

@@ -274,7 +274,9 @@ class ViewLogger:
             sig = scipy.signal.decimate(sig, q, ftype="fir")
         else:
             q = 1
-        z = np.abs(morlet_cwt(sig, fs / q, freqs, normalization="amplitude", dtype=np.complex64))
+        # 4 sigma of zero padding instead of the analysis' 9: 2e-5 of the largest |Z| apart, 1.3 -> 0.95 ms a hit
+        # for beam_ch4_exp's 10-2000 Hz rows (7.7 -> 1.5 ms on a rig whose rows go down to 4 Hz), measured
+        z = np.abs(morlet_cwt(sig, fs / q, freqs, normalization="amplitude", dtype=np.complex64, pad_sigmas=4.0))
         step = max(1, z.shape[1] // 500)
         R.log_wavelet(self.rec, ch, float(hit["t_s"]), z[:, ::step], freqs, t0, t1)
         self._count(R.WAVELET)

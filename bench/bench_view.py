@@ -11,11 +11,12 @@ part of the measurement (none is connected).
 DAQ, its own process: the "hardware") streams 15 ch x 16384 Hz over a pseudo-terminal, and ``gvt record``
 reads it with the serial driver, writes the MCAP log, gates hits and runs the near-live analysis
 (confirmation off: it is a background lane and would add the same to both variants). Variants: none and
-``--view`` (the served web viewer, no browser attached). CPU is the recorder's own, with its reaped
-children (the viewer server), from ``wait4``; the device process is not counted.
+``--view`` (the served web viewer, no browser attached), in alternating pairs. Each session's figure is its
+steady CPU rate (the recorder process and its viewer child, from /proc; start-up and shutdown left out, see
+``main_record``); the device process is not counted.
 
     NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py [--seconds 15] [--repeats 2] [--speed 1]
-    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py --path record [--seconds 10] [--repeats 2]  # 10 and 30 s
+    NUMBA_CACHE_DIR=.numba_cache .venv/bin/python bench/bench_view.py --path record [--seconds 30] [--repeats 8]  # pairs
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
 
 from daq.analysis_lane import start_analysis_lane  # noqa: E402
 from daq.analyze import rig_from_log  # noqa: E402
@@ -135,6 +138,18 @@ def _named(self):
     _prctl(15, self.name.encode()[:15], 0, 0, 0)
     _inner(self)
 threading.Thread._bootstrap_inner = _named
+import os
+if os.environ.get("GVT_BENCH_VIEW_PATCH"):  # bench-only A/B of view settings: "tick=0.1+bucket=250"
+    opts = dict(kv.split("=") for kv in os.environ["GVT_BENCH_VIEW_PATCH"].split("+"))
+    import rerun as rr
+    from daq.view import recording as R, logger as L
+    if "tick" in opts:
+        cfg = rr.ChunkBatcherConfig(flush_tick=float(opts["tick"]))
+        R.new_recording = lambda recording_id=None: rr.RecordingStream(R.APP_ID, recording_id=recording_id, batcher_config=cfg)
+    if "bucket" in opts:
+        _init = L.ViewLogger.__init__
+        hz = float(opts["bucket"])
+        L.ViewLogger.__init__ = lambda self, rec, setup, **kw: _init(self, rec, setup, **{"bucket_hz": hz, **kw})
 from daq.cli import main
 sys.argv[0] = "gvt"
 sys.exit(main())
@@ -149,21 +164,41 @@ def _task_cpu(stat: Path) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def sample_threads(pid: int, last: dict) -> None:
+def sample_threads(pid: int, last: dict) -> float:
     """CPU so far of every thread of ``pid`` and of its child processes, by id (the last sample before a
-    thread ends is what it is charged: at most one sampling period is lost per thread)."""
-    base = Path(f"/proc/{pid}/task")
+    thread ends is what it is charged: at most one sampling period is lost per thread). Returns the whole
+    process's CPU so far (its own ``stat`` counts exited threads too) plus its live children's."""
+    base = Path(f"/proc/{pid}")
     try:
-        tasks = list(base.iterdir())
-    except OSError:
-        return
+        tasks = list((base / "task").iterdir())
+        total = _task_cpu(base / "stat")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
     for d in tasks:
         try:
             last[("t", int(d.name))] = ((d / "comm").read_text().strip(), _task_cpu(d / "stat"))
             for c in (d / "children").read_text().split():
-                last[("c", int(c))] = ("child:" + Path(f"/proc/{c}/comm").read_text().strip(), _task_cpu(Path(f"/proc/{c}/stat")))
+                cpu = _task_cpu(Path(f"/proc/{c}/stat"))
+                last[("c", int(c))] = ("child:" + Path(f"/proc/{c}/comm").read_text().strip(), cpu)
+                total += cpu
         except (OSError, IndexError, ValueError):
             continue
+    return total
+
+
+def steady_window(series: list[tuple[float, float, dict]], warm_s: float = 3.0, tail_s: float = 1.0):
+    """The steady part of a session: from ``warm_s`` after the analysis thread first shows up (the session is
+    streaming; imports, the numba cache and the viewer's launch are behind it) to ``tail_s`` before it was last
+    seen (before the drain, the view's catch-up and the log's close). Returns the two samples, or None."""
+    live = [i for i, (_t, _c, snap) in enumerate(series) if any(k[0].startswith("analysis") for k in snap.values())]
+    if not live:
+        return None
+    t_first, t_last = series[live[0]][0], series[live[-1]][0]
+    a = next((i for i in live if series[i][0] >= t_first + warm_s), None)
+    b = next((i for i in reversed(live) if series[i][0] <= t_last - tail_s), None)
+    if a is None or b is None or series[b][0] - series[a][0] < 2.0:
+        return None
+    return series[a], series[b]
 
 
 def by_role(last: dict) -> dict[str, float]:
@@ -179,6 +214,21 @@ def by_role(last: dict) -> dict[str, float]:
 
 def view_share(roles: dict[str, float]) -> float:
     return sum(v for k, v in roles.items() if k.startswith(VIEW_THREADS))
+
+
+def speed_probe() -> float:
+    """CPU-s of one fixed unit of work like the recorder's (interpreter loops, small and 16k-point numpy
+    calls), timed on this thread while a session runs. The machine's speed drifts: in 20 sessions every
+    recorder thread's CPU moved up and down *together* by ±20 % from run to run (a shared 2-core VM), far
+    more than the view adds, so each run is also read against this probe."""
+    c0 = time.thread_time()
+    x = np.linspace(0.0, 1.0, 16384)
+    for _ in range(8):
+        np.fft.rfft(x)
+    acc = 0.0
+    for i in range(3000):
+        acc += float(np.float64(i) * 0.5)
+    return time.thread_time() - c0
 
 
 def record_run(variant: str, seconds: float, tmp: Path) -> dict:
@@ -200,18 +250,31 @@ def record_run(variant: str, seconds: float, tmp: Path) -> dict:
             err = dev.stderr.read() if dev.poll() is not None else ""
             raise SystemExit(f"bench_view: the device did not start: {line!r} {err}")
         cfg = tmp / "record.toml"
-        out = tmp / f"record_{variant}.mcap"
+        out = tmp / f"record_{variant.partition(':')[0]}.mcap"
         cfg.write_text(SESSION_TOML.format(out=out, seconds=seconds, port=m.group(1), channels=json.dumps(RIG_CHANNELS)))
-        cmd = [*recorder, "record", str(cfg), "--out", str(out)] + (["--view"] if variant == "view" else [])
+        view, _, patch = variant.partition(":")  # "view:tick=0.1+bucket=250": bench-only settings (RECORDER)
+        cmd = [*recorder, "record", str(cfg), "--out", str(out)] + (["--view"] if view == "view" else [])
         w0 = time.perf_counter()
         rec = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env={**os.environ, "RERUN_TELEMETRY": "0"}, cwd=ROOT)  # fmt: skip
+                               env={**os.environ, "RERUN_TELEMETRY": "0", "GVT_BENCH_VIEW_PATCH": patch}, cwd=ROOT)  # fmt: skip
         last: dict = {}
+        series: list[tuple[float, float, dict]] = []  # (time, process CPU so far, {thread id: (name, CPU)})
         done = threading.Event()
 
         def poll() -> None:
             while not done.wait(0.25):
-                sample_threads(rec.pid, last)
+                now: dict = {}
+                total = sample_threads(rec.pid, now)
+                last.update(now)
+                series.append((time.perf_counter(), total, now))
+
+        probes: list[tuple[float, float]] = []  # (time, CPU-s of one fixed unit of work): the machine's speed now
+
+        def probe() -> None:
+            while not done.wait(0.5):
+                probes.append((time.perf_counter(), speed_probe()))
+
+        threading.Thread(target=probe, daemon=True).start()
 
         sampler = threading.Thread(target=poll, daemon=True)
         sampler.start()
@@ -235,7 +298,19 @@ def record_run(variant: str, seconds: float, tmp: Path) -> dict:
     loss = [e for e in events if e.get("kind") != "view_overrun"][:20]  # gaps, overruns, CRC errors: kept to explain them
     cpu = ru.ru_utime + ru.ru_stime
     roles = by_role(last)
+    steady = steady_window(series)
+    if steady is None:
+        raise SystemExit(f"bench_view: no steady part in a {seconds:g} s session (analysis thread seen too briefly)")
+    (ta, ca, sa), (tb, cb, sb) = steady
+    span = tb - ta
+    in_window = [c for t, c in probes if ta <= t <= tb]
+    probe_s = statistics.median(in_window) if in_window else float("nan")
+    ra, rb = by_role({k: v for k, v in sa.items() if k in sb}), by_role({k: v for k, v in sb.items() if k in sa})
+    steady_roles = {k: (rb[k] - ra.get(k, 0.0)) / span for k in rb}
     return {"variant": variant, "cpu_s": cpu, "total_cpu_s": cpu, "wall_s": wall, "data_s": seconds,
+            "steady_s": span, "steady_cpu_per_s": (cb - ca) / span, "probe_cpu_s": probe_s,
+            "steady_roles_cpu_per_s": steady_roles,
+            "steady_view_own_per_s": view_share(steady_roles),
             "roles_cpu_s": roles, "view_own_cpu_s": view_share(roles), "sampled_cpu_s": sum(roles.values()),
             "missing_samples": sum(st["missing_samples"] for st in info["streams"]), "events": loss,
             "view_dropped_samples": sum(int(e.get("count", 0)) for e in overrun)}  # fmt: skip
@@ -246,7 +321,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--speed", type=float, default=1.0, help="replay pacing: 1 = real time (near-live)")
-    ap.add_argument("--variants", default=None, help="replay: none,rrd,serve (default); record: none,view")
+    ap.add_argument("--variants", default=None,
+                    help="replay: none,rrd,serve (default); record: none,view (view:tick=S+bucket=HZ: bench-only settings)")
     ap.add_argument("--path", choices=("replay", "record"), default="replay",
                     help="replay: paced replay + analysis in this process; record: gvt record of a device process")  # fmt: skip
     args = ap.parse_args()
@@ -288,62 +364,76 @@ def main() -> None:
 
 
 def main_record(args) -> None:
-    """Two session lengths per variant: the slope is the steady CPU per second of data (the start-up —
-    imports, the numba cache, the viewer server's launch — is the intercept and is reported apart)."""
+    """Alternating sessions (none, view, none, view, ...: ``--repeats`` pairs of ``--seconds`` each). Each run's
+    figure is its *steady* CPU rate: process CPU (all threads, the viewer child included) between 3 s after the
+    analysis thread starts and 1 s before it ends, over that wall time — the device paces the data, so this is
+    CPU-s per data-s. Start-up (imports, the viewer's launch) and shutdown are left out: the issue asks for the
+    near-live path's overhead, and they were the largest part of the spread between runs. Each pair's ratio
+    view / none is the overhead measure (neighbouring runs share the machine's load); the table gives the
+    median and range over pairs."""
     tmp = Path(os.environ.get("TMPDIR", "/tmp")) / "gvt_bench_view"
     tmp.mkdir(parents=True, exist_ok=True)
     variants = (args.variants or "none,view").split(",")
-    lengths = (args.seconds, 3 * args.seconds)
     runs = []
     for _ in range(args.repeats):
-        for secs in lengths:
-            for v in variants:
-                runs.append(record_run(v, secs, tmp))
-                r = runs[-1]
-                print(f"  {v:6s} {secs:5.0f} s: recorder cpu {r['total_cpu_s']:.2f} s, wall {r['wall_s']:.1f} s, missing "
-                      f"{r['missing_samples']} samples, view dropped {r['view_dropped_samples']}", flush=True)  # fmt: skip
+        for v in variants:
+            runs.append(record_run(v, args.seconds, tmp))
+            r = runs[-1]
+            print(f"  {v:6s} {args.seconds:5.0f} s: steady {r['steady_cpu_per_s']:.4f} CPU-s/s over {r['steady_s']:.1f} s "
+                  f"(view's own {r['steady_view_own_per_s']:.4f}), whole run {r['total_cpu_s']:.2f} s, missing "
+                  f"{r['missing_samples']} samples, view dropped {r['view_dropped_samples']}; load {os.getloadavg()[0]:.2f}",
+                  flush=True)  # fmt: skip
     load = os.getloadavg()
-
-    def med(v: str, secs: float) -> float:
-        return statistics.median(r["total_cpu_s"] for r in runs if r["variant"] == v and r["data_s"] == secs)
-
-    slope = {v: (med(v, lengths[1]) - med(v, lengths[0])) / (lengths[1] - lengths[0]) for v in variants}
-    start = {v: med(v, lengths[0]) - slope[v] * lengths[0] for v in variants}
-    base = slope.get("none", float("nan"))
-    print(f"\nview overhead in a live session: gvt record of {lengths[0]:g} and {lengths[1]:g} s, 15 ch x 16384 Hz over a pty "
-          f"from a separate device process, near-live analysis on; load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on "
-          f"{os.cpu_count()} cores")  # fmt: skip
-    print(f"{'variant':8s} {'CPU/data s (slope)':>19s} {'start-up CPU s':>15s} {'overhead':>9s}")
+    base_v = variants[0]
+    per = {v: [r for r in runs if r["variant"] == v] for v in variants}
+    print(f"\nview overhead in a live session: gvt record, {args.repeats} x {len(variants)} alternating sessions of "
+          f"{args.seconds:g} s, 15 ch x 16384 Hz over a pty from a separate device process, near-live analysis on; "
+          f"load {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")  # fmt: skip
+    print(f"{'variant':8s} {'steady CPU-s/s (median)':>24s} {'min':>7s} {'max':>7s} {'pair ratio median':>18s} "
+          f"{'pair ratio range':>17s} {'view own / rest':>16s}")  # fmt: skip
+    ref = statistics.median(r["probe_cpu_s"] for r in runs)
+    for r in runs:  # the steady rate at the machine's median speed over all runs
+        r["steady_cpu_per_s_at_ref_speed"] = r["steady_cpu_per_s"] * ref / r["probe_cpu_s"]
     rows = []
     for v in variants:
-        over = (slope[v] - base) / base if base > 0 else float("nan")
-        print(f"{v:8s} {slope[v]:19.4f} {start[v]:15.2f} {100 * over:8.1f}%")
-        rows.append({"variant": v, "cpu_per_data_s": slope[v], "startup_cpu_s": start[v], "overhead_fraction": over})
-    # per thread: what the view's own threads cost, against what the rest of the same recorder cost
-    longest = [r for r in runs if r["data_s"] == lengths[1]]
-    roles = sorted({k for r in longest for k in r["roles_cpu_s"]},
-                   key=lambda k: -max(r["roles_cpu_s"].get(k, 0) for r in longest))  # fmt: skip
-    print(f"\nper thread, {lengths[1]:g} s runs, CPU-s per data-s (median of {args.repeats}; sampled every 0.25 s):")
+        rates = [r["steady_cpu_per_s"] for r in per[v]]
+        ratios = [b["steady_cpu_per_s"] / a["steady_cpu_per_s"] for a, b in zip(per[base_v], per[v], strict=True)]
+        norm = [b["steady_cpu_per_s_at_ref_speed"] / a["steady_cpu_per_s_at_ref_speed"]
+                for a, b in zip(per[base_v], per[v], strict=True)]  # fmt: skip
+        nrates = [r["steady_cpu_per_s_at_ref_speed"] for r in per[v]]
+        own = [r["steady_view_own_per_s"] / (r["steady_cpu_per_s"] - r["steady_view_own_per_s"]) for r in per[v]]
+        row = {"variant": v, "steady_cpu_per_s_median": statistics.median(rates), "min": min(rates), "max": max(rates),
+               "pair_ratio_median": statistics.median(ratios), "pair_ratio_min": min(ratios), "pair_ratio_max": max(ratios),
+               "pair_ratios": ratios, "view_own_over_rest_median": statistics.median(own),
+               "at_ref_speed_median": statistics.median(nrates), "at_ref_speed_min": min(nrates), "at_ref_speed_max": max(nrates),
+               "pair_ratio_at_ref_speed_median": statistics.median(norm), "pair_ratios_at_ref_speed": norm}  # fmt: skip
+        rows.append(row)
+        print(f"{v:8s} {row['steady_cpu_per_s_median']:24.4f} {row['min']:7.4f} {row['max']:7.4f} "
+              f"{100 * (row['pair_ratio_median'] - 1):+17.1f}% {100 * (row['pair_ratio_min'] - 1):+7.1f} .. "
+              f"{100 * (row['pair_ratio_max'] - 1):+5.1f}% {100 * row['view_own_over_rest_median']:15.1f}%")  # fmt: skip
+    print(f"\nthe same, each run scaled to the machine's median speed (speed probe: {1e3 * ref:.2f} ms CPU a unit):")
+    print(f"{'variant':8s} {'CPU-s/s (median)':>17s} {'min':>7s} {'max':>7s} {'pair ratio median':>18s} {'pair ratios':>12s}")
+    for row in rows:
+        print(f"{row['variant']:8s} {row['at_ref_speed_median']:17.4f} {row['at_ref_speed_min']:7.4f} "
+              f"{row['at_ref_speed_max']:7.4f} "
+              f"{100 * (row['pair_ratio_at_ref_speed_median'] - 1):+17.1f}%  "
+              + " ".join(f"{100 * (x - 1):+.0f}" for x in row["pair_ratios_at_ref_speed"]))  # fmt: skip
+    roles = sorted({k for r in runs for k in r["steady_roles_cpu_per_s"]},
+                   key=lambda k: -max(r["steady_roles_cpu_per_s"].get(k, 0) for r in runs))  # fmt: skip
+    print(f"\nper thread, steady CPU-s per data-s (median of {args.repeats}; threads sampled every 0.25 s):")
     print(f"{'thread':18s}" + "".join(f"{v:>10s}" for v in variants))
     per_role = {}
     for k in roles:
-        per_role[k] = {v: statistics.median(r["roles_cpu_s"].get(k, 0.0) for r in longest if r["variant"] == v) / lengths[1]
-                       for v in variants}  # fmt: skip
+        per_role[k] = {v: statistics.median(r["steady_roles_cpu_per_s"].get(k, 0.0) for r in per[v]) for v in variants}
         if max(per_role[k].values()) >= 5e-4:
             print(f"{k[:18]:18s}" + "".join(f"{per_role[k][v]:10.4f}" for v in variants))
-    direct = {}
-    for v in variants:
-        rs = [r for r in longest if r["variant"] == v]
-        own = statistics.median(r["view_own_cpu_s"] for r in rs)
-        rest = statistics.median(r["total_cpu_s"] - r["view_own_cpu_s"] for r in rs)
-        direct[v] = {"view_own_cpu_per_data_s": own / lengths[1], "rest_cpu_per_data_s": rest / lengths[1],
-                     "view_own_over_rest": own / rest if rest > 0 else float("nan")}  # fmt: skip
-        print(f"{v:8s} view's own threads {own / lengths[1]:.4f} CPU-s/data-s = {100 * direct[v]['view_own_over_rest']:.1f} % "
-              f"of the rest of the recorder ({rest / lengths[1]:.4f})")  # fmt: skip
+    lost = sum(r["missing_samples"] for r in runs)
+    print(f"missing samples over all runs: {lost}" + ("" if not lost else " (see runs[*].events in the JSON)"))
     out = ROOT / "bench" / "results" / "bench_view_record.json"
-    out.write_text(json.dumps({"path": "record", "lengths_s": lengths, "repeats": args.repeats, "loadavg": load,
-                               "cpus": os.cpu_count(), "summary": rows, "per_thread": per_role, "direct": direct,
-                               "runs": runs}, indent=1))  # fmt: skip
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"path": "record", "seconds": args.seconds, "pairs": args.repeats, "loadavg": load,
+                               "cpus": os.cpu_count(), "summary": rows, "per_thread": per_role, "runs": runs},
+                              indent=1, default=str))  # fmt: skip
     print(f"wrote {out}")
 
 

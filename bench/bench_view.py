@@ -190,7 +190,7 @@ def steady_window(series: list[tuple[float, float, dict]], warm_s: float = 3.0, 
     """The steady part of a session: from ``warm_s`` after the analysis thread first shows up (the session is
     streaming; imports, the numba cache and the viewer's launch are behind it) to ``tail_s`` before it was last
     seen (before the drain, the view's catch-up and the log's close). Returns the two samples, or None."""
-    live = [i for i, (_t, _c, snap) in enumerate(series) if any(k[0].startswith("analysis") for k in snap.values())]
+    live = [i for i, (_t, _c, snap) in enumerate(series) if any(name.startswith("analysis") for name, _ in snap.values())]
     if not live:
         return None
     t_first, t_last = series[live[0]][0], series[live[-1]][0]
@@ -218,9 +218,11 @@ def view_share(roles: dict[str, float]) -> float:
 
 def speed_probe() -> float:
     """CPU-s of one fixed unit of work like the recorder's (interpreter loops, small and 16k-point numpy
-    calls), timed on this thread while a session runs. The machine's speed drifts: in 20 sessions every
-    recorder thread's CPU moved up and down *together* by ±20 % from run to run (a shared 2-core VM), far
-    more than the view adds, so each run is also read against this probe."""
+    calls), timed on this thread while a session runs. The machine's speed drifts: in 36 sessions every
+    recorder thread's CPU moved up and down *together* by up to ±20 % from run to run (a shared 2-core VM),
+    more than the view adds. The runs scaled by this probe are printed beside the raw ones, but in 8 pairs
+    the scaling narrowed the none sessions' spread only from ±13 % to ±10 %, so the verdict (docs/view.md)
+    reads the raw pairs."""
     c0 = time.thread_time()
     x = np.linspace(0.0, 1.0, 16384)
     for _ in range(8):

@@ -56,10 +56,10 @@ def color(k: int) -> tuple[int, int, int]:
     return MODE_COLORS[k % len(MODE_COLORS)]
 
 
-#: rerun-sdk's micro-batcher flushes every 8 ms when streaming to a viewer (measured: ~150 wake-ups a second of
-#: its thread, 0.0025 CPU-s per data-s in a 15 ch x 16384 Hz session). Everything gvtlink logs live comes in
-#: 0.25-0.5 s frames anyway, so a 0.1 s tick delays nothing visible and cut that thread to 0.0008 (bench_view.py
-#: --path record, view:tick=0.1)
+#: streaming to a viewer, rerun-sdk's micro-batcher thread woke ~150 times a second (measured; its LOW_LATENCY
+#: tick is 8 ms, its DEFAULT 200 ms) and cost 0.0025 CPU-s per data-s in a 15 ch x 16384 Hz session. Everything
+#: gvtlink logs live comes in 0.25-0.5 s frames anyway, so a 0.1 s tick delays nothing visible and cut that thread
+#: to 0.0008 (bench_view.py --path record, view:tick=0.1)
 FLUSH_TICK_S = 0.1
 
 

@@ -43,6 +43,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/eval_wbemd_grid.py
 	$(BIN)/python bench/eval_beam_ch3.py
 	$(BIN)/python bench/bench_view.py
+	$(BIN)/python bench/bench_view.py --path record --duty 2 --seconds 60 --repeats 4
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

@@ -22,6 +22,7 @@ import numpy as np
 
 from analysis.model.beam import FloatArray
 from analysis.pod import rq_hz
+from analysis.runs import true_runs
 
 # Ratios f2/f1 the labeller chooses from (the seed reports 4:1 and 3:1 in the computation, 5:2 in the
 # experiment, L1255, L1389; the analyst "knows the likely IR ratios", L67).
@@ -356,18 +357,6 @@ def band_windows(r1: FloatArray, r2: FloatArray, settings: SpikeSettings) -> Flo
         if den > 0 and float(np.sum(da * db)) / den <= -settings.band_corr:
             ok[i] = True
     return ok
-
-
-def true_runs(mask: np.ndarray, gap: int = 1) -> list[tuple[int, int]]:
-    """(first, last) index of each run of True in ``mask``; a True at most ``gap`` after a run extends it
-    (``gap`` = 1: consecutive points only)."""
-    events: list[tuple[int, int]] = []
-    for i in np.flatnonzero(mask):
-        if events and i - events[-1][1] <= gap:
-            events[-1] = (events[-1][0], int(i))
-        else:
-            events.append((int(i), int(i)))
-    return events
 
 
 def flag_interactions(

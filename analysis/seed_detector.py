@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.ndimage
 
+from analysis.runs import true_runs
+
 FloatArray = np.ndarray
 
 
@@ -76,15 +78,6 @@ def _flag(freqs: FloatArray, s: SeedSpikeSettings) -> tuple[FloatArray, FloatArr
     return base, r, sigma, flagged
 
 
-def _runs(idx: np.ndarray) -> list[tuple[int, int]]:
-    if idx.size == 0:
-        return []
-    cuts = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.r_[idx[0], idx[cuts + 1]]
-    ends = np.r_[idx[cuts], idx[-1]]
-    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
-
-
 def seed_spikes(freqs: FloatArray, settings: SeedSpikeSettings = SeedSpikeSettings()) -> SeedSpikeResult:
     """Apply the seed's spike rule to RQ curves ``freqs`` (k windows, n_curves), ordered in time/energy."""
     f = np.asarray(freqs, dtype=float)
@@ -104,7 +97,7 @@ def seed_spikes(freqs: FloatArray, settings: SeedSpikeSettings = SeedSpikeSettin
     spike_windows = np.flatnonzero(spike)
     rel = np.abs(r) / np.where(base == 0, np.inf, np.abs(base))
     intervals = []
-    for a, b in _runs(spike_windows):
+    for a, b in true_runs(spike):
         curves = tuple(c for c in (i, j) if flagged[a : b + 1, c].any())
         sub = rel[a : b + 1][:, list(curves)]
         pk = int(np.unravel_index(np.argmax(sub), sub.shape)[0]) + a

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
+from analysis.runs import true_runs
 from analysis.wavelet import analytic
 
 FloatArray = NDArray[np.float64]
@@ -290,7 +291,7 @@ def detect_non_time_like(traj: Trajectory, params: DetectorParams = DetectorPara
     guard = end_guard_s(traj.lowpass_hz, params)
     ok = (t[flips] - t[0] >= guard) & (t[-1] - t[np.minimum(flips + 1, t.size - 1)] >= guard)  # reversal outside the guard
     out: list[Interval] = []
-    for s, e in _runs(link):  # links s..e join reversals s..e+1
+    for s, e in true_runs(link):  # links s..e join reversals s..e+1
         idx = np.arange(s, e + 2)
         if idx.size < params.min_sign_changes:
             continue
@@ -361,14 +362,6 @@ def net_drift(phi_at_reversals: ArrayLike) -> float:
     path = float(np.sum(swing[:-1] + swing[1:]))
     adv = float(np.sum(p[2:] - p[:-2]))
     return abs(adv) / path if path > 0 else 0.0
-
-
-def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """(first, last) indices of the runs of True."""
-    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
-    starts = np.flatnonzero(d == 1)
-    ends = np.flatnonzero(d == -1) - 1
-    return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
 def ratio_test(traj: Trajectory, params: DetectorParams = DetectorParams()) -> RatioTest:

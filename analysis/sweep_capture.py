@@ -43,7 +43,8 @@ import numpy as np
 
 import analysis.slowflow as sf
 from analysis.model.beam import FloatArray
-from analysis.rqfep import DEFAULT_RATIOS, true_runs
+from analysis.rqfep import DEFAULT_RATIOS
+from analysis.runs import true_runs
 
 
 @dataclass(frozen=True)

@@ -371,7 +371,7 @@ def chunk_rates(session: RecordSession, period: float, guard: float) -> list[tup
     pts = [interpolated(session.series, t) for t in data_times(session.out, session.wall0, session.w0, secs)]
     out = []
     for k, a, b in zip(range(k0, k1), pts[0::2], pts[1::2], strict=True):
-        own = view_share(by_role({i: v for i, v in b[2].items()})) - view_share(by_role({i: v for i, v in a[2].items()}))
+        own = view_share(by_role(b[2])) - view_share(by_role(a[2]))
         out.append((k, (b[1] - a[1]) / (b[0] - a[0]), own / (b[0] - a[0])))
     return out
 

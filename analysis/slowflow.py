@@ -397,6 +397,7 @@ def test_ratios(
     lowpass_hz: float | None = None,
     params: DetectorParams = DetectorParams(),
     t0: float = 0.0,
+    trajectories: dict[tuple[int, int], Trajectory] | None = None,
 ) -> Confirmation:
     """Test a suspected m:n IR between two IMFs (lower-frequency first) against its neighbours.
 
@@ -404,9 +405,14 @@ def test_ratios(
     behaviour, and require the bracketing rule inside its interval — (m*−1):n drifts with Φ̇ < 0 and
     (m*+1):n with Φ̇ > 0, i.e. the ratio really sits between them. Returns a :class:`Confirmation` whose
     trajectory arrays are those of the best candidate (or of the label when nothing was captured).
+    ``trajectories``: k:n → :func:`trajectory` of these same inputs, already computed by the caller (who also
+    reads them); any candidate missing from it is computed here.
     """
     lp = default_lowpass_hz(comp_low, fs) if lowpass_hz is None else float(lowpass_hz)
-    trajs = {r: trajectory(comp_low, comp_high, fs, r[0], r[1], lp, params, t0) for r in candidate_ratios(m, n, span)}
+    given = trajectories or {}
+    trajs = {
+        r: given.get(r) or trajectory(comp_low, comp_high, fs, r[0], r[1], lp, params, t0) for r in candidate_ratios(m, n, span)
+    }
     tests = tuple(ratio_test(tr, params) for tr in trajs.values())
     live = [rt for rt in tests if rt.trusted]
     if not live:

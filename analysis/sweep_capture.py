@@ -276,12 +276,10 @@ def capture_test(
     if t_end - 2 * g < settings.min_interior_s:
         return {**out, "reason": f"record interior {t_end - 2 * g:.2f} s < {settings.min_interior_s} s: not tested"}
     params = replace(settings.detector, end_guard_s=g)
-    c = sf.test_ratios(a, b, fsd, m, n, settings.span, settings.lowpass_hz, params)
-    drift = {}
-    for k, nn in sf.candidate_ratios(m, n, settings.span):
-        tr = sf.trajectory(a, b, fsd, k, nn, settings.lowpass_hz, params)
-        drift[f"{k}:{nn}"] = float(np.median(tr.phi_dot[(tr.t >= g) & (tr.t <= t_end - g)]))
-    out["drift"] = drift
+    ratios = sf.candidate_ratios(m, n, settings.span)
+    trajs = {r: sf.trajectory(a, b, fsd, r[0], r[1], settings.lowpass_hz, params) for r in ratios}  # computed once
+    c = sf.test_ratios(a, b, fsd, m, n, settings.span, settings.lowpass_hz, params, trajectories=trajs)
+    out["drift"] = {f"{k}:{nn}": float(np.median(tr.phi_dot[(tr.t >= g) & (tr.t <= t_end - g)])) for (k, nn), tr in trajs.items()}
     if not math.isfinite(c.start_s):
         return {**out, "reason": c.reason}
     rt = next(x for x in c.candidates if (x.m, x.n) == (c.m, c.n))
@@ -291,7 +289,7 @@ def capture_test(
     bracket = {}
     for k in (c.m - 1, c.m + 1):
         if k >= 1:
-            tr = sf.trajectory(a, b, fsd, k, c.n, settings.lowpass_hz, params)
+            tr = trajs.get((k, c.n)) or sf.trajectory(a, b, fsd, k, c.n, settings.lowpass_hz, params)
             bracket[f"{k}:{c.n}"] = float(np.mean(tr.phi_dot[(tr.t >= iv.start_s) & (tr.t <= iv.end_s)]))
     confirmed = c.confirmed and (c.m, c.n) == (m, n)
     reason = c.reason if (c.m, c.n) == (m, n) else f"strongest candidate is {c.m}:{c.n}, not {m}:{n} ({c.reason})"

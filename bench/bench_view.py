@@ -256,11 +256,11 @@ def speed_probe() -> float:
 
 
 class RecordSession:
-    """One ``gvt record`` of its own ``gvt device serve`` process over a pty: :meth:`launch`, :meth:`sample` every
-    0.25 s while :meth:`running`, :meth:`finish`, :meth:`result`. (Two sessions side by side were tried to share
-    the machine's speed: their A/A spread stayed ±10-20 % and starting both at once lost samples.)"""
+    """One ``gvt record`` of its own ``gvt device serve`` process over a pty, started at once: :meth:`sample`
+    every 0.25 s while :meth:`running`, then :meth:`finish` and :meth:`result`. (Two sessions side by side were
+    tried to share the machine's speed: their A/A spread stayed ±10-20 % and starting both at once lost samples.)"""
 
-    def __init__(self, variant: str, seconds: float, tmp: Path, tag: str = "") -> None:
+    def __init__(self, variant: str, seconds: float, tmp: Path) -> None:
         import re
         import subprocess
 
@@ -276,25 +276,21 @@ class RecordSession:
             err = self.dev.stderr.read() if self.dev.poll() is not None else ""
             self.dev.terminate()
             raise SystemExit(f"bench_view: the device did not start: {line!r} {err}")
-        name = "record_" + re.sub(r"[^A-Za-z0-9]+", "_", variant) + tag
+        name = "record_" + re.sub(r"[^A-Za-z0-9]+", "_", variant)
         cfg = tmp / f"{name}.toml"
         self.out = tmp / f"{name}.mcap"
         cfg.write_text(SESSION_TOML.format(out=self.out, seconds=seconds, port=m.group(1), channels=json.dumps(RIG_CHANNELS)))
-        self.cfg = cfg
-        self.rec: subprocess.Popen | None = None
-
-    def launch(self) -> None:
-        """Start the recorder (the device is up and waiting)."""
-        import subprocess
-
-        cfg, variant = self.cfg, self.variant
         view, _, patch = variant.partition(":")  # "view:tick=0.1+bucket=250": bench-only settings (RECORDER)
         cmd = [sys.executable, "-c", RECORDER, "record", str(cfg), "--out", str(self.out)]
         cmd += ["--view"] if view == "view" else []
         self.w0 = time.perf_counter()
         self.wall0 = time.time()  # with w0: the log's wall-clock write times on this sampler's clock (data_times)
         env = {**os.environ, "RERUN_TELEMETRY": "0", "GVT_BENCH_VIEW_PATCH": patch}
-        self.rec = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+        try:
+            self.rec = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+        except OSError:
+            self.dev.terminate()
+            raise
         self.last: dict = {}
         self.series: list[tuple[float, float, dict]] = []  # (time, process CPU so far, {thread id: (name, CPU)})
         self.text = ""
@@ -409,10 +405,10 @@ def interpolated(series: list[tuple[float, float, dict]], t: float) -> tuple[flo
     return t, ca + w * (cb - ca), (sa if w < 0.5 else sb)
 
 
-def record_run(variant: str, seconds: float, tmp: Path, keep: bool = False) -> dict:
-    """One session: sampled every 0.25 s, the speed probe every 0.5 s."""
+def record_run(variant: str, seconds: float, tmp: Path) -> tuple[dict, RecordSession]:
+    """One session, sampled every 0.25 s, the speed probe every 0.5 s: its figures, and the session (its log
+    and CPU series, for :func:`chunk_rates`)."""
     s = RecordSession(variant, seconds, tmp)
-    s.launch()
     probes: list[tuple[float, float]] = []
     try:
         tick = 0
@@ -424,14 +420,11 @@ def record_run(variant: str, seconds: float, tmp: Path, keep: bool = False) -> d
                 probes.append((time.perf_counter(), speed_probe()))
         s.finish()
     finally:
-        if s.rec is not None and s.rec.poll() is None:
+        if s.rec.poll() is None:
             s.rec.kill()
         if s.dev.poll() is None:
             s.dev.terminate()
-    r = s.result(probes)
-    if keep:  # for chunk_rates (duty_pair)
-        r["session"] = s
-    return r
+    return s.result(probes), s
 
 
 def main() -> None:
@@ -499,7 +492,7 @@ def main_record(args) -> None:
     variants = (args.variants or "none,view").split(",")
     runs = []
     for _ in range(args.repeats):
-        batch = [record_run(v, args.seconds, tmp) for v in variants]
+        batch = [record_run(v, args.seconds, tmp)[0] for v in variants]
         for v, r in zip(variants, batch, strict=True):
             runs.append(r)
             print(f"  {v:6s} {args.seconds:5.0f} s: steady {r['steady_cpu_per_s']:.4f} CPU-s/s over {r['steady_s']:.1f} s "
@@ -566,8 +559,9 @@ def duty_pair(period: float, seconds: float, tmp: Path, flip: bool, guard: float
     per chunk the ratio A/B = (speed_A / speed_B) (1 + v)^(+-1): the data's own cost (the same chunk in both)
     and each session's speed cancel in (mean log ratio where A draws - where B draws) / 2 = log(1 + v)."""
     phases = [1, 0] if flip else [0, 1]
-    runs = {ph: record_run(f"view:duty={period:g}/{ph}{extra}", seconds, tmp, keep=True) for ph in phases}
-    rates = {ph: {k: (r, own) for k, r, own in chunk_rates(runs[ph]["session"], period, guard)} for ph in phases}
+    done = {ph: record_run(f"view:duty={period:g}/{ph}{extra}", seconds, tmp) for ph in phases}
+    runs = {ph: r for ph, (r, _s) in done.items()}
+    rates = {ph: {k: (r, own) for k, r, own in chunk_rates(sess, period, guard)} for ph, (_r, sess) in done.items()}
     common = sorted(set(rates[0]) & set(rates[1]))
     on_a = [math.log(rates[0][k][0] / rates[1][k][0]) for k in common if k % 2 == 0]
     on_b = [math.log(rates[0][k][0] / rates[1][k][0]) for k in common if k % 2 == 1]
@@ -576,8 +570,6 @@ def duty_pair(period: float, seconds: float, tmp: Path, flip: bool, guard: float
     idle = statistics.fmean([rates[ph][k][1] for ph in phases for k in common if k % 2 != ph])
     drawing = statistics.fmean([rates[ph][k][1] for ph in phases for k in common if k % 2 == ph])
     rest = statistics.fmean([rates[ph][k][0] - rates[ph][k][1] for ph in phases for k in common])
-    for r in runs.values():
-        r.pop("session")
     return {"overhead_drawing": v, "view_own_idle_per_s": idle, "view_own_drawing_per_s": drawing, "rest_per_s": rest,
             "overhead": (1 + v) * (1 + idle / rest) - 1, "chunks": len(common), "order": phases,
             "chunk_log_ratios": {k: math.log(rates[0][k][0] / rates[1][k][0]) for k in common},

@@ -29,7 +29,7 @@ import resource
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -156,8 +156,7 @@ class SweepReport:
                 zip(MODAL_WINDOW_NAMES, map(list, getattr(self.result, "modal_windows_s", ())), strict=False)
             ),
             "locks": [lk.to_dict() for lk in self.locks],
-            "capture_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s.capture).items()
-                                 if k != "detector"} | {"detector": vars(s.capture.detector)},
+            "capture_settings": asdict(s.capture),
             "captures": [c.to_dict() for c in self.captures],
             "capture_stage": None if self.capture is None else {
                 k: v for k, v in self.capture.to_dict().items() if k != "captures"},

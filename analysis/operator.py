@@ -28,6 +28,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numba
 import numpy as np
@@ -36,9 +37,20 @@ from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, Modal
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.preprocess import CausalPreprocessor, PreprocessSettings
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
-from daq.blocks import SampleBlock
 
 Emit = Callable[[str, dict], None]
+
+
+class BlockLike(Protocol):
+    """What the operator reads of a block: where it starts on the stream's sample clock and its samples
+    ``(n_samples, n_channels)``. ``drivers.blocks.SampleBlock`` is one; the analysis does not import the
+    drivers (architecture.md: imports run one way), so any object with these two fields will do."""
+
+    @property
+    def first_index(self) -> int: ...
+
+    @property
+    def data(self) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -270,7 +282,8 @@ class _Grid:
 
 
 class AnalysisOperator:
-    """Feed :class:`SampleBlock` s of one stream in index order; results go to ``emit``."""
+    """Feed blocks (:class:`BlockLike`: ``first_index`` and ``data``) of one stream in index order; results go to
+    ``emit``."""
 
     def __init__(
         self, model: RigModel, channels: tuple[str, ...], sample_rate: float, settings: AnalysisSettings | None = None,
@@ -304,17 +317,18 @@ class AnalysisOperator:
         self._inflight: tuple[Future, float] | None = None
 
     # --- public -------------------------------------------------------------------------------
-    def feed(self, block: SampleBlock) -> None:
+    def feed(self, block: BlockLike) -> None:
         t_arrival = time.perf_counter()
+        n = int(block.data.shape[0])
         if self._next_index is None or block.first_index != self._next_index:
             if self._next_index is not None:
                 self._finish_lanes()
                 self.stats.restarts += 1
                 self._warn("gap", f"data gap before sample {block.first_index}: analysis restarted after it", restart=True)
             self._start(block.first_index)
-        self._next_index = block.end_index
+        self._next_index = block.first_index + n
         self.stats.blocks += 1
-        self.stats.samples += block.n_samples
+        self.stats.samples += n
         acc = block.data[:, self._acc_cols].astype(np.float64)
         inp = None
         if self._ham_col is not None:

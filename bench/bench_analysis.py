@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.model.rigs import open_rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from analysis.rq_spikes import RobustSpikeSettings
-from daq.blocks import SampleBlock
-from daq.rigs import open_rig
+from drivers.blocks import SampleBlock
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -42,11 +42,11 @@ import zstandard
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from daq.blocks import SampleBlock
 from daq.log import layout
 from daq.log.proto import SCHEMA_NAME, encode_block, sample_block_descriptor_set
 from daq.log.reader import open_log
 from daq.log.writer import ChannelInfo, LogWriter
+from drivers.blocks import SampleBlock
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"

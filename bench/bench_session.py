@@ -17,8 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from analysis.model.rigs import open_rig
 from daq.config.session import DeviceSpec, SessionConfig, SimulateSpec, TriggerSpec
-from daq.rigs import open_rig
 from daq.session import run_session
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from daq.rigs import open_rig
+from analysis.model.rigs import open_rig
 from daq.sweep_cmd import SweepSpec, _jsonable, print_report, run_sweep, write_outputs
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -49,8 +49,8 @@ from daq.view.lane import open_view, start_view_lane  # noqa: E402
 
 
 def make_log(path: Path, seconds: float) -> None:
+    from analysis.model.rigs import open_rig
     from daq.config.session import AnalysisSpec, DeviceSpec, SessionConfig, TriggerSpec
-    from daq.rigs import open_rig
     from daq.session import run_session
 
     n = max(1, int(seconds // 2))

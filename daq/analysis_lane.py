@@ -18,8 +18,8 @@ import numpy as np
 
 from analysis.exchange import IREvent
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
-from daq.blocks import SampleBlock
 from daq.fanout import FanOut, Subscription
+from drivers.blocks import SampleBlock
 
 Sink = Callable[[str, dict, int | None], None]  # topic, object, log time (ns) or None
 

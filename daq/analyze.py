@@ -16,15 +16,16 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from daq.analysis_lane import analysis_stream
-from daq.blocks import SampleBlock, coalesce
 from daq.log.reader import LogReader, LogReadError
 from daq.replay import iter_log_blocks
+from drivers.blocks import SampleBlock, coalesce
 
 
-class AnalyzeError(Exception):
+class AnalyzeError(BadInput):
     """A log that cannot be analysed as asked (one line for the user)."""
 
 
@@ -50,9 +51,9 @@ def rig_from_log(reader: LogReader) -> Rig:
     """The rig the session attached to its log (``rig/*.toml``), validated like any rig file."""
     import tomllib
 
+    from analysis.model.config import RigConfig
+    from analysis.model.loader import ConfigError, validate
     from analysis.model.rig import build_rig
-    from daq.config.loader import ConfigError, validate
-    from daq.config.rig import RigConfig
 
     rigs = {name: data for name, (_media, data) in reader.attachments().items() if name.startswith("rig/")}
     if not rigs:

@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from daq.blocks import SampleBlock
 from daq.fanout import FanOut, Subscription
+from drivers.blocks import SampleBlock
 
 CONFIRM_TOPIC = "/analysis/confirmations"
 _END_EVENTS = object()

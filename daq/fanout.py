@@ -12,7 +12,7 @@ import queue
 import threading
 from dataclasses import dataclass, field
 
-from daq.blocks import SampleBlock
+from drivers.blocks import SampleBlock
 
 END = object()  # sentinel a subscriber receives when the source ends
 

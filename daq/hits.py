@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from daq.blocks import SampleBlock
+from drivers.blocks import SampleBlock
 
 #: A sample at or above this fraction of a channel's range counts as clipped: a saturated value comes
 #: back through the ADC quantised up to one step below full scale (24 bit: 6e-4 of a 2 m/s^2 range).

@@ -14,10 +14,10 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from daq.blocks import BlockStatus, SampleBlock
 from daq.fanout import FanOut
 from daq.log.proto import BlockDecodeError, decode_block
 from daq.log.reader import LogReader, LogReadError
+from drivers.blocks import BlockStatus, SampleBlock
 
 
 @dataclass

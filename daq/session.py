@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from analysis.model.loader import ConfigError
 from analysis.model.rig import Rig
-from daq.config.loader import ConfigError
 from daq.config.session import DeviceSpec, SessionConfig, TimelineSpec
 from daq.fanout import FanOut
 from daq.hits import HitDetector, HitRecord, TriggerSettings
@@ -71,9 +71,9 @@ def _simulated_rig(rig: Rig, ranges: dict[str, float]) -> Rig:
         return rig
     import tomllib
 
+    from analysis.model.config import RigConfig
+    from analysis.model.loader import validate
     from analysis.model.rig import build_rig
-    from daq.config.loader import validate
-    from daq.config.rig import RigConfig
 
     data = tomllib.loads(Path(rig.path).read_text())
     for s in data.get("sensors", []):

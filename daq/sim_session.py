@@ -19,8 +19,8 @@ import numpy as np
 
 from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals
-from daq.blocks import BlockStatus, SampleBlock
 from daq.log.writer import ChannelInfo, LogWriter
+from drivers.blocks import BlockStatus, SampleBlock
 from drivers.sim.sensor_model import AdcModel, channel_models_for, measure
 
 STREAM = "dev0"

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from daq.blocks import BlockStatus, SampleBlock
+from drivers.blocks import BlockStatus, SampleBlock
 
 METHOD_ESTIMATED = "host-arrival-lower-envelope"
 METHOD_CONFIGURED = "configured"

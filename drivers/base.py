@@ -2,7 +2,7 @@
 
 Modelled on python-can's ``Bus``: a driver is configured from TOML (a pydantic model per driver),
 discovered through the ``gvtlink.drivers`` entry-point group, opened and closed as a context manager,
-and read as an iterator of :class:`~daq.blocks.SampleBlock`. What peers get wrong and this gets right
+and read as an iterator of :class:`~drivers.blocks.SampleBlock`. What peers get wrong and this gets right
 (landscape.md §2.1, §2.8, §4):
 
 * **Exact loss accounting.** Subclasses call :meth:`Driver._emit` with blocks that carry the device's
@@ -27,17 +27,20 @@ from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
-from daq.blocks import BlockStatus, SampleBlock
+from analysis.errors import RuntimeFailure
+from drivers.blocks import BlockStatus, SampleBlock
 
 ENTRY_POINT_GROUP = "gvtlink.drivers"
 
 
-class DriverError(RuntimeError):
+class DriverError(RuntimeFailure):
     """A driver failed; the message says what and how to fix it (one line)."""
 
 
 class LinkBudgetError(DriverError):
-    """The configured channels x rate cannot fit through the link."""
+    """The configured channels x rate cannot fit through the link: the configuration is to change (exit 2)."""
+
+    exit_code = 2
 
 
 class DriverConfig(BaseModel):

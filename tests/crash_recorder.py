@@ -11,8 +11,8 @@ import time
 
 import numpy as np
 
-from daq.blocks import SampleBlock
 from daq.log.writer import ChannelInfo, LogWriter
+from drivers.blocks import SampleBlock
 
 
 def block_data(first: int, n: int, n_ch: int) -> np.ndarray:

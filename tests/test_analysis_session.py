@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from analysis.model.rigs import open_rig
 from daq.analyze import analyze_log
 from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
 from daq.log.reader import LogReader
-from daq.rigs import open_rig
 from daq.session import run_session
 
 

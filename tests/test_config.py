@@ -11,9 +11,9 @@ import tomli_w
 from hypothesis import given
 from hypothesis import strategies as st
 
+from analysis.model.config import RigConfig
+from analysis.model.loader import ConfigError, validate
 from analysis.model.rig import load_rig
-from daq.config.loader import ConfigError, validate
-from daq.config.rig import RigConfig
 
 from .conftest import RIGS, gvt_command
 

@@ -69,8 +69,8 @@ def test_the_detectors_3_1_events_are_confirmed_where_the_truth_has_them_and_nev
 
 @pytest.fixture(scope="module")
 def log_with_events(tmp_path_factory):
+    from analysis.model.rigs import open_rig
     from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
-    from daq.rigs import open_rig
     from daq.session import run_session
 
     out = tmp_path_factory.mktemp("confirm") / "hit.mcap"

@@ -6,9 +6,9 @@ import time
 
 import numpy as np
 
-from daq.blocks import BlockStatus, SampleBlock
 from daq.confirm_lane import CONFIRM_TOPIC, ConfirmLane, LaneSettings, _Ring
 from daq.fanout import FanOut
+from drivers.blocks import BlockStatus, SampleBlock
 
 FS = 1000.0
 CHANNELS = ("hammer", "a1", "a2", "a3")

@@ -17,14 +17,14 @@ import scipy.signal
 
 from analysis.exchange import ExchangeSettings, detect_exchanges
 from analysis.modal_filter import ModalFilterSettings, ModalStateTracker, modal_basis, modal_energy
+from analysis.model.config import RigConfig
+from analysis.model.loader import validate
 from analysis.model.rig import build_rig
+from analysis.model.rigs import resolve_rig_path
 from analysis.operator import AnalysisOperator, RigModel, window_rq
 from analysis.pod import pod, rq_hz
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings
-from daq.blocks import SampleBlock
-from daq.config.loader import validate
-from daq.config.rig import RigConfig
-from daq.rigs import resolve_rig_path
+from drivers.blocks import SampleBlock
 
 EXP = resolve_rig_path("beam_ch4_exp")
 

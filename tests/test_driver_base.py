@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daq.blocks import BlockStatus, SampleBlock
 from drivers.base import Driver, DriverConfig, DriverError, LinkBudget, LinkBudgetError
+from drivers.blocks import BlockStatus, SampleBlock
 from drivers.sim.device import HitSchedule, SimulatedDevice
 from drivers.sim.faults import Faults
 

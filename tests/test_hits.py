@@ -7,11 +7,11 @@ import tomllib
 import numpy as np
 import pytest
 
+from analysis.model.config import RigConfig
+from analysis.model.loader import validate
 from analysis.model.rig import build_rig
-from daq.blocks import SampleBlock
-from daq.config.loader import validate
-from daq.config.rig import RigConfig
 from daq.hits import HitDetector, TriggerSettings
+from drivers.blocks import SampleBlock
 from drivers.sim.device import HitSchedule, SimulatedDevice
 
 from .conftest import RIGS

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daq.blocks import SampleBlock
 from daq.log.proto import SCHEMA_NAME
 from daq.log.writer import ChannelInfo, LogWriter
+from drivers.blocks import SampleBlock
 
 INTEROP = Path(__file__).resolve().parent / "interop"
 NODE_MODULES = INTEROP / "node_modules"

@@ -19,13 +19,13 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from daq.blocks import SampleBlock
 from daq.fanout import END, FanOut
 from daq.log.proto import BlockDecodeError, decode_block, encode_block
 from daq.log.reader import LogReader, LogReadError
 from daq.log.tools import export, log_info, recover
 from daq.log.writer import ChannelInfo, LogWriter, LogWriterError
 from daq.replay import Replayer
+from drivers.blocks import SampleBlock
 
 from .conftest import gvt_command
 from .crash_recorder import block_data

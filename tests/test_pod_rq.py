@@ -138,11 +138,11 @@ def test_smooth_poms_keeps_a_polynomial_and_drops_the_rest():
 @pytest.fixture(scope="module")
 def linear_exp_hit():
     """beam_ch4_exp with the cubic spring removed, a 10 N hit (4e-5 J) after a 0.0251 s pre-trigger."""
+    from analysis.model.config import RigConfig
     from analysis.model.forces import HalfSine
+    from analysis.model.loader import load_config
     from analysis.model.rig import build_rig, channel_signals
-    from daq.config.loader import load_config
-    from daq.config.rig import RigConfig
-    from daq.rigs import resolve_rig_path
+    from analysis.model.rigs import resolve_rig_path
 
     cfg = load_config(RigConfig, resolve_rig_path("beam_ch4_exp")).model_copy(update={"nonlinear_springs": []})
     rig = build_rig(cfg)

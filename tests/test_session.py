@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daq.config.loader import load_config
+from analysis.model.loader import load_config
+from analysis.model.rigs import open_rig
 from daq.config.session import SessionConfig
 from daq.log.reader import LogReader
-from daq.rigs import open_rig
 from daq.session import run_session
 
 from .conftest import gvt_command

@@ -140,10 +140,10 @@ def test_the_same_loop_away_from_the_end_is_confirmed():
 
 @cache
 def linear_exp_modal_q() -> tuple[np.ndarray, float]:
+    from analysis.model.config import RigConfig
+    from analysis.model.loader import validate
     from analysis.model.rig import build_rig
-    from daq.config.loader import validate
-    from daq.config.rig import RigConfig
-    from daq.rigs import resolve_rig_path
+    from analysis.model.rigs import resolve_rig_path
 
     path = resolve_rig_path("beam_ch4_exp")
     data = tomllib.loads(Path(path).read_text())

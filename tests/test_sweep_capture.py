@@ -192,11 +192,11 @@ def test_a_linear_rig_gives_no_capture(sweep_model):
     """beam_ch4_sim with the cubic spring removed: f2/f1 = 6.27 at every P, no seed ratio is passed, nothing is
     tested. Forcing the stage to look at 6:1 (4.5 % away, inside a 5 % tolerance) re-simulates the runs and
     confirms nothing: without coupling Φ_6:1 drifts at the constant 6ω1 − ω2."""
+    from analysis.model.config import RigConfig
+    from analysis.model.loader import load_config
     from analysis.model.rig import build_rig
+    from analysis.model.rigs import resolve_rig_path
     from analysis.model.sweep import ModalProbe, run_modal_phases
-    from daq.config.loader import load_config
-    from daq.config.rig import RigConfig
-    from daq.rigs import resolve_rig_path
     from daq.sweep_cmd import _simulator, output_dofs
 
     cfg = load_config(RigConfig, resolve_rig_path("beam_ch4_sim")).model_copy(update={"nonlinear_springs": []})

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daq.blocks import BlockStatus, SampleBlock
-from daq.config.loader import ConfigError, load_config, validate
+from analysis.model.loader import ConfigError, load_config, validate
 from daq.config.session import SessionConfig
 from daq.hits import HitDetector, TriggerSettings
 from daq.timeline import ClockOffsetEstimator, StreamAligner
+from drivers.blocks import BlockStatus, SampleBlock
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "configs" / "sessions" / "sim_two_devices.toml"
@@ -261,7 +261,7 @@ def test_bad_multi_device_configs_give_one_clear_line(over, field, words):
 # --- a real two-device session over two ptys ----------------------------------------------------
 @pytest.fixture(scope="module")
 def two(tmp_path_factory):
-    from daq.rigs import open_rig
+    from analysis.model.rigs import open_rig
     from daq.session import run_session
 
     cfg = load_config(SessionConfig, CFG)
@@ -328,7 +328,7 @@ def test_two_device_log_holds_both_streams_whole_and_the_timeline(two):
 
 
 def _ranges(cfg) -> dict[str, float]:
-    from daq.rigs import open_rig
+    from analysis.model.rigs import open_rig
 
     rig = open_rig(cfg.rig)
     return {p.name: p.props.range for p in [rig.hammer, *rig.sensors] if p.props.range is not None}

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis.model.rigs import open_rig
 from daq.config.session import AnalysisSpec, DeviceSpec, SessionConfig, TriggerSpec
 from daq.log.reader import LogReader
-from daq.rigs import open_rig
 from daq.session import run_session
 
 RERUN = Path(sys.executable).parent / "rerun"
@@ -218,7 +218,7 @@ def test_gvt_replay_view_and_analyze_rrd(session_log, tmp_path):
 
 
 def test_a_confirming_replay_does_not_show_the_recorded_confirmations_again():
-    from daq.cli import recorded_topics
+    from daq.cli.replay import recorded_topics
 
     assert "/analysis/confirmations" not in recorded_topics(confirming=True)
     assert "/analysis/confirmations" in recorded_topics(confirming=False)
@@ -228,10 +228,10 @@ def test_a_confirming_replay_does_not_show_the_recorded_confirmations_again():
 def test_the_view_draws_in_frames_and_catches_up_after_a_burst(tmp_path):
     """A serial device's 64-sample blocks (256 a second) are drawn a frame (0.25 s) at a time, not one wake-up
     each; a start-up backlog larger than a frame's worth is caught up early instead of overflowing the queue."""
-    from daq.blocks import SampleBlock
     from daq.fanout import FanOut
     from daq.view.lane import ViewLane, open_view
     from daq.view.logger import ViewSetup
+    from drivers.blocks import SampleBlock
 
     fs, chans = 16384.0, ("hammer", "a01", "a02")
     target = open_view("save", str(tmp_path / "frames.rrd"))

@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from analysis.evaluation.truth import DEFAULT_WINDOW_S, Exchange, major_exchanges
+from analysis.model.config import RigConfig
+from analysis.model.loader import parse_toml, validate
 from analysis.model.rig import Rig, build_rig
-from daq.config.loader import parse_toml, validate
-from daq.config.rig import RigConfig
 
 REPO = Path(__file__).resolve().parents[2]
 RIG_TOML = REPO / "configs" / "rigs" / "beam_ch4_exp.toml"

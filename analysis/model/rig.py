@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.model.config import BeamSpec, RigConfig, SensorProps
 from analysis.model.forces import HalfSine
 from analysis.model.guyan import GuyanModel, guyan_reduce
+from analysis.model.loader import load_config
 from analysis.model.modal import Modes, structure_modes
 from analysis.model.simulate import ImpactSimulator
 from analysis.model.structure import ModalDamping, Structure, build_beam, build_lumped
-from daq.config.loader import load_config
-from daq.config.rig import BeamSpec, RigConfig, SensorProps
 
 UNITS = {"acceleration": "m/s^2", "velocity": "m/s", "displacement": "m", "force": "N"}
 
@@ -154,7 +154,7 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
 
 def load_rig(path: str | Path) -> Rig:
     """Load and build a rig; raises :class:`daq.config.ConfigError` (one line) on a bad file."""
-    from daq.config.loader import ConfigError
+    from analysis.model.loader import ConfigError
 
     cfg = load_config(RigConfig, path)
     try:

@@ -1,6 +1,2 @@
-"""Config models (pydantic) and the TOML loader with one-line errors."""
-
-from daq.config.loader import ConfigError, ConfigFieldError, load_config
-from daq.config.rig import RigConfig
-
-__all__ = ["ConfigError", "ConfigFieldError", "RigConfig", "load_config"]
+"""Session config models (pydantic). The rig schema and the TOML loader live beside the rig model in
+``analysis/model`` (``config.py``, ``loader.py``): the analysis needs them and must not import ``daq``."""

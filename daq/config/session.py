@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from daq.config.loader import ConfigFieldError
+from analysis.model.loader import ConfigFieldError
 
 Positive = Annotated[float, Field(gt=0)]
 

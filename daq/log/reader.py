@@ -22,11 +22,12 @@ from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from zstandard import ZstdError
 
+from analysis.errors import BadInput
 from daq.log import layout
 from daq.log.proto import BlockDecodeError, decode_block
 
 
-class LogReadError(Exception):
+class LogReadError(BadInput):
     """The file cannot be read as a gvtlink log; ``str()`` is one line for the user."""
 
 

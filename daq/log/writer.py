@@ -28,9 +28,10 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from daq.blocks import SampleBlock
+from analysis.errors import RuntimeFailure
 from daq.log import layout
 from daq.log.proto import SCHEMA_NAME, encode_block, sample_block_descriptor_set
+from drivers.blocks import SampleBlock
 
 EVENT_SCHEMA = {
     "type": "object",
@@ -48,7 +49,7 @@ EVENT_SCHEMA = {
 HIT_SCHEMA = {"type": "object", "title": "gvtlink.Hit", "properties": {"index": {"type": "integer"}}}
 
 
-class LogWriterError(RuntimeError):
+class LogWriterError(RuntimeFailure):
     """The writer thread failed (e.g. disk full); the message says why. Raised to producers."""
 
 

@@ -36,15 +36,16 @@ from pathlib import Path
 
 import rerun as rr
 
-from daq.blocks import SampleBlock, coalesce
+from analysis.errors import RuntimeFailure
 from daq.fanout import END, FanOut, Subscription
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
+from drivers.blocks import SampleBlock, coalesce
 
 HOST = "127.0.0.1"
 
 
-class ViewError(Exception):
+class ViewError(RuntimeFailure):
     """The view cannot be opened (one line: what, and how to fix it)."""
 
 

@@ -18,8 +18,8 @@ import scipy.signal
 
 from analysis.pod import pod
 from analysis.wavelet import morlet_cwt
-from daq.blocks import SampleBlock
 from daq.view import recording as R
+from drivers.blocks import SampleBlock
 
 
 @dataclass(frozen=True)

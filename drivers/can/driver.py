@@ -20,8 +20,8 @@ from typing import Any
 import can
 from pydantic import Field
 
-from daq.blocks import BlockStatus, SampleBlock
 from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
+from drivers.blocks import BlockStatus, SampleBlock
 from drivers.can.dbc_map import MessageLayout, load_layouts
 
 DEFAULT_DBC = Path(__file__).resolve().parents[2] / "configs" / "can" / "gvt_sim_node.dbc"

@@ -30,8 +30,8 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 
-from daq.blocks import BlockStatus, SampleBlock
 from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
+from drivers.blocks import BlockStatus, SampleBlock
 from drivers.modbus.register_map import MAX_READ, RegisterMap, load_register_map
 
 ROOT = Path(__file__).resolve().parents[2]

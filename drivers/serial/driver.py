@@ -26,8 +26,8 @@ import numpy as np
 import serial
 from pydantic import Field, model_validator
 
-from daq.blocks import BlockStatus, SampleBlock
 from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
+from drivers.blocks import BlockStatus, SampleBlock
 from drivers.serial.protocol import FORMATS, WIDTH, FrameDecoder, LineDecoder, frame_overhead
 
 

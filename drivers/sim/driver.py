@@ -7,8 +7,8 @@ import time
 
 from pydantic import Field
 
-from daq.blocks import SampleBlock
 from drivers.base import Driver, DriverConfig, LinkBudget
+from drivers.blocks import SampleBlock
 
 
 class SimConfig(DriverConfig):
@@ -36,7 +36,7 @@ class SimDriver(Driver):
         return LinkBudget(0.0, 1.0, "B/s", "in-process transport")
 
     def _connect(self) -> None:
-        from daq.rigs import open_rig
+        from analysis.model.rigs import open_rig
         from drivers.sim.device import HitSchedule, SimulatedDevice
 
         c: SimConfig = self.config  # type: ignore[assignment]

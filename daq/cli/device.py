@@ -7,11 +7,10 @@ import threading
 from typing import Annotated
 
 import typer
-from rich.console import Console
+
+from daq.cli.common import err, fail, open_rig, out
 
 device_app = typer.Typer(no_args_is_help=True, help="The simulated DAQ device.")
-out = Console(highlight=False, soft_wrap=True)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 @device_app.command("serve")
@@ -33,13 +32,12 @@ def serve(
     timeouts: Annotated[float, typer.Option(min=0.0, max=1.0, help="Modbus: probability of not answering a request.")] = 0.0,
 ) -> None:
     """Serve the simulated device over a real transport and print how to connect."""
-    from daq.cli import _open, fail
     from drivers.sim.device import HitSchedule, SimulatedDevice
     from drivers.sim.faults import Faults
 
     if transport not in ("serial", "can", "modbus"):
         fail(f"--transport must be serial, can or modbus, got {transport!r}")
-    r = _open(rig)
+    r = open_rig(rig)
     peak = r.config.hammer.peak_force
     forces = [peak * (k + 1) / hits for k in range(hits)]
     horizon = (hits + 1) * period + 2.0

@@ -6,18 +6,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
-from daq.log.reader import LogReadError
+from daq.cli.common import OverwriteOpt, check_output, err, fail, out
 
 log_app = typer.Typer(no_args_is_help=True, help="Inspect, repair and export session logs (MCAP).")
-out = Console(highlight=False, soft_wrap=True)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
-
-
-def _fail(msg: str, code: int = 2) -> None:
-    err.print(f"gvt: error: {msg}", markup=False)
-    raise typer.Exit(code)
 
 
 @log_app.command("info")
@@ -28,12 +20,9 @@ def info_cmd(
     """Streams, channels, rates, durations, sample counts, gaps, hits, events and file health."""
     from daq.log.tools import info_json, info_text, log_info
 
-    try:
-        info = log_info(file)
-    except LogReadError as exc:
-        _fail(str(exc))
+    info = log_info(file)
     if json_out:
-        print(info_json(info))
+        out.print(info_json(info), markup=False, soft_wrap=True)
     else:
         out.print(info_text(info), markup=False)
 
@@ -42,14 +31,13 @@ def info_cmd(
 def recover_cmd(
     src: Annotated[Path, typer.Argument(help="Damaged (or any) log.")],
     dst: Annotated[Path, typer.Argument(help="New, fully indexed log.")],
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Rewrite everything readable; exit 0 when nothing was lost, 3 when data was lost."""
     from daq.log.tools import recover
 
-    try:
-        rep = recover(src, dst)
-    except LogReadError as exc:
-        _fail(str(exc))
+    check_output(dst, overwrite, "DST")
+    rep = recover(src, dst)
     if rep.data_lost:
         why = f" ({rep.stopped_because})" if rep.stopped_because else ""
         err.print(
@@ -70,17 +58,16 @@ def export_cmd(
     start: Annotated[float | None, typer.Option(help="Start time, s since the stream's t0.")] = None,
     end: Annotated[float | None, typer.Option(help="End time, s since the stream's t0.")] = None,
     stream: Annotated[str | None, typer.Option(help="Only this stream (required for csv with several).")] = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Export samples to npz or csv, optionally by channel and time range."""
     from daq.log.tools import export
 
     if fmt not in ("npz", "csv"):
-        _fail(f"--format must be npz or csv, got {fmt!r}")
+        fail(f"--format must be npz or csv, got {fmt!r}")
     if start is not None and end is not None and end <= start:
-        _fail("--end must be after --start")
+        fail("--end must be after --start")
     target = out_path or file.with_suffix(f".{fmt}")
+    check_output(target, overwrite)
     chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
-    try:
-        out.print(export(file, target, fmt, chans, start, end, stream), markup=False)
-    except LogReadError as exc:
-        _fail(str(exc))
+    out.print(export(file, target, fmt, chans, start, end, stream), markup=False)

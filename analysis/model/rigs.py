@@ -6,7 +6,7 @@ from pathlib import Path
 
 from analysis.model.rig import Rig, load_rig
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 RIG_DIR = CONFIG_DIR / "rigs"
 
 

@@ -14,13 +14,15 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
+from analysis.errors import BadInput
+
 M = TypeVar("M", bound=BaseModel)
 
 #: Discriminator tags pydantic inserts into error locations of tagged unions; not field names.
 _UNION_TAGS = {"beam", "lumped"}
 
 
-class ConfigError(Exception):
+class ConfigError(BadInput):
     """A config file is unusable. ``str(err)`` is the whole one-line message."""
 
     def __init__(self, path: str | Path, field: str | None, problem: str) -> None:

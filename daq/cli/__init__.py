@@ -1,0 +1,89 @@
+"""The ``gvt`` command line: a thin typer app over the library, one module per verb.
+
+Verb modules (``record.py``, ``log.py`` ...) share ``common.py`` and never import each other
+(tests/test_layering.py); this module assembles them in ``gvt --help`` order. Errors are mapped once, in
+:func:`main`: any :class:`~analysis.errors.GvtError` prints its one line and exits with its kind's code
+(2 bad input, 1 runtime failure, 3 data lost); a click usage error is one line and exit 2; anything
+unexpected is one line and exit 1 (``GVT_DEBUG=1`` re-raises for the traceback). No verb prints a
+traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from analysis.errors import GvtError
+from daq.cli import analyze, confirm, demo, record, replay, report, simulate, sweep
+from daq.cli.common import err
+from daq.cli.device import device_app
+from daq.cli.log import log_app
+from daq.cli.model import model_app
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="gvtlink: ground-vibration-test data acquisition and nonlinear modal analysis.",
+)
+app.add_typer(model_app, name="model")
+app.add_typer(log_app, name="log")
+app.add_typer(device_app, name="device")
+for verb in (simulate.simulate, sweep.sweep, demo.demo, replay.replay, analyze.analyze, confirm.confirm, record.record,
+             report.report):  # fmt: skip
+    app.command()(verb)
+
+
+def _click_exceptions():
+    """The click exception module typer is using (typer >= 0.2x vendors its own copy of click)."""
+    try:
+        from typer._click import exceptions
+    except ImportError:  # older typer: plain click
+        from click import exceptions
+    return exceptions
+
+
+def _say(message: str) -> None:
+    err.print(message, markup=False, soft_wrap=True)
+
+
+def run(argv: list[str] | None = None) -> int:
+    """Run ``gvt`` with ``argv`` (default: the command line) and return the exit code; errors are mapped here
+    and only here. Tests call this in-process; the console script is :func:`main`."""
+    cx = _click_exceptions()
+    try:
+        code = app(args=argv, standalone_mode=False)
+        return code if isinstance(code, int) else 0
+    except typer.Exit as exc:
+        return exc.exit_code
+    except cx.UsageError as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError":  # the help text has been printed already
+            return 2
+        cmd = exc.ctx.command_path if exc.ctx is not None else "gvt"
+        _say(f"gvt: error: {exc.format_message()} (see '{cmd} --help')")
+        return 2
+    except typer.Abort:
+        _say("gvt: aborted")
+        return 130
+    except GvtError as exc:
+        if os.environ.get("GVT_DEBUG"):
+            raise
+        _say(f"gvt: error: {exc}")
+        return exc.exit_code
+    except KeyboardInterrupt:
+        _say("gvt: interrupted")
+        return 130
+    except Exception as exc:  # never a traceback to a user
+        if os.environ.get("GVT_DEBUG"):
+            raise
+        _say(f"gvt: internal error: {type(exc).__name__}: {exc} (set GVT_DEBUG=1 for the traceback)")
+        return 1
+
+
+def main() -> None:
+    sys.exit(run())
+
+
+__all__ = ["app", "main", "run"]

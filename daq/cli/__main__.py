@@ -1,0 +1,5 @@
+"""``python -m daq.cli``: the same as the ``gvt`` console script."""
+
+from daq.cli import main
+
+main()

@@ -1,0 +1,46 @@
+"""``gvt analyze``: near-live detection in batch over a log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from daq.cli.common import Progress, err, fail, open_rig, out, rerun_hint
+
+
+def analyze(
+    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
+    stream: Annotated[str | None, typer.Option(help="Stream to analyse (default: the one with all the rig's sensors).")] = None,
+    window: Annotated[float | None, typer.Option(min=0.0, help="Window length, s (default: 0.45 / f1 of the rig).")] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print JSON (summary, events, warnings).")] = False,
+    windows_out: Annotated[bool, typer.Option("--windows", help="With --json: also every window's RQ and modal result.")] = False,
+    rrd: Annotated[Path | None, typer.Option("--rrd", help="Also write a rerun recording (.rrd).")] = None,
+) -> None:
+    """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
+    from analysis.operator import AnalysisSettings
+    from daq.analyze import AnalyzeError, analyze_log
+    from daq.analyze_cmd import print_json, print_report
+
+    r = open_rig(rig) if rig is not None else None
+    if window is not None and window <= 0:
+        fail("--window must be > 0 s")
+    try:
+        with Progress(err if json_out else out) as report:
+            run = analyze_log(log, r, stream, AnalysisSettings(window_s=window), progress=lambda f: report("analysing", f))
+    except AnalyzeError as exc:
+        fail(str(exc))
+    if run.bad_blocks:
+        err.print(f"skipped {len(run.bad_blocks)} undecodable sample block(s), analysed as gaps; first: {run.bad_blocks[0]}",
+                  markup=False)  # fmt: skip
+    if rrd is not None:
+        from daq.view.build import build_rrd
+
+        summary = build_rrd(log, rrd, rig=r, results=run.results)
+        (err if json_out else out).print(f"wrote {rrd} ({summary.blocks} blocks); open it: {rerun_hint()} {rrd}", markup=False)
+    if json_out:
+        print_json(out, run, full=windows_out)
+    else:
+        print_report(out, run)

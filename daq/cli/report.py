@@ -1,0 +1,25 @@
+"""``gvt report``: a static HTML report of a session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from daq.cli.common import OverwriteOpt, check_output, open_rig, out
+
+
+def report(
+    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    out_path: Annotated[Path, typer.Option("--out", help="Output HTML file (self-contained).")] = Path("report.html"),
+    rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
+    overwrite: OverwriteOpt = False,
+) -> None:
+    """A static HTML report of a session: plots and tables of hits, verdicts, loss, RQ-FEP, IR events, confirmations."""
+    from daq.report import build_report
+
+    check_output(out_path, overwrite)
+    s = build_report(log, out_path, rig=open_rig(rig) if rig is not None else None)
+    out.print(f"wrote {out_path}: {len(s.figures)} plots, {len(s.tables)} tables (analysis results from {s.results_from})",
+              markup=False)  # fmt: skip

@@ -9,6 +9,11 @@ and read as an iterator of :class:`~drivers.blocks.SampleBlock`. What peers get 
   own sample index. A jump in the index is a gap: the exact missing range is recorded as a
   :class:`DriverEvent` with its cause, and the block is flagged ``GAP_BEFORE``. CRC/frame errors,
   timeouts, reconnects and overruns are counted in :class:`LinkStats`.
+* **An index is checked before it is believed** (:mod:`drivers.sequence`, the same kernel for every
+  transport): one wild frame is rejected and counted (``implausible_index``), a device restart starts a
+  new *segment* of the stream (``restart`` event, ``RESTART`` flag) instead of being stitched onto the
+  old data. Blocks leave the driver with a *stream* index (device index + segment offset) that is
+  continuous and monotonic and always fits a log's int64 nanosecond time.
 * **A dying driver thread is never silent.** The reader thread's exception is stored and raised to the
   owner from :meth:`Driver.blocks` (as :class:`DriverError`), after every block read before it.
 * **Bounded everything.** Blocks wait in a bounded queue; if the owner stops reading, the driver counts
@@ -19,16 +24,18 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from analysis.errors import RuntimeFailure
 from drivers.blocks import BlockStatus, SampleBlock
+from drivers.sequence import Accepted, Dropped, StreamSequencer
 
 ENTRY_POINT_GROUP = "gvtlink.drivers"
 
@@ -46,18 +53,27 @@ class LinkBudgetError(DriverError):
 class DriverConfig(BaseModel):
     """Base for driver configs (each driver adds its own fields)."""
 
-    model_config = ConfigDict(extra="forbid")
+    # No inf/nan anywhere in a driver config: a NaN timeout or rate would make every comparison false.
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     stream: str = "dev0"
     queue_blocks: int = 256
     # Set when the session starts the device itself (its first sample is this index): loss before the
     # first block that arrives is then a reported gap too. None when joining a device that already runs.
     expect_first_index: int | None = None
+    # A forward index jump beyond (elapsed host time + this) x fs x 1.25 is not believed as a gap: it is a
+    # bad frame unless the next block continues it (then a device restart / counter re-base: a new segment).
+    plausible_jump_s: float = Field(1.0, gt=0)
 
 
 @dataclass(frozen=True)
 class DriverEvent:
-    """Something the log must say: ``gap`` (exact missing [start, end)), ``crc_error``, ``timeout``,
-    ``reconnect``, ``overrun``, ``frame_error``, ``resync``…"""
+    """Something the log must say: ``gap`` (exact missing [start, end)), ``restart`` (a new segment; the
+    range is the *estimated* gap), ``implausible_index`` (a rejected block), ``crc_error``, ``timeout``,
+    ``reconnect``, ``overrun``, ``frame_error``, ``resync``…
+
+    ``start_index``/``end_index`` are always *stream* indices (safe to turn into a time); a block's own
+    device indices, which may be anything a bad frame claimed, go in ``device_start``/``device_end``.
+    """
 
     kind: str
     stream: str
@@ -65,13 +81,33 @@ class DriverEvent:
     end_index: int | None = None
     count: int = 0
     message: str = ""
+    device_start: int | None = None
+    device_end: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        d = {"kind": self.kind, "stream": self.stream, "count": self.count, "message": self.message}
+        d: dict[str, Any] = {"kind": self.kind, "stream": self.stream, "count": self.count, "message": self.message}
         if self.start_index is not None:
             d["start_index"] = self.start_index
             d["end_index"] = self.end_index
+        if self.device_start is not None:
+            d["device_start"] = self.device_start
+            d["device_end"] = self.device_end
         return d
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One run of a device within a stream: segment 0 from the stream's first block, one more per restart.
+
+    Stream index = device index + (``stream_first`` - ``device_first``) for every block of the segment.
+    ``estimated_gap``: samples placed between the previous segment's end and this one, estimated from the
+    host clock (0 for segment 0)."""
+
+    stream: str
+    number: int
+    stream_first: int
+    device_first: int
+    estimated_gap: int = 0
 
 
 @dataclass
@@ -86,8 +122,14 @@ class LinkStats:
     garbage_bytes: int = 0  # byte streams: bytes skipped while hunting for a frame (line noise)
     resyncs: int = 0
     samples: int = 0
-    lost_samples: int = 0  # sum of gap lengths (per stream row, not per channel)
+    # Sum of gap lengths (per stream row, not per channel), in stream indices. Includes the gaps before
+    # restart segments, which are estimates (their part: estimated_lost_samples); all other gaps are exact.
+    lost_samples: int = 0
     gaps: list[tuple[int, int]] = field(default_factory=list)
+    estimated_lost_samples: int = 0
+    restarts: int = 0  # confirmed device restarts / counter re-bases (each began a new segment)
+    rejected_blocks: int = 0  # blocks (frames) with an implausible index, never emitted
+    segments: list[Segment] = field(default_factory=list)  # every stream's segments, in order
 
 
 @dataclass(frozen=True)
@@ -134,11 +176,13 @@ class Driver(ABC):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
-        self._next_index: dict[str, int] = {}
+        self._sequencers: dict[str, StreamSequencer] = {}
+        self._t_open: float | None = None
 
     # --- owner side ------------------------------------------------------------------------
     def open(self) -> Driver:
         self.link_budget().check()
+        self._t_open = time.monotonic()
         self._connect()
         self._thread = threading.Thread(target=self._thread_main, name=f"driver:{self.name}", daemon=True)
         self._thread.start()
@@ -206,39 +250,67 @@ class Driver(ABC):
         except queue.Full:
             pass  # counters in LinkStats still hold the totals
 
-    def _emit(self, block: SampleBlock, cause: str = "link") -> None:
-        """Hand a block to the owner, detecting and reporting any gap before it."""
-        expected = self._next_index.get(block.stream, self.config.expect_first_index)
+    def _emit(
+        self,
+        block: SampleBlock,
+        cause: str = "link",
+        *,
+        now: float | None = None,
+        produced: int | None = None,
+        restart: bool = False,
+    ) -> None:
+        """Hand a block (carrying the *device* index) to the sequencer of its stream, and what it lets
+        through to the owner at its *stream* index, reporting any gap, restart or rejected block.
+
+        ``now``: host monotonic time the block's last sample arrived (default: now). ``produced``: device
+        samples that existed then, if the transport knows (a FIFO backlog; default ``block.end_index``).
+        ``restart``: the transport has confirmed that this block starts a new device run. ``cause`` goes
+        into the gap or restart message.
+        """
+        seq = self._sequencers.get(block.stream)
+        if seq is None:
+            seq = self._sequencers[block.stream] = StreamSequencer(
+                block.sample_rate,
+                plausible_jump_s=self.config.plausible_jump_s,
+                expect_first=self.config.expect_first_index,
+                start_time=self._t_open if self.config.expect_first_index is not None else None,
+            )
+        t = time.monotonic() if now is None else now
+        for out in seq.feed(block.first_index, block.n_samples, t, (block, cause), produced=produced, restart=restart):
+            if isinstance(out, Accepted):
+                self._deliver(out)
+            else:
+                self._dropped(out)
+
+    def _finish_streams(self) -> None:
+        """The driver ends: suspects still held by a sequencer were never confirmed; reject them."""
+        for seq in self._sequencers.values():
+            for out in seq.finish():
+                self._dropped(out)
+
+    def _deliver(self, acc: Accepted) -> None:
+        block, cause = acc.item
         status = block.status
-        if expected is not None and block.first_index > expected:
-            gap = (expected, block.first_index)
-            self.stats.gaps.append(gap)
-            self.stats.lost_samples += gap[1] - gap[0]
-            self._event(DriverEvent("gap", block.stream, gap[0], gap[1], gap[1] - gap[0], f"samples missing ({cause})"))
+        stats = self.stats
+        if acc.gap is not None:
+            a, b = acc.gap
+            stats.gaps.append(acc.gap)
+            stats.lost_samples += b - a
+            self._event(DriverEvent("gap", block.stream, a, b, b - a, f"samples missing ({cause})"))
             status |= BlockStatus.GAP_BEFORE
-        elif expected is not None and block.first_index < expected:
-            self._event(
-                DriverEvent(
-                    "frame_error",
-                    block.stream,
-                    block.first_index,
-                    block.end_index,
-                    block.n_samples,
-                    "block went back in time (duplicate or device reset); dropped",
-                )
-            )
-            self.stats.frames_bad += 1
-            return
-        self._next_index[block.stream] = block.end_index
-        if status != block.status:
+        if acc.restart is not None:
+            status |= self._restarted(block.stream, acc, cause)
+        elif acc.starts_segment:
+            stats.segments.append(Segment(block.stream, acc.segment, acc.stream_first, acc.device_first))
+        if status != block.status or acc.stream_first != block.first_index:
             block = SampleBlock(
-                block.stream, block.first_index, block.sample_rate, block.channels, block.data, status, block.extra
+                block.stream, acc.stream_first, block.sample_rate, block.channels, block.data, status, block.extra
             )
-        self.stats.samples += block.n_samples
+        stats.samples += block.n_samples
         try:
             self._blocks.put_nowait(block)
         except queue.Full:
-            self.stats.overruns += 1
+            stats.overruns += 1
             self._event(
                 DriverEvent(
                     "overrun",
@@ -250,12 +322,71 @@ class Driver(ABC):
                 )
             )
 
+    def _restarted(self, stream: str, acc: Accepted, cause: str) -> BlockStatus:
+        rs = acc.restart
+        assert rs is not None
+        gap = rs.estimated_gap
+        stats = self.stats
+        stats.restarts += 1
+        stats.gaps.append((rs.prev_end, rs.stream_first))
+        stats.lost_samples += gap
+        stats.estimated_lost_samples += gap
+        stats.segments.append(Segment(stream, rs.segment, rs.stream_first, rs.device_first, gap))
+        why = cause if rs.by_transport else "its index went back or jumped, and the next block continued it"
+        self._event(
+            DriverEvent(
+                "restart",
+                stream,
+                rs.prev_end,
+                rs.stream_first,
+                gap,
+                f"device restarted ({why}): its index went to {rs.device_first}; segment {rs.segment} starts at stream "
+                f"index {rs.stream_first}, after an estimated {gap} missing samples (gap length estimated from the "
+                "host clock)",
+                device_start=rs.device_first,
+                device_end=rs.device_first + acc.n,
+            )
+        )
+        return BlockStatus.RESTART | BlockStatus.GAP_BEFORE
+
+    def _dropped(self, d: Dropped) -> None:
+        block, _cause = d.item
+        dev = {"device_start": d.device_first, "device_end": d.device_first + d.n}
+        if d.kind == "duplicate":  # counted with the frame errors, as always
+            self.stats.frames_bad += 1
+            a = d.stream_first
+            self._event(
+                DriverEvent("frame_error", block.stream, a, None if a is None else a + d.n, d.n, f"{d.reason}; dropped", **dev)
+            )
+            return
+        self._implausible(block.stream, d.device_first, d.n, d.reason, d.stream_at)
+
+    def _implausible(self, stream: str, device_first: int, n: int, reason: str, stream_at: int | None = None) -> None:
+        """Count and report a block rejected for its index (``stream_at``: where the stream was; default
+        where its sequencer is)."""
+        if stream_at is None and stream in self._sequencers:
+            stream_at = self._sequencers[stream].next_stream_index
+        self.stats.rejected_blocks += 1
+        self._event(
+            DriverEvent(
+                "implausible_index",
+                stream,
+                stream_at,
+                stream_at,
+                n,
+                f"block at device index {device_first} ({n} samples) rejected: {reason}",
+                device_start=device_first,
+                device_end=device_first + n,
+            )
+        )
+
     def _thread_main(self) -> None:
         try:
             self._run()
         except BaseException as exc:  # reported to the owner through blocks()
             self._error = exc
         finally:
+            self._finish_streams()
             while True:
                 try:
                     self._blocks.put(_END, timeout=0.5)

@@ -23,6 +23,7 @@ class BlockStatus(IntFlag):
     TIMEOUT = 8
     RECONNECT = 16  # the link reconnected just before this block
     CLIPPED = 32  # at least one sample reached a channel's range
+    RESTART = 64  # first block of a new segment: the device restarted (or re-based its index) before it
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,8 @@ class SampleBlock:
 def coalesce(blocks: Iterable[SampleBlock], max_samples: int) -> Iterator[SampleBlock]:
     """Join consecutive, contiguous blocks of one stream into blocks of up to ``max_samples`` (statuses OR-ed).
 
+    Never across a ``RESTART`` block: two runs of a device are never one block.
+
     Fewer, larger blocks cost per-call consumers less: ``gvt analyze`` feeds 0.5 s chunks, the live view
     draws what queued up since its last turn in one go.
     """
@@ -64,7 +67,7 @@ def coalesce(blocks: Iterable[SampleBlock], max_samples: int) -> Iterator[Sample
     n = 0
     for b in blocks:
         if pending and (b.stream != pending[-1].stream or b.first_index != pending[-1].end_index
-                        or n + b.n_samples > max_samples):  # fmt: skip
+                        or n + b.n_samples > max_samples or b.status & BlockStatus.RESTART):  # fmt: skip
             yield _join(pending)
             pending, n = [], 0
         pending.append(b)

@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.base import LinkBudgetError, make_driver
+from drivers.blocks import BlockStatus
 from drivers.can.dbc_map import load_layouts
 from drivers.can.driver import DEFAULT_DBC, CanConfig, CanDriver, budget_frames_per_s, channels_budget
 from drivers.can.sim_node import CanSimNode
@@ -321,7 +322,9 @@ def test_fuzz_frame_decoder(frames, dt):
         assert b.channels == lay.channels and b.n_samples % lay.spf == 0 and b.n_samples > 0
         assert np.all(np.isfinite(b.data))
         assert np.all(np.abs(b.data) <= 32768 * lay.scales * (1 + 1e-6))
-        assert b.first_index % lay.spf == 0
+        seg = [s for s in drv.stats.segments if s.stream == b.stream and s.stream_first <= b.first_index][-1]
+        assert (b.first_index - seg.stream_first + seg.device_first) % lay.spf == 0  # device index = counter x spf
+        assert b.end_index * 1e9 / b.sample_rate < 2**62  # whatever the counters said, a log can time it
     emitted = drv.stats.samples
     assert emitted <= sum(lay.spf for lay in _LAYS) * drv.stats.frames_ok
     assert drv.stats.frames_ok <= _fuzz_state["accepted"]
@@ -340,3 +343,107 @@ def test_cantools_vs_fast_speed_recorded():
     t_ct = time.perf_counter() - t0
     assert t_fast < t_ct
     assert Path(DEFAULT_DBC).exists()
+
+
+# --- restarts, wild counters, stalls, the connect line, config ---------------------------------------
+def _device_pairs(drv, blocks):
+    out = []
+    for b in blocks:
+        seg = [s for s in drv.stats.segments if s.stream == b.stream and s.stream_first <= b.first_index][-1]
+        out.append((b.first_index - seg.stream_first + seg.device_first, b))
+    return out
+
+
+def test_node_restart_is_a_new_segment_never_stitched(device):
+    faults = Faults(restart_at_s=1.0, restart_down_s=0.5)
+    drv, node, blocks = run_link(device, "GVT_FD3", 2.6, faults)
+    (rec,) = faults.restarts
+    assert drv.stats.restarts == 1 and drv.stats.rejected_blocks == 0 and drv.can.rejected_frames == 0
+    k = next(i for i, b in enumerate(blocks) if b.status & BlockStatus.RESTART)
+    old, new = blocks[:k], blocks[k:]
+    assert old[0].first_index == 0 and old[-1].end_index == rec.delivered
+    seg = drv.stats.segments[-1]
+    assert (seg.number, seg.device_first, seg.stream_first) == (1, 0, new[0].first_index)
+    assert abs(seg.stream_first - rec.stream_index(0, 16384)) <= 0.05 * 16384  # estimated from the host clock
+    for part in (old, new):
+        assert all(b.first_index == a.end_index for a, b in itertools.pairwise(part))
+    assert drv.stats.gaps == [(rec.delivered, seg.stream_first)] and drv.stats.lost_samples == seg.estimated_gap
+    lay = node.layout
+    for d, b in _device_pairs(drv, blocks):  # the data before and after are the device's, intact
+        ref = device.samples(d, d + b.n_samples)[:, node.columns]
+        assert np.all(np.abs(b.data.astype(np.float64) - ref) <= lay.scales / 2 * (1 + 1e-6) + 1e-4 * np.abs(ref))
+    assert new[-1].end_index - new[0].first_index >= 0.9 * 16384 - 512  # it carried on after the restart
+
+
+def test_one_shot_stall_loses_nothing_on_can(device):
+    faults = Faults(stall_at_s=0.5, stall_for_s=0.5)
+    drv, node, blocks = run_link(device, "GVT_FD3", 1.6, faults, silence_timeout_s=0.3)
+    got, end = check_blocks(device, node, blocks)
+    assert got == end == node.samples_done and blocks[0].first_index == 0
+    assert drv.stats.gaps == [] and drv.stats.frames_bad == 0 and drv.stats.rejected_blocks == 0
+    assert drv.stats.timeouts >= 1  # the node really went quiet for longer than 0.3 s
+
+
+def _drive(drv, lay, counters, t0, dt=10 / 16384):
+    t = t0
+    for c in counters:
+        for m in _frames(lay, c, 1):
+            drv.handle(m, t)
+        t += dt
+    return t
+
+
+def test_counter_restart_rebases_and_a_wild_counter_is_rejected():
+    lay = load_layouts(DEFAULT_DBC, ["GVT_FD3"])[0]
+    drv = CanDriver(CanConfig(fd=True, messages=["GVT_FD3"], block_samples=100))
+    t = _drive(drv, lay, range(30), 0.0)
+    t = _drive(drv, lay, [10**6], t)  # one wild counter: held, then rejected
+    t = _drive(drv, lay, range(30, 40), t)
+    t = _drive(drv, lay, range(0, 20), t + 0.5)  # the node restarted: its counter went back to 0
+    drv._flush_all()
+    drv._reject_suspects()
+    blocks = []
+    while not drv._blocks.empty():
+        blocks.append(drv._blocks.get_nowait())
+    assert drv.stats.rejected_blocks == 1 and drv.can.rejected_frames == 1 and drv.stats.restarts == 1
+    assert sum(b.n_samples for b in blocks) == (40 + 20) * lay.spf  # every good frame, once
+    (seg,) = [s for s in drv.stats.segments if s.number == 1]
+    assert seg.device_first == 0 and seg.stream_first >= 400 + 0.45 * 16384
+    flags = [bool(b.status & BlockStatus.RESTART) for b in blocks]
+    assert flags.count(True) == 1 and blocks[flags.index(True)].first_index == seg.stream_first
+    assert [b.first_index for b in blocks if b.first_index < 400] == [0, 100, 200, 300]  # no gap from the wild frame
+    assert drv.stats.gaps == [(400, seg.stream_first)]
+
+
+def test_sim_node_line_is_a_working_session_snippet(device):
+    import tomllib
+
+    channel = next(_bus_names)
+    node = CanSimNode(device, message="GVT_FD3", channel=channel)
+    line = node.start()
+    try:
+        spec = tomllib.loads(line.split("session TOML: ", 1)[1])["device"]
+        assert spec["driver"] == "can" and spec["config"]["channel"] == channel
+        drv = make_driver(spec["driver"], spec["config"])
+        with drv:
+            b = next(drv.blocks(timeout=3))
+        assert b.channels == ("hammer", "a01", "a02") and b.sample_rate == 16384
+    finally:
+        node.stop()
+
+
+def test_dbc_is_checked_with_the_config(tmp_path, monkeypatch):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match=r"nope\.dbc.*not found"):
+        CanConfig(dbc=str(tmp_path / "nope.dbc"))
+    bad = tmp_path / "bad.dbc"
+    bad.write_text("this is not a DBC file {")
+    with pytest.raises(ValidationError, match=r"bad\.dbc.*cannot be used"):
+        CanConfig(dbc=str(bad))
+    with pytest.raises(ValidationError, match="NOPE"):
+        CanConfig(messages=["NOPE"])
+    with pytest.raises(ValidationError, match="finite"):
+        CanConfig(plausible_jump_s=float("inf"))
+    monkeypatch.chdir(tmp_path)
+    assert CanConfig(dbc="configs/can/gvt_sim_node.dbc").dbc == str(DEFAULT_DBC)  # root-relative works anywhere

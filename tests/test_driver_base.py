@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.base import Driver, DriverConfig, DriverError, LinkBudget, LinkBudgetError
+from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget, LinkBudgetError
 from drivers.blocks import BlockStatus, SampleBlock
 from drivers.sim.device import HitSchedule, SimulatedDevice
 from drivers.sim.faults import Faults
@@ -137,3 +137,54 @@ def test_sim_driver_paced_follows_the_device_clock():
     assert sum(b.n_samples for b in blocks) == 8192 and blocks[0].data.shape[1] == 2
     assert 0.4 <= took <= 1.5  # real time, not full speed
     assert not make_driver("sim", {"rig": "beam_ch4_exp"}).realtime
+
+
+def test_wild_block_rejected_and_restart_makes_a_segment_through_the_driver():
+    from drivers.base import Segment
+
+    drv = ListDriver(DriverConfig(), [(0, 10), (10, 10), (10**9, 10), (20, 10), (0, 10), (10, 10)])
+    with drv:
+        got = list(drv.blocks(timeout=5))
+    # the wild block is gone, nothing else; the restarted run (device 0..20) continues the stream after >= 1 sample
+    assert [(b.first_index, b.n_samples) for b in got] == [(0, 10), (10, 10), (20, 10), (31, 10), (41, 10)]
+    assert [float(b.data[0, 0]) for b in got] == [0, 10, 20, 0, 10]  # the data are the device's blocks, unchanged
+    assert [b.status for b in got] == [0, 0, 0, BlockStatus.RESTART | BlockStatus.GAP_BEFORE, 0]
+    s = drv.stats
+    assert (s.restarts, s.rejected_blocks, s.frames_bad, s.samples) == (1, 1, 0, 50)
+    assert s.gaps == [(30, 31)] and s.lost_samples == s.estimated_lost_samples == 1
+    assert s.segments == [Segment("d", 0, 0, 0, 0), Segment("d", 1, 31, 0, 1)]
+    ev = {e.kind: e for e in drv.drain_events()}
+    bad, rs = ev["implausible_index"], ev["restart"]
+    assert (bad.start_index, bad.end_index, bad.count, bad.device_start, bad.device_end) == (20, 20, 10, 10**9, 10**9 + 10)
+    assert (rs.start_index, rs.end_index, rs.count, rs.device_start) == (30, 31, 1, 0)
+    assert "segment 1" in rs.message and "estimated from the host clock" in rs.message and "index went to 0" in rs.message
+    assert rs.as_dict()["device_start"] == 0 and "device_start" not in DriverEvent("gap", "d", 0, 1, 1).as_dict()
+
+
+def test_a_suspect_still_held_when_the_driver_ends_is_rejected():
+    drv = ListDriver(DriverConfig(), [(0, 10), (10, 10), (2**62, 10)])
+    with drv:
+        got = list(drv.blocks(timeout=5))
+    assert [b.first_index for b in got] == [0, 10] and drv.stats.rejected_blocks == 1
+    assert [e.device_start for e in drv.drain_events() if e.kind == "implausible_index"] == [2**62]
+
+
+def test_coalesce_never_joins_two_runs():
+    from drivers.blocks import coalesce
+
+    d = np.zeros((4, 1), np.float32)
+    parts = [SampleBlock("s", 0, 10.0, ("a",), d), SampleBlock("s", 4, 10.0, ("a",), d, BlockStatus.RESTART)]
+    assert [b.first_index for b in coalesce(parts, 100)] == [0, 4]
+
+
+def test_configs_refuse_inf_and_nan():
+    from pydantic import ValidationError
+
+    from drivers.serial.driver import SerialConfig
+
+    with pytest.raises(ValidationError, match="finite"):
+        DriverConfig(plausible_jump_s=float("nan"))
+    with pytest.raises(ValidationError, match="finite"):
+        SerialConfig(port="x", sample_rate=float("inf"), channels=["a"])
+    with pytest.raises(ValidationError, match="finite"):
+        SerialConfig(port="x", sample_rate=100, channels=["a"], read_timeout_s=float("nan"))

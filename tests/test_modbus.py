@@ -12,6 +12,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from drivers.base import DriverError, LinkBudgetError, make_driver
+from drivers.blocks import BlockStatus
 from drivers.modbus.register_map import Register, RegisterMap, load_register_map
 from drivers.modbus.sim_server import ModbusSimServer
 from drivers.sim.device import HitSchedule, SimulatedDevice
@@ -245,3 +246,77 @@ def test_unreachable_device_is_one_line_error():
     drv = make_driver("modbus", {"port": port, "channels": ["hammer"], "sample_rate": FS, "timeout_s": 0.2})
     with pytest.raises(DriverError, match=f"cannot connect to 127.0.0.1:{port}"):
         drv.open()
+
+
+# --- restarts and stalls ------------------------------------------------------------------------
+def device_pairs(drv, blocks):
+    """(device index, block): stream index minus its segment's offset."""
+    out = []
+    for b in blocks:
+        seg = [s for s in drv.stats.segments if s.stream == b.stream and s.stream_first <= b.first_index][-1]
+        out.append((b.first_index - seg.stream_first + seg.device_first, b))
+    return out
+
+
+def check_device_data(device, pairs, channels, map_: RegisterMap) -> None:
+    idx = [device.channels.index(c) for c in channels]
+    scales = np.array([map_.fifo.channels[map_.fifo_channel_index(c)].scale for c in channels])
+    for d, b in pairs:
+        err = np.abs(b.data - device.samples(d, d + b.n_samples)[:, idx])
+        assert (err <= scales / 2 + 1e-3).all(), f"block at device index {d}: error {err.max(0)}"
+
+
+@pytest.mark.parametrize("comes_back_running", [True, False])
+def test_device_restart_is_a_new_segment_nothing_released_unread(device, serve, comes_back_running):
+    """The device goes away at 1 s and comes back 0.5 s later counting from 0 (running, or stopped until the
+    driver writes start). The driver checks it before its first ack: the new run is read from index 0."""
+    ch = ["hammer", "a01", "a02"]
+    faults = Faults(restart_at_s=1.0, restart_down_s=0.5)
+    srv = serve(ch, faults)
+    srv.come_back_running = comes_back_running
+    drv = make_driver("modbus", {"port": srv.port, "channels": ch, "sample_rate": FS, "timeout_s": 0.2})
+    with drv:
+        blocks = collect(drv, int(2.6 * FS))
+        events = drv.drain_events()
+    (rec,) = faults.restarts
+    assert drv.stats.restarts == 1 and drv.stats.rejected_blocks == 0 and drv.stats.reconnects >= 1
+    k = next(i for i, b in enumerate(blocks) if b.status & BlockStatus.RESTART)
+    old, new = blocks[:k], blocks[k:]
+    (ev,) = [e for e in events if e.kind == "restart"]
+    assert old[0].first_index == 0 and old[-1].end_index == ev.start_index <= rec.old_end
+    seg = drv.stats.segments[-1]
+    assert (seg.number, seg.device_first, seg.stream_first) == (1, 0, new[0].first_index)  # nothing released unread
+    assert new[0].first_index > old[-1].end_index + 0.4 * FS  # never stitched on
+    if comes_back_running:
+        assert abs(seg.stream_first - rec.stream_index(0, FS)) <= 0.05 * FS  # estimated from the host clock
+    for part in (old, new):
+        assert all(b.first_index == a.end_index for a, b in itertools.pairwise(part))
+    assert drv.stats.gaps == [(ev.start_index, seg.stream_first)] and drv.stats.lost_samples == seg.estimated_gap
+    check_device_data(device, device_pairs(drv, blocks), ch, srv.map)
+
+
+def test_stall_loses_nothing_the_driver_keeps_asking(device, serve):
+    ch = ["hammer", "a01", "a02"]
+    faults = Faults(stall_at_s=0.5, stall_for_s=0.5)
+    srv = serve(ch, faults)
+    drv = make_driver("modbus", {"port": srv.port, "channels": ch, "sample_rate": FS, "timeout_s": 0.1})
+    with drv:
+        blocks = collect(drv, int(1.6 * FS))
+    assert srv.unanswered > 0 and drv.stats.timeouts > 0  # the device really stopped answering
+    assert drv.stats.lost_samples == 0 and drv.stats.gaps == [] and drv.stats.restarts == 0 and not faults.injected
+    assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
+    check_data(device, blocks, ch, srv.map)
+
+
+def test_register_map_is_checked_with_the_config(tmp_path):
+    from pydantic import ValidationError
+
+    base = {"channels": ["hammer"], "sample_rate": FS}
+    with pytest.raises(ValidationError, match=r"register map file '.*nope\.toml' not found"):
+        make_driver("modbus", {**base, "register_map": str(tmp_path / "nope.toml")})
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[control]\ncommand = 3\n")
+    with pytest.raises(ValidationError, match=r"bad\.toml.*cannot be used"):
+        make_driver("modbus", {**base, "register_map": str(bad)})
+    with pytest.raises(ValidationError, match="finite"):
+        make_driver("modbus", {**base, "timeout_s": float("nan")})

@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from drivers.base import make_driver
+from drivers.blocks import BlockStatus
 from drivers.modbus.rtu_server import ModbusRtuSimServer, crc16, request_length, with_crc
 from drivers.sim.device import HitSchedule, SimulatedDevice
+from drivers.sim.faults import Faults
 
 FS = 16384
 
@@ -27,8 +29,8 @@ def device(rigs):
 def rtu(device):
     servers: list[ModbusRtuSimServer] = []
 
-    def make(channels, **kw) -> ModbusRtuSimServer:
-        srv = ModbusRtuSimServer(device, None, channels, **kw)
+    def make(channels, faults=None, **kw) -> ModbusRtuSimServer:
+        srv = ModbusRtuSimServer(device, faults, channels, **kw)
         servers.append(srv)
         line = srv.start()
         assert srv.path.startswith("/dev/") and f"serial_port={srv.path}" in line and "\n" not in line
@@ -135,3 +137,55 @@ def test_stop_is_prompt_and_releases_the_pty(device):
     assert time.monotonic() - t0 < 0.5
     assert srv._master is None and srv._slave is None and srv._rtu_thread is None
     srv.stop()  # idempotent
+
+
+def _rtu_driver(srv, **kw):
+    cfg = {"transport": "rtu", "serial_port": srv.path, "baudrate": 921600, "parity": "N", "stopbits": 2}
+    return make_driver("modbus", cfg | {"channels": ["hammer"], "sample_rate": FS, "timeout_s": 0.1} | kw)
+
+
+def _read_until(drv, n):
+    blocks = []
+    with drv:
+        for b in drv.blocks(timeout=3.0):
+            blocks.append(b)
+            if b.end_index >= n:
+                break
+    return blocks
+
+
+def _check_device(device, srv, drv, blocks):
+    ref_idx = [device.channels.index("hammer")]
+    scale = srv.map.fifo.channels[srv.map.fifo_channel_index("hammer")].scale
+    for b in blocks:
+        seg = [s for s in drv.stats.segments if s.stream_first <= b.first_index][-1]
+        d = b.first_index - seg.stream_first + seg.device_first
+        assert np.abs(b.data - device.samples(d, d + b.n_samples)[:, ref_idx]).max() <= scale / 2 + 1e-3
+
+
+def test_rtu_device_restart_is_a_new_segment(device, rtu):
+    faults = Faults(restart_at_s=1.0, restart_down_s=0.5)
+    srv = rtu(["hammer"], faults)
+    drv = _rtu_driver(srv)
+    blocks = _read_until(drv, int(2.6 * FS))
+    (rec,) = faults.restarts
+    assert drv.stats.restarts == 1 and drv.stats.rejected_blocks == 0 and srv.unanswered > 0
+    k = next(i for i, b in enumerate(blocks) if b.status & BlockStatus.RESTART)
+    old, new = blocks[:k], blocks[k:]
+    seg = drv.stats.segments[-1]
+    assert old[0].first_index == 0 and (seg.device_first, seg.stream_first) == (0, new[0].first_index)
+    assert abs(seg.stream_first - rec.stream_index(0, FS)) <= 0.05 * FS
+    for part in (old, new):
+        assert all(b.first_index == a.end_index for a, b in itertools.pairwise(part))
+    _check_device(device, srv, drv, blocks)
+
+
+def test_rtu_stall_loses_nothing(device, rtu):
+    faults = Faults(stall_at_s=0.5, stall_for_s=0.5)
+    srv = rtu(["hammer"], faults)
+    drv = _rtu_driver(srv)
+    blocks = _read_until(drv, int(1.6 * FS))
+    assert srv.unanswered > 0 and drv.stats.timeouts > 0
+    assert drv.stats.lost_samples == 0 and drv.stats.gaps == [] and drv.stats.restarts == 0
+    assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
+    _check_device(device, srv, drv, blocks)

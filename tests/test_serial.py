@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from importlib.metadata import entry_points
@@ -12,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.base import ENTRY_POINT_GROUP, LinkBudgetError
+from drivers.blocks import BlockStatus
 from drivers.serial.driver import SerialConfig, SerialDriver
 from drivers.serial.protocol import (
     FORMATS,
@@ -35,8 +37,9 @@ def device(rigs):
     return SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0, 800.0]), duration=12.0, block_size=256, seed=1)
 
 
-def run_link(device, faults, *, n_samples, fmt="int24", frame_samples=64, timeout=5.0, **server_kw):
-    """Serve the device over a pty and read it with SerialDriver until sample n_samples (or timeout)."""
+def run_link(device, faults, *, n_samples, fmt="int24", frame_samples=64, timeout=5.0, arrivals=None, **server_kw):
+    """Serve the device over a pty and read it with SerialDriver until sample n_samples (or timeout).
+    ``arrivals``: a list to append each block's host arrival time to."""
     from drivers.serial.sim_server import SerialSimServer
 
     srv = SerialSimServer(device, faults, fmt=fmt, frame_samples=frame_samples, **server_kw)
@@ -54,6 +57,8 @@ def run_link(device, faults, *, n_samples, fmt="int24", frame_samples=64, timeou
         with drv:
             for b in drv.blocks(timeout=timeout):
                 blocks.append(b)
+                if arrivals is not None:
+                    arrivals.append(time.monotonic())
                 if b.end_index >= n_samples:
                     break
     finally:
@@ -247,3 +252,70 @@ def test_disconnect_2s_reconnects_and_reports_gap(device):
     assert any(e.kind == "reconnect" for e in events)
     assert [(e.start_index, e.end_index) for e in events if e.kind == "gap" and e.start_index < end] == [gap]
     assert sum(b.n_samples for b in blocks) + sum(b - a for a, b in lost_before(drv, end)) == end
+
+
+# --- restarts, wild frames, stalls ------------------------------------------------------------
+def device_blocks(drv, blocks):
+    """(device index, block) for each block: stream index minus its segment's offset."""
+    out = []
+    for b in blocks:
+        seg = [s for s in drv.stats.segments if s.stream_first <= b.first_index][-1]
+        out.append((b.first_index - seg.stream_first + seg.device_first, b))
+    return out
+
+
+def check_device_data(device, srv, pairs, fmt):
+    """Every block equals the device's own samples at its device index (a restarted device replays from 0)."""
+    end = max(d + b.n_samples for d, b in pairs)
+    ref_all = device.samples(0, end * srv.decimate)[:: srv.decimate][:, srv.channels]
+    tol = srv.scales * 0.51 + 1e-6 * np.abs(ref_all).max(axis=0) if fmt != "ascii" else 0.0
+    for d, b in pairs:
+        assert np.all(np.abs(b.data - ref_all[d : d + b.n_samples]) <= tol)
+
+
+@pytest.mark.parametrize("fmt", ["int24", "ascii"])
+def test_device_restart_is_a_new_segment_never_stitched(device, fmt):
+    faults = Faults(restart_at_s=1.0, restart_down_s=0.5)
+    kw = {"frame_samples": 16, "channels": [0, 1, 2, 3], "decimate": 16} if fmt == "ascii" else {}
+    srv, drv, blocks = run_link(device, faults, n_samples=int(2.6 * device.fs / (16 if fmt == "ascii" else 1)), fmt=fmt, **kw)
+    fs = srv.fs
+    (rec,) = faults.restarts
+    assert drv.stats.restarts == 1 and drv.stats.rejected_blocks == 0 and drv.stats.frames_bad == 0
+    k = next(i for i, b in enumerate(blocks) if b.status & BlockStatus.RESTART)
+    old, new = blocks[:k], blocks[k:]
+    # before: the old run, contiguous from 0 up to the last sample it put on the link
+    assert old[0].first_index == 0 and old[-1].end_index == rec.delivered
+    assert all(b.first_index == a.end_index for a, b in itertools.pairwise(old))
+    # the new segment starts after the old one, where the host clock puts the new run's first sample
+    seg = drv.stats.segments[-1]
+    assert (seg.number, seg.device_first, seg.stream_first) == (1, 0, new[0].first_index)
+    assert abs(seg.stream_first - rec.stream_index(0, fs)) <= 0.05 * fs  # an estimate: within 50 ms
+    assert new[0].first_index > old[-1].end_index + 0.4 * fs  # 0.5 s down: never stitched on
+    assert all(b.first_index == a.end_index for a, b in itertools.pairwise(new))
+    (ev,) = [e for e in drv.drain_events() if e.kind == "restart"]
+    assert (ev.start_index, ev.end_index, ev.device_start) == (rec.delivered, seg.stream_first, 0)
+    assert drv.stats.gaps == [(rec.delivered, seg.stream_first)]
+    assert drv.stats.lost_samples == drv.stats.estimated_lost_samples == seg.estimated_gap
+    check_device_data(device, srv, device_blocks(drv, blocks), fmt)  # data before and after intact
+
+
+def test_wild_frames_are_rejected_and_nothing_else_is_lost(device):
+    faults = Faults(wild_frames=((0.5, 10**9), (1.0, 2**62)))
+    srv, drv, blocks = run_link(device, faults, n_samples=int(1.5 * device.fs))
+    end = blocks[-1].end_index
+    assert drv.stats.rejected_blocks == 2 and drv.stats.restarts == 0
+    assert [e.device_start for e in drv.drain_events() if e.kind == "implausible_index"] == [10**9, 2**62]
+    assert drv.stats.gaps == [] and drv.stats.lost_samples == 0 and drv.stats.frames_bad == 0
+    assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
+    assert sum(b.n_samples for b in blocks) == end >= 1.5 * device.fs
+    check_against_device(device, srv, blocks, "int24")
+
+
+def test_one_shot_stall_loses_nothing(device):
+    faults = Faults(stall_at_s=0.5, stall_for_s=0.5)
+    arrivals: list[float] = []
+    srv, drv, blocks = run_link(device, faults, n_samples=int(1.5 * device.fs), arrivals=arrivals)
+    assert max(np.diff(arrivals)) >= 0.4  # the device really went quiet
+    assert drv.stats.gaps == [] and drv.stats.lost_samples == 0 and drv.stats.reconnects == 0
+    assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
+    check_against_device(device, srv, blocks, "int24")

@@ -4,7 +4,9 @@ Frames follow the sample-message convention of :mod:`drivers.can.dbc_map` (a ``F
 ``<channel>_<k>`` int16 samples per message). Each selected DBC message is one stream; frames are
 collected into blocks of ``block_samples`` and decoded in one numpy step (the DBC-derived fast path,
 proven equal to cantools in tests/test_can.py). A dropped frame is a counter jump → the base reports the
-exact missing sample range. Error frames and bus-off are counted; a bus that raises is closed and reopened
+exact missing sample range. A counter that goes back or jumps implausibly is held until the next frame:
+continued, the node restarted (the unwrapping re-bases, the base starts a new segment); else it is rejected.
+Error frames and bus-off are counted; a bus that raises is closed and reopened
 with exponential back-off; ``raw_log`` writes every received frame to a BLF/ASC file (python-can
 ``Logger``, format from the extension). Details and limits: docs/protocols/can.md.
 """
@@ -15,16 +17,20 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
 from drivers.blocks import BlockStatus, SampleBlock
-from drivers.can.dbc_map import MessageLayout, load_layouts
 
-DEFAULT_DBC = Path(__file__).resolve().parents[2] / "configs" / "can" / "gvt_sim_node.dbc"
+if TYPE_CHECKING:  # python-can and cantools load with a CAN driver, not with every driver lookup
+    import can
+
+    from drivers.can.dbc_map import MessageLayout
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_DBC = ROOT / "configs" / "can" / "gvt_sim_node.dbc"
 CAN_ERR_BUSOFF = 0x40  # SocketCAN error class bit in an error frame's id (linux/can/error.h)
 
 
@@ -101,11 +107,31 @@ class CanConfig(DriverConfig):
     block_samples: int = 256  # samples per emitted block (a partial block is flushed after flush_s)
     flush_s: float = 0.05
     max_bus_load: float = 0.7  # refuse above this utilisation (landscape.md §3.3: plan <= 70 %)
-    plausible_jump_s: float = 1.0  # a counter jump beyond elapsed time + this is dropped unless the next frame confirms it
+    # plausible_jump_s (DriverConfig): a counter jump beyond elapsed time + this, or a counter going back, is
+    # held until the next frame: continued, the node restarted (the unwrapping re-bases); else it is rejected
     silence_timeout_s: float = 1.0  # no frame for this long → a timeout event
     reconnect_initial_s: float = 0.1
     reconnect_max_s: float = 5.0
     raw_log: str | None = None  # .blf / .asc (python-can Logger) written beside the MCAP
+
+    @model_validator(mode="after")
+    def _dbc_loads(self) -> CanConfig:
+        """The DBC must exist and parse, and the messages be sample messages in it: a config error (one
+        line naming the file) instead of a driver that fails on open. A relative path is tried from the
+        working directory, then from the project root."""
+        from drivers.can.dbc_map import load_layouts
+
+        p = Path(self.dbc)
+        if not p.is_absolute() and not p.exists() and (ROOT / p).exists():
+            p = ROOT / p
+        if not p.is_file():
+            raise ValueError(f"dbc: DBC file {self.dbc!r} not found")
+        try:
+            load_layouts(p, self.messages)
+        except Exception as exc:
+            raise ValueError(f"dbc: DBC file {self.dbc!r} cannot be used: {type(exc).__name__}: {exc}") from None
+        self.dbc = str(p)
+        return self
 
 
 @dataclass
@@ -113,7 +139,7 @@ class CanCounters:
     error_frames: int = 0
     bus_off: int = 0
     ignored_frames: int = 0  # ids not in the selected DBC messages
-    rejected_frames: int = 0  # wrong length/kind, duplicate, backwards or implausible counter
+    rejected_frames: int = 0  # wrong length/kind, duplicate, or a backwards/implausible counter never confirmed
     backoff_waits: list[float] = field(default_factory=list)
 
 
@@ -125,7 +151,8 @@ class _Stream:
     last_counter: int | None = None
     last_full: int = 0
     last_t: float = 0.0
-    suspect: int | None = None
+    suspect: tuple[int, bytes, float] | None = None  # (counter, data, arrival) of a frame held for confirmation
+    restart: bool = False  # the block being built starts a new node run (the base makes a new segment)
     first_full: int = 0
     buf: bytearray = field(default_factory=bytearray)
     n: int = 0
@@ -139,6 +166,8 @@ class CanDriver(Driver):
 
     def __init__(self, config: CanConfig, bus_factory: Callable[[], can.BusABC] | None = None) -> None:
         super().__init__(config)
+        from drivers.can.dbc_map import load_layouts
+
         self.cfg = config
         self.layouts = load_layouts(config.dbc, config.messages)
         if not self.layouts:
@@ -179,6 +208,8 @@ class CanDriver(Driver):
 
     # --- bus ---------------------------------------------------------------------------------
     def _open_bus(self) -> can.BusABC:
+        import can
+
         c = self.cfg
         kw: dict[str, Any] = {"bitrate": c.bitrate, **c.bus_options}
         if c.fd:
@@ -194,6 +225,8 @@ class CanDriver(Driver):
                 "(check interface/channel and that the adapter is plugged in)"
             ) from exc
         if self.cfg.raw_log:
+            import can
+
             self._raw = can.Logger(self.cfg.raw_log)
         self._last_frame_t = time.monotonic()
 
@@ -252,28 +285,50 @@ class CanDriver(Driver):
             return
         self.stats.frames_ok += 1
         c = lay.counter_of(data)
+        full = self._unwrap(st, c, bytes(data), now)
+        if full is not None:
+            self._append(st, full, c, data, now)
+
+    def _unwrap(self, st: _Stream, c: int, data: bytes, now: float) -> int | None:
+        """The full (unwrapped) counter of frame ``c``; None if the frame is rejected or held.
+
+        A counter that goes back, or jumps further than the elapsed time allows, is held as a suspect. If
+        the next frame continues it, the node restarted (or re-based its counter): the unwrapping restarts
+        from the suspect's counter and the block is marked so the base begins a new segment. Otherwise the
+        suspect was a bad frame: rejected and counted, the next frame judged as if it never came.
+        """
         if st.last_counter is None:
-            full = c
+            return c
+        mod = st.layout.counter_modulus
+        if st.suspect is not None:
+            sc, sdata, s_t = st.suspect
+            st.suspect = None
+            if c == (sc + 1) % mod:
+                self._flush(st)  # the old run's last block
+                st.restart = True
+                self._append(st, sc, sc, sdata, s_t)
+                return sc + 1
+            why = "frame counter implausible, not continued by the next frame"
+            self._implausible(st.name, sc * st.layout.spf, st.layout.spf, why)
+            self.can.rejected_frames += 1
+        delta = (c - st.last_counter) % mod
+        if delta == 0:
+            self._reject(st, "duplicate frame counter")
+            return None
+        elapsed = max(0.0, now - st.last_t)
+        backwards = False
+        if elapsed * st.fps > mod / 2:  # long silence with a short counter: add the wraps the clock implies
+            delta += max(0, round((elapsed * st.fps - delta) / mod)) * mod
         else:
-            mod = lay.counter_modulus
-            delta = (c - st.last_counter) % mod
-            if delta == 0:
-                self._reject(st, "duplicate frame counter")
-                return
-            elapsed = max(0.0, now - st.last_t)
-            if elapsed * st.fps > mod / 2:  # long silence with a short counter: add the wraps the clock implies
-                delta += max(0, round((elapsed * st.fps - delta) / mod)) * mod
-            elif delta > mod // 2:
-                self._reject(st, "frame counter went backwards")
-                return
-            if delta > (elapsed + self.cfg.plausible_jump_s) * st.fps * 1.25 + 8 and st.suspect != (c - 1) % mod:
-                st.suspect = c
-                self._reject(st, "implausible frame counter jump (kept as suspect until the next frame confirms it)")
-                return
-            full = st.last_full + delta
-            if delta > 1 and st.n:
-                self._flush(st)
-        st.suspect = None
+            backwards = delta > mod // 2
+        if backwards or delta > (elapsed + self.cfg.plausible_jump_s) * st.fps * 1.25 + 8:
+            st.suspect = (c, data, now)
+            return None
+        if delta > 1 and st.n:
+            self._flush(st)
+        return st.last_full + delta
+
+    def _append(self, st: _Stream, full: int, c: int, data: bytes | bytearray, now: float) -> None:
         if st.n == 0:
             st.first_full = full
             if self._reconnected:
@@ -282,7 +337,7 @@ class CanDriver(Driver):
         st.buf += data
         st.n += 1
         st.last_counter, st.last_full, st.last_t = c, full, now
-        if st.n * lay.spf >= self.cfg.block_samples:
+        if st.n * st.layout.spf >= self.cfg.block_samples:
             self._flush(st)
 
     def _reject(self, st: _Stream, why: str) -> None:
@@ -300,13 +355,24 @@ class CanDriver(Driver):
         st.buf = bytearray()
         st.n = 0
         st.status = BlockStatus.OK
-        self._emit(block, st.cause)
+        restart, st.restart = st.restart, False
+        cause = "its frame counter went back or jumped, and the next frame continued it" if restart else st.cause
+        self._emit(block, cause, now=st.last_t, restart=restart)
         st.cause = "dropped frames"
         self._reconnected = False
 
     def _flush_all(self) -> None:
         for st in self._streams.values():
             self._flush(st)
+
+    def _reject_suspects(self) -> None:
+        """The driver ends: a frame still held was never confirmed by a next one."""
+        for st in self._streams.values():
+            if st.suspect is not None:
+                sc = st.suspect[0]
+                st.suspect = None
+                self.can.rejected_frames += 1
+                self._implausible(st.name, sc * st.layout.spf, st.layout.spf, "frame counter implausible, the stream ended")
 
     # --- the reader thread -------------------------------------------------------------------
     def _run(self) -> None:
@@ -345,6 +411,7 @@ class CanDriver(Driver):
                     next_flush = now + flush_s
         finally:
             self._flush_all()
+            self._reject_suspects()
             self._close_bus()
             if self._raw is not None:
                 self._raw.stop()

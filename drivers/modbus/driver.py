@@ -13,6 +13,12 @@
   close ``stop``. Refusals (Modbus exception responses) are raised as one-line :class:`DriverError`.
 * **Timeouts and retries** are the driver's own (pymodbus ``retries=0``) so they are counted in
   ``stats``; a dead link is reconnected (counted) until ``reconnect_s`` passes. TCP runs with TCP_NODELAY.
+* **A restarted device is never stitched on.** After every reconnect, *before* the first FIFO ack (an
+  ack releases everything before it, unread), the driver reads the device's status, sample counter and
+  FIFO head. A counter below the index the driver wants, a head below what it acknowledged, or a device
+  found stopped (then ``start`` is written if ``control``) means a new run: the driver reads from the
+  device's head (ack 0 releases nothing) and the base begins a new segment. A frame that goes back further
+  than a late duplicate can (the device restarted while connected) is taken the same way.
 """
 
 from __future__ import annotations
@@ -21,18 +27,19 @@ import math
 import socket
 import struct
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.framer import FramerType
+from pydantic import Field, field_validator, model_validator
 
 from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBudget
 from drivers.blocks import BlockStatus, SampleBlock
 from drivers.modbus.register_map import MAX_READ, RegisterMap, load_register_map
+
+if TYPE_CHECKING:  # pymodbus loads with a Modbus driver's link, not with every driver lookup
+    from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
 ROOT = Path(__file__).resolve().parents[2]
 _EXC_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "device failure", 6: "device busy"}
@@ -42,6 +49,21 @@ RTU_BITS_PER_CHAR = 11  # 8E1: start + 8 data + parity + stop
 
 class _Stopping(Exception):
     pass
+
+
+class _Relinked(Exception):
+    """The link was re-opened inside a FIFO call: the device must be checked before the next ack."""
+
+
+@dataclass
+class _Chunk:
+    """FIFO frames gathered into one block."""
+
+    parts: list[np.ndarray] = field(default_factory=list)
+    first: int = 0
+    n: int = 0
+    t: float = 0.0  # host time its last frame arrived
+    produced: int = 0  # device samples that existed then (that frame's first index + buffered)
 
 
 class ModbusConfig(DriverConfig):
@@ -79,9 +101,27 @@ class ModbusConfig(DriverConfig):
             raise ValueError("modbus rtu needs serial_port")
         return self
 
+    @field_validator("register_map")
+    @classmethod
+    def _map_loads(cls, v: str) -> str:
+        """A missing or broken register map is a config error naming the file, not a failure on open."""
+        p = _map_path(v)
+        if not p.is_file():
+            raise ValueError(f"register map file {v!r} not found")
+        try:
+            load_register_map(p)
+        except Exception as exc:
+            raise ValueError(f"register map file {v!r} cannot be used: {type(exc).__name__}: {exc}") from None
+        return v
+
     def map_path(self) -> Path:
-        p = Path(self.register_map)
-        return p if p.is_absolute() or p.exists() else ROOT / p
+        return _map_path(self.register_map)
+
+
+def _map_path(name: str) -> Path:
+    """A relative register map path is tried from the working directory, then from the project root."""
+    p = Path(name)
+    return p if p.is_absolute() or p.exists() else ROOT / p
 
 
 class ModbusDriver(Driver):
@@ -97,6 +137,10 @@ class ModbusDriver(Driver):
         self.fs = float(config.sample_rate or 0.0)
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._flags = BlockStatus.OK
+        self._link_new = False  # set by every reconnect: check the device before the next FIFO ack
+        self._next: int | None = None  # next device index wanted from the FIFO (None: from the device's head)
+        self._chunk = _Chunk()
+        self._restart_cause: str | None = None  # the next block starts a new device run, for this reason
         if config.mode == "fifo":
             if self.map.fifo is None:
                 raise DriverError(f"register map {config.register_map} has no [fifo]; use mode = 'poll'")
@@ -142,6 +186,9 @@ class ModbusDriver(Driver):
 
     # --- link -----------------------------------------------------------------------------
     def _new_client(self) -> ModbusTcpClient | ModbusSerialClient:
+        from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+        from pymodbus.framer import FramerType
+
         c = self.cfg
         if c.transport == "tcp":
             return ModbusTcpClient(c.host, port=c.port, timeout=c.timeout_s, retries=0, reconnect_delay=0)
@@ -177,6 +224,7 @@ class ModbusDriver(Driver):
                 raise DriverError(f"modbus: no connection to {where} for {self.cfg.reconnect_s:g} s (is the device on?)")
             self._stop.wait(0.1)
         self.stats.reconnects += 1
+        self._link_new = True
         self._flags |= BlockStatus.RECONNECT
         self._event(DriverEvent("reconnect", self.cfg.stream, message=f"reconnected to {where}"))
 
@@ -192,14 +240,21 @@ class ModbusDriver(Driver):
         except OSError:
             pass
 
-    def _call(self, what: str, fn: Any, *, reconnect: bool = True) -> Any:
-        """One Modbus transaction with counted timeouts/retries and reconnects; returns the response."""
+    def _call(self, what: str, fn: Any, *, reconnect: bool = True, relink: bool = False) -> Any:
+        """One Modbus transaction with counted timeouts/retries and reconnects; returns the response.
+
+        ``relink``: if the link had to be re-opened, raise :class:`_Relinked` instead of sending ``fn`` on it
+        (the FIFO read: its ack must not reach a device that may have restarted before it is checked)."""
+        from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
         attempt = 0
         while True:
             if self._client is None or not self._client.connected:
                 if not reconnect:
                     raise DriverError(f"modbus: {what}: not connected")
                 self._reconnect()
+                if relink:
+                    raise _Relinked
             try:
                 rr = fn(self._client)
             except ModbusIOException:
@@ -291,27 +346,13 @@ class ModbusDriver(Driver):
 
     def _loop(self) -> None:
         c = self.cfg
-        fifo = self.map.fifo
         fifo_mode = c.mode == "fifo"
-        nch = len(c.channels)
-        next_index: int | None = None
-        chunks: list[np.ndarray] = []
-        chunk_first = 0
-        chunk_n = 0
         poll_t0 = time.monotonic()
         poll_k = 0
         poll_period = 1.0 / c.poll_hz if self._poll_regs else 0.0
 
         def next_poll() -> float:
             return poll_t0 + poll_k * poll_period if self._poll_regs else math.inf
-
-        def flush() -> None:
-            nonlocal chunks, chunk_n
-            if chunk_n:
-                data = np.concatenate(chunks).astype(np.float32)
-                status, self._flags = self._flags, BlockStatus.OK
-                self._emit(SampleBlock(c.stream, chunk_first, self.fs, tuple(c.channels), data, status))
-            chunks, chunk_n = [], 0
 
         while not self.stopping:
             now = time.monotonic()
@@ -322,38 +363,105 @@ class ModbusDriver(Driver):
             if not fifo_mode:
                 self._stop.wait(max(0.0, next_poll() - time.monotonic()))
                 continue
-            assert fifo is not None
-            ack = next_index or 0
-            ack_regs = fifo.ack.raw_to_regs(ack, self.wo)
-            rr = self._call(
-                "FIFO read",
-                lambda cl, a=ack_regs: cl.readwrite_registers(
-                    read_address=fifo.window_address,
-                    read_count=fifo.window_registers,
-                    write_address=fifo.ack.address,
-                    values=a,
-                    device_id=self.unit,
-                ),
-            )
-            regs = rr.registers
-            first, n, buffered, _flags = struct.unpack(">QHIH", struct.pack(">4HH2HH", *regs[: fifo.header_registers]))
-            if n and (next_index is None or first >= next_index):
-                raw = np.array(regs[fifo.header_registers : fifo.header_registers + n * nch], np.uint16).view(np.int16)
-                block = raw.reshape(n, nch) * self._scales
-                if chunk_n and first != chunk_first + chunk_n:
-                    flush()
-                if not chunk_n:
-                    chunk_first = first
-                chunks.append(block)
-                chunk_n += n
-                next_index = first + n
-                if chunk_n >= c.block_samples:
-                    flush()
-            left = buffered - n
+            if self._link_new:
+                self._link_new = False
+                self._check_device()
+                continue  # (the check may itself have reconnected: then check again)
+            try:
+                left = self._fifo_step()
+            except _Relinked:
+                continue
             if left < self.spf:  # less than a frame waiting: sleep until one is (or the next poll tick)
                 wait = (self.spf - left) / self.fs
                 self._stop.wait(min(wait, max(0.0, next_poll() - time.monotonic())))
-        flush()
+        self._flush_chunk()
+
+    def _fifo_step(self) -> int:
+        """One FC 23 request: ack ``_next``, read a frame, gather it. Returns the samples still buffered."""
+        fifo = self.map.fifo
+        assert fifo is not None
+        ack_regs = fifo.ack.raw_to_regs(self._next or 0, self.wo)
+        rr = self._call(
+            "FIFO read",
+            lambda cl: cl.readwrite_registers(
+                read_address=fifo.window_address,
+                read_count=fifo.window_registers,
+                write_address=fifo.ack.address,
+                values=ack_regs,
+                device_id=self.unit,
+            ),
+            relink=True,
+        )
+        t = time.monotonic()
+        regs = rr.registers
+        first, n, buffered, _flags = struct.unpack(">QHIH", struct.pack(">4HH2HH", *regs[: fifo.header_registers]))
+        nxt = self._next
+        if nxt is not None and first < nxt:
+            if first + n <= nxt and first + 2 * self.spf >= nxt:
+                return buffered - n  # a late duplicate of a frame already gathered
+            self._restart_from(f"its FIFO went back to index {first}, below the {nxt} the driver had acknowledged")
+        if n:
+            nch = len(self.cfg.channels)
+            raw = np.array(regs[fifo.header_registers : fifo.header_registers + n * nch], np.uint16).view(np.int16)
+            self._gather(first, raw.reshape(n, nch) * self._scales, t, first + buffered)
+            self._next = first + n
+        return buffered - n
+
+    def _gather(self, first: int, data: np.ndarray, t: float, produced: int) -> None:
+        ch = self._chunk
+        if ch.n and first != ch.first + ch.n:
+            self._flush_chunk()
+            ch = self._chunk
+        if not ch.n:
+            ch.first = first
+        ch.parts.append(data)
+        ch.n += data.shape[0]
+        ch.t, ch.produced = t, produced
+        if ch.n >= self.cfg.block_samples:
+            self._flush_chunk()
+
+    def _flush_chunk(self) -> None:
+        ch, self._chunk = self._chunk, _Chunk()
+        if not ch.n:
+            return
+        c = self.cfg
+        data = np.concatenate(ch.parts).astype(np.float32)
+        status, self._flags = self._flags, BlockStatus.OK
+        cause, self._restart_cause = self._restart_cause, None
+        block = SampleBlock(c.stream, ch.first, self.fs, tuple(c.channels), data, status)
+        self._emit(block, cause or "link", now=ch.t, produced=ch.produced, restart=cause is not None)
+
+    def _restart_from(self, why: str) -> None:
+        """The device started a new run: close the old run's block and read the new one from its head."""
+        self._flush_chunk()
+        self._restart_cause = why
+        self._next = None
+
+    def _check_device(self) -> None:
+        """After a reconnect, before any ack: is this still the run the driver was reading?"""
+        nxt = self._next
+        if nxt is None:
+            return  # nothing acknowledged yet: reading from the head releases nothing
+        ctl = self.map.control
+        fifo = self.map.fifo
+        assert fifo is not None
+        status = int(self._read(ctl.status, "read status"))
+        counter = int(self._read(ctl.sample_counter, "read sample counter"))
+        rr = self._call(
+            "peek FIFO head",
+            lambda cl: cl.read_holding_registers(fifo.window_address, count=fifo.header_registers, device_id=self.unit),
+        )
+        (head,) = struct.unpack(">Q", struct.pack(">4H", *rr.registers[:4]))
+        why = None
+        if counter < nxt:
+            why = f"its sample counter reads {counter} after the reconnect, below the {nxt} the driver wanted"
+        elif head + self.spf < nxt:
+            why = f"its FIFO starts at {head} after the reconnect, below the {nxt} the driver had acknowledged"
+        if not status & 1 and self.cfg.control:
+            self._write(ctl.command, 1, "start")
+            why = why or "it was found stopped after the reconnect; start began a new run"
+        if why is not None:
+            self._restart_from(why)
 
     def _poll_once(self, k: int) -> None:
         lo, n = self._poll_lo, self._poll_n

@@ -27,7 +27,7 @@ MAX_READ = 125  # registers per read request (Modbus spec)
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # a NaN scale would decode to NaN
 
 
 class Register(_Model):

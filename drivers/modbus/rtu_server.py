@@ -68,7 +68,8 @@ class ModbusRtuSimServer(ModbusSimServer):
     """``device`` served over Modbus RTU on a pty; ``channels`` (names) is the FIFO's channel subset.
 
     Keyword arguments are those of ``ModbusSimServer`` (register_map, fifo_seconds, ...) plus ``gap_s``.
-    The TCP-only fault (disconnect) does not apply; ``faults.timeout_rate`` (lost responses) does.
+    The TCP-only fault (disconnect) does not apply; ``faults.timeout_rate`` (lost responses), the stalls and
+    the restart (the device answers nothing while down, then counts from 0 again) do, through ``handle``.
     """
 
     def __init__(self, device, faults=None, channels=None, *, gap_s: float = 0.05, **kw) -> None:
@@ -122,6 +123,17 @@ class ModbusRtuSimServer(ModbusSimServer):
 
     def disconnect_for(self, seconds: float) -> None:
         raise NotImplementedError("a serial line has no connection to drop")
+
+    def _faults_now(self, now: float) -> bool:
+        """On a serial line a disconnect (a cable pulled, ``disconnect_at_s`` for ``disconnect_for_s``) is
+        silence: no request reaches the device and no answer comes back, while it keeps acquiring into its
+        FIFO — on the line it looks like a stall."""
+        f = self.faults
+        if self._epoch is not None and f.disconnect_at_s is not None:
+            t = now - self._epoch
+            if f.disconnect_at_s <= t < f.disconnect_at_s + f.disconnect_for_s:
+                return True
+        return super()._faults_now(now)
 
     def bound_address(self) -> tuple[str, int] | None:
         return None

@@ -11,6 +11,12 @@ recoverable: one FC 23 read/write request writes ``ack`` = the next sample index
 (releasing everything before it) and reads the frame that starts there. A retry of the same request
 returns the same frame. The FIFO holds ``fifo_seconds`` of samples; what overflows is recorded in
 ``faults.record`` with its exact range (the only way this transport destroys samples).
+
+Fault knobs besides lost responses and the disconnect: a stall (``stall_at_s``/``stall_every_s`` +
+``stall_for_s``) answers nothing for a while, the FIFO keeps filling (nothing lost); a restart
+(``restart_at_s``/``restart_down_s``) closes every connection and stops listening, then comes back with its
+FIFO empty and its clock and index restarted at 0 (running, or stopped until a start command if
+``come_back_running`` is False), recorded in ``faults.restarts``. Device time counts from the first start.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import numpy as np
 
 from drivers.modbus.register_map import RegisterMap, load_register_map
 from drivers.sim.device import SimulatedDevice
-from drivers.sim.faults import Faults
+from drivers.sim.faults import Faults, RestartRecord
 
 DEFAULT_MAP = Path(__file__).resolve().parents[2] / "configs" / "modbus" / "gvt_sim_device.toml"
 
@@ -85,12 +91,17 @@ class ModbusSimServer:
         self._delivered = 0  # end of the last frame whose response was sent (the reader has everything before it)
         self._frame_end = 0
         self._t_start = time.monotonic()
+        self._epoch: float | None = None  # first start: device time of the fault knobs counts from here
+        self._restart_pending = self.faults.restart_at_s is not None
+        self._down_until: float | None = None
+        self.come_back_running = True  # after a restart: running at once, or stopped until a start command
         self._chunks: dict[int, np.ndarray] = {}
         # counters (read by tests)
         self.requests = 0
         self.dropped_responses = 0
         self.connections = 0
         self.outages = 0
+        self.unanswered = 0  # requests met with silence while the device was down or stalled
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._server: asyncio.base_events.Server | None = None
@@ -98,6 +109,7 @@ class ModbusSimServer:
         self._ready = threading.Event()
         self._start_error: BaseException | None = None
         self._outage_task: asyncio.Task | None = None
+        self._restart_task: asyncio.Task | None = None
 
     # --- lifecycle ------------------------------------------------------------------------
     def start(self) -> str:
@@ -153,6 +165,8 @@ class ModbusSimServer:
             return
         if self.faults.disconnect_at_s is not None:
             self._outage_task = loop.create_task(self._scheduled_outage())
+        if self.faults.restart_at_s is not None:
+            self._restart_task = loop.create_task(self._scheduled_restart())
         self._ready.set()
         loop.run_forever()
         for t in asyncio.all_tasks(loop):
@@ -190,7 +204,49 @@ class ModbusSimServer:
         await asyncio.sleep(max(0.0, at - time.monotonic()))
         await self._outage(self.faults.disconnect_for_s)
 
+    async def _scheduled_restart(self) -> None:
+        """TCP side of the restart: the device (and with it the listener) goes away, then comes back."""
+        while self._epoch is None:
+            await asyncio.sleep(0.01)
+        at = self._epoch + float(self.faults.restart_at_s or 0.0)
+        await asyncio.sleep(max(0.0, at - time.monotonic()))
+        self._faults_now(time.monotonic())
+        await self._close_all()
+        if self._down_until is not None:
+            await asyncio.sleep(max(0.0, self._down_until - time.monotonic()))
+        self._faults_now(time.monotonic())
+        await self._listen()
+
     # --- device state ---------------------------------------------------------------------
+    def _faults_now(self, now: float) -> bool:
+        """Apply a restart that is due; True while the device is down or stalled (it answers nothing).
+
+        Called for every request (TCP and RTU alike) and by the TCP restart task, so the device's state
+        follows the schedule whatever the transport."""
+        f = self.faults
+        if self._epoch is None:
+            return False
+        if self._restart_pending and now >= self._epoch + float(f.restart_at_s or 0.0):
+            self._go_down()
+        if self._down_until is not None:
+            if now < self._down_until:
+                return True
+            t0, self._down_until = self._down_until, None
+            if self.come_back_running:
+                self._start(t0)
+        return f.stall_end(now - self._epoch) is not None
+
+    def _go_down(self) -> None:
+        f = self.faults
+        self._restart_pending = False
+        assert self._epoch is not None
+        t_down = self._epoch + float(f.restart_at_s or 0.0)
+        old_end = self.device.samples_available(t_down) if self.running else self.produced()
+        f.record_restart(RestartRecord(old_end, self._delivered, self._t_start, t_down + f.restart_down_s))
+        self.running = False
+        self._frozen = None
+        self._down_until = t_down + f.restart_down_s
+
     def produced(self) -> int:
         if self._frozen is not None:
             return self._frozen
@@ -208,14 +264,16 @@ class ModbusSimServer:
             self._head = oldest
             self.overflowed = True
 
-    def _start(self) -> None:
+    def _start(self, t0: float | None = None) -> None:
         if self.running:
             return  # idempotent: a retried start must not restart the run
         self._chunks.clear()
         self._head = self._delivered = self._frame_end = 0
         self._frozen = None
         self.overflowed = False
-        self._t_start = time.monotonic()
+        self._t_start = time.monotonic() if t0 is None else t0
+        if self._epoch is None:
+            self._epoch = self._t_start
         self.device.start_clock(self._t_start)
         self.running = True
 
@@ -283,7 +341,10 @@ class ModbusSimServer:
         if address < w1 and address + count > w0:
             if address != w0 or count > fifo.window_registers:
                 raise _ModbusError(ILLEGAL_ADDRESS)
-            return self._frame()[:count]
+            regs = self._frame()[:count]
+            if count <= fifo.header_registers:
+                self._frame_end = -1  # a peek at the header: no sample reached the reader
+            return regs
         snap = self._snapshot()
         return [snap.get(a, 0) for a in range(address, address + count)]
 
@@ -330,6 +391,9 @@ class ModbusSimServer:
     def handle(self, unit: int, pdu: bytes) -> bytes | None:
         """One request PDU -> response PDU, or None to not answer (the timeout fault)."""
         self.requests += 1
+        if self._faults_now(time.monotonic()):
+            self.unanswered += 1  # down (restarting) or stalled: silence, nothing processed
+            return None
         fc = pdu[0]
         self._frame_end = -1
         try:

@@ -171,7 +171,7 @@ class SerialDriver(Driver):
                 now = time.monotonic()
                 if data:
                     self.stats.bytes_in += len(data)
-                    if self._handle(data):
+                    if self._handle(data, now):
                         last_good = now
                 if now - last_good > self.cfg.silence_reconnect_s:
                     self.stats.timeouts += 1
@@ -199,54 +199,73 @@ class SerialDriver(Driver):
         d = self.decoder
         return (d.stats.frames_bad if isinstance(d, FrameDecoder) else d.stats.lines_bad) + self.wrong_shape
 
-    def _handle(self, data: bytes) -> bool:
-        """Decode ``data`` and emit blocks; True if anything valid arrived."""
-        c = self.cfg
-        got = False
+    def _handle(self, data: bytes, now: float | None = None) -> bool:
+        """Decode ``data`` (read at host time ``now``) and emit blocks; True if anything valid arrived."""
+        now = time.monotonic() if now is None else now
         if isinstance(self.decoder, FrameDecoder):
-            bad_before = self.decoder.stats.frames_bad
-            frames = self.decoder.feed(data)
-            if self.decoder.stats.frames_bad > bad_before:
-                n_bad = self.decoder.stats.frames_bad - bad_before
-                self._event(DriverEvent("crc_error", c.stream, count=n_bad, message=f"{n_bad} bad frame(s) dropped"))
-            for fr in frames:
-                if c.stream_id is not None and fr.stream_id != c.stream_id:
-                    continue
-                got = True
-                if fr.data.shape[1] != len(self._channels):
-                    self.wrong_shape += 1
-                    self._event(
-                        DriverEvent(
-                            "frame_error",
-                            c.stream,
-                            fr.first_index,
-                            fr.first_index + fr.n_samples,
-                            fr.n_samples,
-                            f"frame has {fr.data.shape[1]} channels, config has {len(self._channels)}",
-                        )
-                    )
-                    continue
-                status, cause = self._status()
-                self._emit(
-                    SampleBlock(c.stream, fr.first_index, c.sample_rate, self._channels, fr.data, status, {"seq": fr.seq}), cause
-                )
-            self.stats.frames_ok = self.decoder.stats.frames_ok
-            self.stats.garbage_bytes = self.decoder.stats.garbage_bytes
-            self.stats.resyncs = self.decoder.stats.resyncs
+            got = self._handle_frames(data, now)
         else:
-            lines = self.decoder.feed(data)
-            got = bool(lines)
-            self.stats.frames_ok = self.decoder.stats.lines_ok
-            i = 0
-            while i < len(lines):  # runs of consecutive indices, at most ascii_block_lines long
-                j = i + 1
-                while j < len(lines) and j - i < c.ascii_block_lines and lines[j].index == lines[j - 1].index + 1:
-                    j += 1
-                block = np.stack([ln.values for ln in lines[i:j]])
-                status, cause = self._status()
-                self._emit(SampleBlock(c.stream, lines[i].index, c.sample_rate, self._channels, block, status), cause)
-                i = j
+            got = self._handle_lines(data, now)
         total = self._bad_total()
         self.stats.frames_bad += total - self._counted_bad  # the base counts its own (duplicates) too
         self._counted_bad = total
         return got
+
+    def _handle_frames(self, data: bytes, now: float) -> bool:
+        c = self.cfg
+        assert isinstance(self.decoder, FrameDecoder)
+        bad_before = self.decoder.stats.frames_bad
+        frames = self.decoder.feed(data)
+        if self.decoder.stats.frames_bad > bad_before:
+            n_bad = self.decoder.stats.frames_bad - bad_before
+            self._event(DriverEvent("crc_error", c.stream, count=n_bad, message=f"{n_bad} bad frame(s) dropped"))
+        frames = [fr for fr in frames if c.stream_id is None or fr.stream_id == c.stream_id]
+        produced = _run_ends([(fr.first_index, fr.first_index + fr.n_samples) for fr in frames])
+        for fr, prod in zip(frames, produced, strict=True):
+            if fr.data.shape[1] != len(self._channels):
+                self.wrong_shape += 1
+                msg = f"frame has {fr.data.shape[1]} channels, config has {len(self._channels)}"
+                dev = {"device_start": fr.first_index, "device_end": fr.first_index + fr.n_samples}
+                self._event(DriverEvent("frame_error", c.stream, count=fr.n_samples, message=msg, **dev))
+                continue
+            status, cause = self._status()
+            block = SampleBlock(c.stream, fr.first_index, c.sample_rate, self._channels, fr.data, status, {"seq": fr.seq})
+            self._emit(block, cause, now=now, produced=prod)
+        self.stats.frames_ok = self.decoder.stats.frames_ok
+        self.stats.garbage_bytes = self.decoder.stats.garbage_bytes
+        self.stats.resyncs = self.decoder.stats.resyncs
+        return bool(frames)
+
+    def _handle_lines(self, data: bytes, now: float) -> bool:
+        c = self.cfg
+        assert isinstance(self.decoder, LineDecoder)
+        lines = self.decoder.feed(data)
+        self.stats.frames_ok = self.decoder.stats.lines_ok
+        runs = []
+        i = 0
+        while i < len(lines):  # runs of consecutive indices, at most ascii_block_lines long
+            j = i + 1
+            while j < len(lines) and j - i < c.ascii_block_lines and lines[j].index == lines[j - 1].index + 1:
+                j += 1
+            runs.append((i, j))
+            i = j
+        produced = _run_ends([(lines[i].index, lines[j - 1].index + 1) for i, j in runs])
+        for (i, j), prod in zip(runs, produced, strict=True):
+            block = np.stack([ln.values for ln in lines[i:j]])
+            status, cause = self._status()
+            blk = SampleBlock(c.stream, lines[i].index, c.sample_rate, self._channels, block, status)
+            self._emit(blk, cause, now=now, produced=prod)
+        return bool(lines)
+
+
+def _run_ends(spans: list[tuple[int, int]]) -> list[int]:
+    """For each [first, end) of one read, the end of the contiguous run it starts: the device had produced
+    at least that much when the read returned (what the restart estimate needs). A frame not continued by
+    the next one (a wild index, a gap) ends its own run, so one bad frame cannot inflate another's."""
+    out = [0] * len(spans)
+    run_end = 0
+    for k in range(len(spans) - 1, -1, -1):
+        end = spans[k][1]
+        run_end = run_end if k + 1 < len(spans) and spans[k + 1][0] == end else end
+        out[k] = run_end
+    return out

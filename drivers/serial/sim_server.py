@@ -10,9 +10,15 @@ Fault knobs (:class:`~drivers.sim.faults.Faults`), each recording exactly the sa
   error that still parses cannot be detected without a checksum; see the protocol doc), so that line's
   index is recorded.
 * ``frame_drop_rate``: a frame (or line) is not sent at all; its range is recorded.
-* ``stall_every_s`` / ``stall_for_s``: output pauses; the device keeps buffering, nothing is lost.
+* ``stall_every_s`` / ``stall_at_s`` / ``stall_for_s``: output pauses (periodically / once); the device
+  keeps buffering, nothing is lost.
 * ``disconnect_at_s`` / ``disconnect_for_s``: the link goes dead: nothing is written while the device
   clock runs on, so every frame due in that window is lost (recorded as one range).
+* ``restart_at_s`` / ``restart_down_s``: the device goes away after its last whole frame before
+  ``restart_at_s`` (nothing is written), and comes back ``restart_down_s`` later with its clock and its
+  index restarted at 0 (recorded in ``faults.restarts``, not as loss).
+* ``wild_frames``: extra CRC-valid frames (ASCII: lines) with a wild first index, written once the device
+  time passes theirs; the stream around them is untouched.
 
 The server keeps its own slave fd open for its whole life, so the tty (and its buffered input) survives
 the driver closing and re-opening the port.
@@ -30,7 +36,7 @@ import numpy as np
 
 from drivers.serial.protocol import BITS, FORMATS, encode_frame, encode_lines
 from drivers.sim.device import SimulatedDevice
-from drivers.sim.faults import Faults
+from drivers.sim.faults import Faults, RestartRecord
 
 
 class SerialSimServer:
@@ -141,55 +147,89 @@ class SerialSimServer:
     def _loop(self) -> None:
         f = self.faults
         fsz = self.frame_samples
-        stall_next = f.stall_every_s
-        dis_lo = dis_hi = None
+        self._epoch = self.device._t0 or 0.0  # device time of the stall and wild-frame knobs counts from here
+        self._restart_lo = None if f.restart_at_s is None else int(f.restart_at_s * self.fs)
+        self._wild = sorted(f.wild_frames)
+        self._dis: tuple[int, int] | None = None
         if f.disconnect_at_s is not None:
-            dis_lo = int(np.ceil(f.disconnect_at_s * self.fs))
-            dis_hi = int(np.ceil((f.disconnect_at_s + f.disconnect_for_s) * self.fs))
-        dis_recorded = False
-        seq = 0
+            t1 = f.disconnect_at_s + f.disconnect_for_s
+            self._dis = (int(np.ceil(f.disconnect_at_s * self.fs)), int(np.ceil(t1 * self.fs)))
+        self._dis_recorded = False
+        self._seq = 0
         while not self._stop.is_set():
+            if self._restart_lo is not None and self.next_index + fsz > self._restart_lo:
+                if not self._restart():
+                    return
+                continue
             end = self.next_index + fsz
             if self.pace:
                 delay = self._due_time(end) - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
-            dev_t = time.monotonic() - (self.device._t0 or 0.0)
-            if stall_next is not None and dev_t >= stall_next:
-                if self._stop.wait(f.stall_for_s):
-                    return
-                stall_next += f.stall_every_s
-            # every whole frame that exists now (at least the one we waited for)
+            stall_end = f.stall_end(time.monotonic() - self._epoch)
+            if stall_end is not None and self._stop.wait(max(0.0, self._epoch + stall_end - time.monotonic())):
+                return
+            # every whole frame that exists now (at least the one we waited for), never past a restart
             avail = self.device.samples_available() // self.decimate if self.pace else end + 63 * fsz
             n_frames = max(1, (avail - self.next_index) // fsz)
-            lo = self.next_index
-            hi = lo + n_frames * fsz
-            vals = self.device.samples(lo * self.decimate, hi * self.decimate)[:: self.decimate][:, self.channels]
-            chunks = []
-            for j in range(n_frames):
-                a = lo + j * fsz
-                b = a + fsz
-                if dis_lo is not None and b > dis_lo and a < dis_hi:
-                    if not dis_recorded:  # the whole dead window, whole frames, as one range
-                        f.record(a, -(-dis_hi // fsz) * fsz)  # frames are aligned to frame_samples
-                        dis_recorded = True
-                    seq += 1
-                    continue
-                if f.frame_drop_rate > 0 and f.rng.random() < f.frame_drop_rate:
-                    f.record(a, b)
-                    seq += 1
-                    continue
-                v = vals[j * fsz : (j + 1) * fsz]
-                if self.fmt == "ascii":
-                    chunks.append(self._ascii_with_faults(a, v))
-                else:
-                    fr = encode_frame(a, v, self.fmt, self.scales, seq=seq, stream_id=self.stream_id)
-                    chunks.append(self._corrupt(fr, a, b))
-                seq += 1
-            self.next_index = hi
-            data = b"".join(chunks)
+            if self._restart_lo is not None:
+                n_frames = max(1, min(n_frames, (self._restart_lo - self.next_index) // fsz))
+            data = self._frames(self.next_index, n_frames)
+            self.next_index += n_frames * fsz
             self._write_all(data)
             self.frames_out += n_frames
+
+    def _restart(self) -> bool:
+        """The device goes away now and comes back ``restart_down_s`` after ``restart_at_s``, counting from 0.
+        False if the server was stopped meanwhile."""
+        f = self.faults
+        old_t0 = self.device._t0 or 0.0
+        new_t0 = old_t0 + float(f.restart_at_s or 0.0) + f.restart_down_s
+        assert self._restart_lo is not None
+        f.record_restart(RestartRecord(self._restart_lo, self.next_index, old_t0, new_t0))
+        self._restart_lo = None
+        if self._stop.wait(max(0.0, new_t0 - time.monotonic())):
+            return False
+        self.device.start_clock(new_t0)
+        self.next_index = 0
+        self._seq = 0
+        self._dis = None  # a disconnect window is in the old run's index space
+        return True
+
+    def _frames(self, lo: int, n_frames: int) -> bytes:
+        """Frames ``lo // fsz …`` encoded with the per-frame faults applied, plus any wild frame now due."""
+        f = self.faults
+        fsz = self.frame_samples
+        hi = lo + n_frames * fsz
+        vals = self.device.samples(lo * self.decimate, hi * self.decimate)[:: self.decimate][:, self.channels]
+        chunks = []
+        for j in range(n_frames):
+            a = lo + j * fsz
+            b = a + fsz
+            self._seq += 1
+            if self._dis is not None and b > self._dis[0] and a < self._dis[1]:
+                if not self._dis_recorded:  # the whole dead window, whole frames, as one range
+                    f.record(a, -(-self._dis[1] // fsz) * fsz)  # frames are aligned to frame_samples
+                    self._dis_recorded = True
+                continue
+            if f.frame_drop_rate > 0 and f.rng.random() < f.frame_drop_rate:
+                f.record(a, b)
+                continue
+            v = vals[j * fsz : (j + 1) * fsz]
+            if self.fmt == "ascii":
+                chunks.append(self._ascii_with_faults(a, v))
+            else:
+                fr = encode_frame(a, v, self.fmt, self.scales, seq=self._seq - 1, stream_id=self.stream_id)
+                chunks.append(self._corrupt(fr, a, b))
+        dev_t = time.monotonic() - self._epoch
+        while self._wild and self._wild[0][0] <= dev_t:
+            _, index = self._wild.pop(0)
+            v = vals[:fsz]
+            if self.fmt == "ascii":
+                chunks.append(encode_lines(index, v[:1]))
+            else:
+                chunks.append(encode_frame(index, v, self.fmt, self.scales, seq=self._seq, stream_id=self.stream_id))
+        return b"".join(chunks)
 
     def _corrupt(self, fr: bytes, a: int, b: int) -> bytes:
         f = self.faults

@@ -37,9 +37,30 @@ i.e. only emd.m's extrema mirroring.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from PyEMD import EEMD, EMD
+
+
+def _import_pyemd():
+    """PyEMD's ``EEMD`` and ``EMD`` without its plotting helper's ``import pylab``: PyEMD/__init__ imports
+    ``PyEMD.visualisation``, which imports pylab (all of matplotlib: ~30 MB resident, ~0.25 s) whenever
+    matplotlib is installed and carries on without it when the import fails. The decomposition never
+    plots, so pylab is made unimportable for that one import (``sys.modules[name] = None`` makes ``import``
+    raise ImportError) and restored at once; a program that already imported pylab keeps it."""
+    hide = "pylab" not in sys.modules
+    if hide:
+        sys.modules["pylab"] = None  # type: ignore[assignment]
+    try:
+        from PyEMD import EEMD, EMD
+    finally:
+        if hide and sys.modules.get("pylab", 0) is None:
+            del sys.modules["pylab"]
+    return EEMD, EMD
+
+
+EEMD, EMD = _import_pyemd()
 
 RILLING_STOP = (0.05, 0.5, 0.05)
 """emd.m's default stop thresholds [θ1, θ2, tol] (Rilling, Flandrin & Gonçalves 2003)."""

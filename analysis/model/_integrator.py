@@ -170,8 +170,17 @@ def _integrate(
     sum_q,
     sum_qq,
     record,
+    n_first,
+    state,
 ):
     """Run one amplitude. Writes state at every output sample (``record``) or only moments.
+
+    The run continues from ``state`` (length ``state_size(n_r, s)``: q, v, the spring displacements w and
+    their previous stage's w_prev, input work, dissipation — zeros for a structure at rest) at output
+    sample ``n_first - 1`` and covers the output samples ``n_first .. n_first + n_samples - 1`` (sample 0 is
+    the initial state itself); ``state`` is overwritten with the state at the last of them. Nothing else
+    carries over between output intervals (the sub-step count is chosen afresh for each), so a run cut
+    into consecutive calls takes exactly the same steps as one call: the same samples, bit for bit.
 
     Each output interval is split into ``n_sub`` steps, chosen per interval so that
     ``omega_eff * h <= theta`` where ``omega_eff^2 = om_base2 + sum_s k_t(w_s) |b_s|^2`` bounds the
@@ -193,18 +202,19 @@ def _integrate(
     dinv_all = np.empty((n_stage, n_r))
     S_all = np.empty((n_stage, s, s))
     dts = np.empty(n_stage)
-    q = np.zeros(n_r)
-    v = np.zeros(n_r)
-    w = np.zeros(s)
-    w_prev = np.zeros(s)
-    work = 0.0
-    diss = 0.0
+    q = state[0:n_r].copy()
+    v = state[n_r : 2 * n_r].copy()
+    w = state[2 * n_r : 2 * n_r + s].copy()
+    w_prev = state[2 * n_r + s : 2 * n_r + 2 * s].copy()
+    work = state[2 * n_r + 2 * s]
+    diss = state[2 * n_r + 2 * s + 1]
     r = np.empty(n_r)
     u = np.empty(n_r)
     n_cur = -1
     steps = 0
     capped = 0
-    for n in range(n_samples):
+    for m in range(n_samples):
+        n = n_first + m  # the output sample on the run's clock; its row in the outputs is m
         if n > 0:
             om2 = om_base2
             if s > 0:
@@ -265,25 +275,37 @@ def _integrate(
                 steps += 1
         if record:
             for i in range(n_r):
-                q_out[n, i] = q[i]
-                v_out[n, i] = v[i]
+                q_out[m, i] = q[i]
+                v_out[m, i] = v[i]
             if s > 0:
                 gn = _force_nl(law, kc, pe, w)
                 for i in range(s):
-                    g_out[n, i] = gn[i]
-            work_out[n] = work
-            diss_out[n] = diss
+                    g_out[m, i] = gn[i]
+            work_out[m] = work
+            diss_out[m] = diss
         else:
             for i in range(n_r):
                 sum_q[i] += q[i]
                 for j in range(n_r):
                     sum_qq[i, j] += q[i] * q[j]
+    state[0:n_r] = q
+    state[n_r : 2 * n_r] = v
+    state[2 * n_r : 2 * n_r + s] = w
+    state[2 * n_r + s : 2 * n_r + 2 * s] = w_prev
+    state[2 * n_r + 2 * s] = work
+    state[2 * n_r + 2 * s + 1] = diss
     return work, diss, steps, capped
 
 
+def state_size(n_r: int, s: int) -> int:
+    """Length of the state vector ``_integrate`` continues from: q, v (n_r each), w, w_prev (s each), work, diss."""
+    return 2 * n_r + 2 * s + 2
+
+
 @njit(cache=True)
-def integrate_batch_record(amps, model, force, stepping, n_samples):
-    """Full state at every output sample for each amplitude (see ``_integrate``)."""
+def integrate_batch_record(amps, model, force, stepping, n_samples, n_first, state):
+    """Full state at every output sample ``n_first .. n_first + n_samples - 1`` for each amplitude, continuing
+    from ``state[b]`` (``(n_b, state_size)``, updated in place; see ``_integrate``)."""
     omega2, cdamp, phi_f, B, law, kc, pe = model
     fkind, fstart, fdur, ftt, fff, fcum = force
     gammas, dt_out, n_min, n_max, om_base2, theta = stepping
@@ -330,6 +352,8 @@ def integrate_batch_record(amps, model, force, stepping, n_samples):
             dummy1,
             dummy2,
             True,
+            n_first,
+            state[b],
         )
     return q_out, v_out, g_out, work_out, diss_out, steps, capped
 
@@ -352,6 +376,7 @@ def integrate_batch_moments(amps, model, force, stepping, n_samples):
     d2 = np.zeros((1, 1))
     d3 = np.zeros((1, max(s, 1)))
     d1 = np.zeros(1)
+    state = np.zeros((n_b, 2 * n_r + 2 * s + 2))  # every run starts at rest
     for b in prange(n_b):
         work[b], diss[b], steps[b], capped[b] = _integrate(
             amps[b],
@@ -383,5 +408,7 @@ def integrate_batch_moments(amps, model, force, stepping, n_samples):
             sum_q[b],
             sum_qq[b],
             False,
+            0,
+            state[b],
         )
     return sum_q, sum_qq, work, diss, steps, capped

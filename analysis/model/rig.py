@@ -1,20 +1,27 @@
-"""A test rig built from its config: structure, placed sensors and hammer, and a ready simulator."""
+"""A test rig built from its config: structure, placed sensors and hammer, and a ready simulator.
+
+Building a rig needs numpy and the config only; the modes and Guyan reduction (scipy) and the simulator
+(numba) are imported when first asked for, so a recorder that only needs the rig's channels stays light.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from analysis.model.config import BeamSpec, RigConfig, SensorProps
 from analysis.model.forces import HalfSine
-from analysis.model.guyan import GuyanModel, guyan_reduce
 from analysis.model.loader import load_config
-from analysis.model.modal import Modes, structure_modes
-from analysis.model.simulate import ImpactSimulator
 from analysis.model.structure import ModalDamping, Structure, build_beam, build_lumped
+
+if TYPE_CHECKING:  # scipy (modes, Guyan) and numba (the simulator) load when a rig first needs them
+    from analysis.model.guyan import GuyanModel
+    from analysis.model.modal import Modes
+    from analysis.model.simulate import ImpactSimulator
 
 UNITS = {"acceleration": "m/s^2", "velocity": "m/s", "displacement": "m", "force": "N"}
 
@@ -58,6 +65,8 @@ class Rig:
 
     @cached_property
     def modes(self) -> Modes:
+        from analysis.model.modal import structure_modes
+
         return structure_modes(self.structure)
 
     def limit_structure(self, limit: str = "low") -> Structure:
@@ -73,6 +82,8 @@ class Rig:
         return sorted(set(self.sensor_dofs))
 
     def guyan(self, masters: list[int] | None = None) -> GuyanModel:
+        from analysis.model.guyan import guyan_reduce
+
         return guyan_reduce(self.structure.M, self.structure.K, masters if masters is not None else self.master_dofs())
 
     def hammer_force(self, peak: float | None = None) -> HalfSine:
@@ -81,6 +92,8 @@ class Rig:
 
     @cached_property
     def simulator(self) -> ImpactSimulator:
+        from analysis.model.simulate import ImpactSimulator
+
         sim = self.config.simulation
         return ImpactSimulator(
             self.structure,
@@ -153,14 +166,19 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
 
 
 def load_rig(path: str | Path) -> Rig:
-    """Load and build a rig; raises :class:`daq.config.ConfigError` (one line) on a bad file."""
-    from analysis.model.loader import ConfigError
+    """Load and build a rig; raises :class:`ConfigError` (one line naming file and field) on a bad file.
+
+    ``RigConfig.check`` has refused what the assembly would (positions off the beam or on a support, limits);
+    a ``ValueError`` the assembly still raises becomes a one-line error too, never a traceback."""
+    from analysis.model.loader import ConfigError, ConfigFieldError
 
     cfg = load_config(RigConfig, path)
     try:
         return build_rig(cfg, path)
-    except ValueError as exc:  # e.g. a sensor snapped onto a support
-        raise ConfigError(path, None, str(exc)) from None
+    except ConfigFieldError as exc:
+        raise ConfigError(path, exc.field, exc.problem) from None
+    except (ValueError, KeyError) as exc:  # the assembly's own checks (the schema should have caught them)
+        raise ConfigError(path, "structure", str(exc).strip("'\"")) from None
 
 
 def channel_signals(rig: Rig, result, index: int = 0) -> tuple[list[PlacedChannel], np.ndarray]:

@@ -22,13 +22,13 @@ Choices (documented in ``docs/simulator.md``):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
-from analysis.model._integrator import integrate_batch_moments, integrate_batch_record
+from analysis.model._integrator import integrate_batch_moments, integrate_batch_record, state_size
 from analysis.model.beam import FloatArray
 from analysis.model.forces import Force, ForceSeries, HalfSine
 from analysis.model.modal import Modes, structure_modes
@@ -87,6 +87,7 @@ class SimulationResult:
     energy: EnergyBudget
     steps_per_sample: FloatArray  # (B,) mean integration steps per output sample actually taken
     substep_cap_hits: FloatArray  # (B,) output intervals that needed more than max_substeps
+    first_index: int = 0  # the first sample's index on the run's clock (a segment of ImpactSimulator.run_segments)
 
     @property
     def mode_frequencies_hz(self) -> FloatArray:
@@ -172,13 +173,18 @@ class ImpactSimulator:
         om_max = float(self.reduced.omega[self.reduced.n_modes - 1])
         return max(1, int(np.ceil(om_max / (sample_rate * self.max_omega_dt))))
 
+    @staticmethod
+    def n_samples(duration: float, sample_rate: float) -> int:
+        """Output samples of a run: a record of D seconds holds D * fs samples at t = k / fs (the DAQ's
+        sample-exact contract), at least two."""
+        return max(2, round(duration * sample_rate))
+
     def _prepare(self, force: Force, duration: float, sample_rate: float, amplitudes: Sequence[float] | None):
         if sample_rate <= 0:
             raise ValueError("sample rate must be positive")
         if duration <= 0:
             raise ValueError("duration must be positive")
-        # A record of D seconds holds D * fs samples at t = k / fs (the DAQ's sample-exact contract).
-        n_samples = max(2, round(duration * sample_rate))
+        n_samples = self.n_samples(duration, sample_rate)
         n_min = min(self.steps_per_sample(sample_rate), self.max_substeps)
         gammas = _YOSHIDA.copy() if self.order == 4 else np.array([1.0])
         om_base = float(self.reduced.omega[self.reduced.n_modes - 1])
@@ -201,8 +207,36 @@ class ImpactSimulator:
     ) -> SimulationResult:
         """Full time histories for each amplitude (``force`` is scaled so its peak is the amplitude)."""
         n, model, fdesc, stepping, amps = self._prepare(force, duration, sample_rate, amplitudes)
-        q, v, g, work, diss, steps, capped = integrate_batch_record(amps, model, fdesc, stepping, n)
-        t = np.arange(n) / sample_rate
+        state = np.zeros((amps.size, state_size(model[0].shape[0], model[3].shape[0])))
+        return self._record(force, sample_rate, amps, model, fdesc, stepping, 0, n, state)
+
+    def run_segments(
+        self,
+        force: Force,
+        duration: float,
+        sample_rate: float,
+        amplitudes: Sequence[float] | None = None,
+        segment: int = 16384,
+    ) -> Iterator[SimulationResult]:
+        """:meth:`run` in consecutive pieces of ``segment`` output samples (the last one shorter), each a
+        :class:`SimulationResult` of its samples with ``first_index`` and ``t`` on the whole run's clock, so
+        memory is bounded by one segment however long the run. The integrator continues from the state at
+        the end of the previous piece and takes the same steps as one call (analysis.model._integrator), so
+        the pieces are the samples of :meth:`run` (bit for bit in the integrator's state, tested).
+        ``steps_per_sample`` counts the segment's own output intervals."""
+        if segment < 1:
+            raise ValueError("segment must be >= 1 sample")
+        n, model, fdesc, stepping, amps = self._prepare(force, duration, sample_rate, amplitudes)
+        state = np.zeros((amps.size, state_size(model[0].shape[0], model[3].shape[0])))
+        for n0 in range(0, n, segment):
+            yield self._record(force, sample_rate, amps, model, fdesc, stepping, n0, min(segment, n - n0), state)
+
+    def _record(self, force: Force, sample_rate: float, amps: FloatArray, model, fdesc, stepping, n0: int, m: int,
+                state: FloatArray) -> SimulationResult:  # fmt: skip
+        """Output samples ``n0 .. n0 + m - 1`` continuing from ``state`` (updated in place) and what follows
+        from them: forces, output responses, accelerations, modal coordinates and the energy budget."""
+        q, v, g, work, diss, steps, capped = integrate_batch_record(amps, model, fdesc, stepping, m, n0, state)
+        t = np.arange(n0, n0 + m) / sample_rate
         f_t = amps[:, None] * force.shape_at(t)[None, :]
         # Accelerations from the equations of motion at the sample instants.
         acc_q = f_t[:, :, None] * self._phi_f - self._cdamp * v - self._omega2 * q
@@ -235,8 +269,9 @@ class ImpactSimulator:
             modal_v=v[..., :nm],
             mode_omega=self.reduced.omega[:nm].copy(),
             energy=energy,
-            steps_per_sample=steps / (n - 1),
+            steps_per_sample=steps / max(1, m - 1 if n0 == 0 else m),
             substep_cap_hits=capped,
+            first_index=n0,
         )
 
     def run_moments(self, force: Force, duration: float, sample_rate: float, amplitudes: Sequence[float]) -> MomentResult:

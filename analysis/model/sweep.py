@@ -137,10 +137,11 @@ def _run_record(amp, model, force, stepping, q_out, v_out, g_out, work_out, diss
     diss = np.zeros(1)
     steps = np.zeros(1, dtype=np.int64)
     capped = np.zeros(1, dtype=np.int64)
+    state = np.zeros((1, 2 * omega2.shape[0] + 2 * B.shape[0] + 2))  # at rest (analysis.model._integrator.state_size)
     for b in prange(1):
         work[b], diss[b], steps[b], capped[b] = _integrate(
             amp, omega2, cdamp, phi_f, B, law, kc, pe, fkind, fstart, fdur, ftt, fff, fcum, gammas, dt_out, n_min, n_max,
-            om_base2, theta, q_out.shape[0], q_out, v_out, g_out, work_out, diss_out, d1, d2, True)  # fmt: skip
+            om_base2, theta, q_out.shape[0], q_out, v_out, g_out, work_out, diss_out, d1, d2, True, 0, state[b])  # fmt: skip
     return work[0], diss[0], steps[0], capped[0]
 
 

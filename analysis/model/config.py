@@ -2,6 +2,10 @@
 
 SI units throughout, except sensor sensitivities, which are given as on a calibration sheet in
 millivolts per SI unit (e.g. 1.02 mV/(m/s^2) for the seed's accelerometers, L1320).
+
+Every number must be finite (``inf``/``nan`` are refused with the field named), and the ones that size
+memory or time have a named limit below, with the measurement behind it: a config that would take an hour
+and 5 GB to load is refused in a line, before anything is allocated.
 """
 
 from __future__ import annotations
@@ -10,14 +14,56 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from analysis.model.loader import ConfigFieldError
+from analysis.model.loader import ConfigFieldError, at_least, at_most, at_most_items, check_limit
+
+# --- limits: what a config may ask for (measured on the 2-core dev machine, shared with other jobs) -----------
+#: Beam elements. load_rig + modes + ``gvt model modes`` (dense eigenproblem, 2 DOF a node) measured 0.01 s /
+#: 126 MB peak RSS at 107 elements (beam_ch4_exp), 0.2 s / 194 MB at 500, 1.5 s / 345 MB at 1000, 11 s / 1.0 GB
+#: at 2000 and 5 min / 5.5 GB at 5000 (the old limit). The seed's finest mesh is 107 elements (7 mm); 1000
+#: elements put a node every 0.75 mm on that beam, finer than any sensor is placed.
+MAX_BEAM_ELEMENTS = 1000
+#: Lumped DOFs: the same dense eigenproblem as a 1000-element beam; a 2000-mass chain measured 1.8 s / 258 MB.
+MAX_LUMPED_DOFS = 2000
+#: Channels of a rig, the hammer's force included: the biggest DAQ frame the drivers carry (the serial frame's
+#: channel count is one byte, 1..255 a device) and 256 channels x 51.2 kHz = 52 MB/s of float32 data to record.
+MAX_CHANNELS = 256
+MAX_SENSORS = MAX_CHANNELS - 1
+#: Device sample rates: the supported devices run 256 Hz .. 51.2 kHz and the 2-DOF example rig 50 Hz; outside
+#: 1 Hz .. 1 MHz a rate is a unit mistake (kHz for Hz), and above it one second of 256 channels is 1 GB.
+MIN_SAMPLE_RATE = 1.0
+MAX_SAMPLE_RATE = 1e6
+#: Hammer and simulated hit forces (N). The largest impact hammers measure ~22 kN (PCB 086D50, 5000 lbf); 1 MN is
+#: 100 tonnes-force. The simulator sub-steps a hit by the stiffness it reaches: one second of beam_ch4_exp with
+#: one hit computed in 0.09 s at 1583 N and at 1e6 N, 0.16 s at 1e12 N, and 56 s at 1e30 N (the 4096-sub-step cap).
+MAX_FORCE_N = 1e6
+#: A simulated record (rig ``daq.record_length`` here, a simulated session's span in daq/config/session.py), in
+#: channel-samples: the simulated device peaked at ~40-60 B a channel-sample (force, 3 response arrays, the
+#: sensor/ADC model): beam_ch4_exp 60 s (14.7 M) measured 11 s / 0.97 GB peak RSS, bench_64ch 10 s (32.8 M)
+#: 6.8 s / 1.5 GB. 2^24 (16.8 M: 68 s of beam_ch4_exp, 5 s of 64 ch at 51.2 kHz) stays under ~1 GB.
+MAX_SIMULATED_CHANNEL_SAMPLES = 1 << 24
+#: A rig's simulated record (s); the 2-DOF example needs 200 s (its periods are 3.3 and 5.3 s).
+MAX_RIG_RECORD_S = 3600.0
+#: The simulator's step control: below 0.05 rad a step costs 5x the default 0.25 for no accuracy the
+#: 4th-order stepper needs; towards 0 every sample hits the 4096-sub-step cap, as the 1e30 N hit did (56 s a second).
+MIN_OMEGA_DT = 0.05
+
+_ALLOC = "to bound memory and time"
 
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
+Force = Annotated[float, Field(gt=0), at_most(MAX_FORCE_N, "N", "1 MN; the simulator's cost grows without bound with the force")]
+SampleRate = Annotated[
+    float,
+    Field(gt=0),
+    at_least(MIN_SAMPLE_RATE, "Hz", "is the rate in Hz?"),
+    at_most(MAX_SAMPLE_RATE, "Hz", "devices run 256 Hz .. 51.2 kHz; is the rate in Hz?"),
+]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Unknown keys, ``inf`` and ``nan`` are mistakes; a loaded config never changes."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Located(_Strict):
@@ -40,7 +86,7 @@ class BeamSpec(_Strict):
     height: Positive = Field(description="m")
     youngs_modulus: Positive = Field(description="Pa")
     density: Positive = Field(description="kg/m^3")
-    elements: Annotated[int, Field(ge=1, le=5000)]
+    elements: Annotated[int, Field(ge=1), at_most(MAX_BEAM_ELEMENTS, "elements", "a finer mesh takes minutes and GBs to solve")]
     left: Literal["clamped", "pinned", "free"] = "clamped"
     right: Literal["clamped", "pinned", "free"] = "free"
 
@@ -55,7 +101,9 @@ class LumpedSpring(_Strict):
 
 class LumpedSpec(_Strict):
     kind: Literal["lumped"]
-    masses: Annotated[list[Positive], Field(min_length=1)]
+    masses: Annotated[
+        list[Positive], Field(min_length=1), at_most_items(MAX_LUMPED_DOFS, "masses", "more take minutes and GBs to solve")
+    ]
     dof_names: list[str] | None = None
     springs: list[LumpedSpring] = []
 
@@ -129,7 +177,7 @@ class SensorArraySpec(SensorProps):
     prefix: Annotated[str, Field(min_length=1)]
     start: float
     stop: float
-    count: Annotated[int, Field(ge=1, le=10000)]
+    count: Annotated[int, Field(ge=1), at_most(MAX_SENSORS, "sensors", f"{MAX_CHANNELS} channels with the hammer")]
 
     def expand(self) -> list[SensorSpec]:
         props = self.model_dump(include=set(SensorProps.model_fields))
@@ -143,27 +191,29 @@ class SensorArraySpec(SensorProps):
 
 class HammerSpec(Located):
     sensitivity_mv_per_unit: Positive = Field(description="mV/N")
-    range: Positive | None = Field(default=None, description="± force range, N")
+    range: Force | None = Field(default=None, description="± force range, N")
     noise_rms: NonNegative = 0.0
     model: str | None = None
     pulse: Literal["half_sine"] = "half_sine"
     pulse_duration: Positive = Field(description="s")
-    peak_force: Positive = Field(description="N, nominal strong hit (demo, simulate default)")
+    peak_force: Force = Field(description="N, nominal strong hit (demo, simulate default)")
 
 
 class DaqSpec(_Strict):
-    sample_rate: Positive = Field(description="Hz")
+    sample_rate: SampleRate = Field(description="Hz")
     adc_bits: Annotated[int, Field(ge=8, le=32)] = 24
     input_range_volts: Positive = 10.0
-    record_length: Positive = Field(default=2.0, description="s per hit record")
+    record_length: Annotated[float, Field(gt=0), at_most(MAX_RIG_RECORD_S, "s", "1 hour")] = Field(
+        default=2.0, description="s per hit record"
+    )
 
 
 class SimulationSpec(_Strict):
     modal_cutoff_hz: Positive = 5000.0
-    max_omega_dt: Annotated[float, Field(gt=0, le=2.0)] = 0.25
+    max_omega_dt: Annotated[float, Field(le=2.0), at_least(MIN_OMEGA_DT, "rad", "smaller steps cost time for nothing")] = 0.25
     order: Literal[2, 4] = 2
     residual_vectors: bool = True
-    seed: int = 0
+    seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take a non-negative seed
 
 
 class RigConfig(_Strict):
@@ -188,11 +238,33 @@ class RigConfig(_Strict):
             out.extend(arr.expand())
         return out
 
+    @staticmethod
+    def _check_supports(s: BeamSpec, located: list[tuple[str, Located | SensorSpec]]) -> None:
+        """A sensor, the hammer or a nonlinear spring snapped onto a support's (constrained) deflection has no
+        DOF to sit on: said here, at its field, instead of by the assembly (``BeamMesh.snap``'s rounding)."""
+        le = s.length / s.elements
+        fixed = {0: s.left, s.elements: s.right}
+        for path, item in located:
+            if path.startswith(("point_masses", "springs")) or item.x is None:
+                continue  # a mass or a linear spring on a support is carried by the support
+            node = min(max(round(item.x / le), 0), s.elements)
+            end = fixed.get(node)
+            if end in ("clamped", "pinned"):
+                what = {"hammer": "the hammer"}.get(path) or getattr(item, "name", None) or "the nonlinear spring"
+                raise ConfigFieldError(
+                    f"{path}.x",
+                    f"{what} at x = {item.x:g} m snaps to node {node}, a constrained DOF of the {end} support; "
+                    f"move it at least {0.5 * le:g} m away",
+                )
+
     def check(self) -> None:
         """Cross-field checks, each raising a :class:`ConfigFieldError` at the offending path."""
         s = self.structure
         if not self.sensors and not self.sensor_arrays:
             raise ConfigFieldError("sensors", "a rig needs at least one sensor")
+        n_sensors = len(self.sensors) + sum(a.count for a in self.sensor_arrays)  # before any array is expanded
+        where = "sensor_arrays" if self.sensor_arrays else "sensors"
+        check_limit(where, n_sensors, MAX_SENSORS, "sensors", f"{MAX_CHANNELS} channels with the hammer")
         located: list[tuple[str, Located | SensorSpec]] = [
             *((f"point_masses[{i}]", p) for i, p in enumerate(self.point_masses)),
             *((f"springs[{i}]", p) for i, p in enumerate(self.springs)),
@@ -215,6 +287,7 @@ class RigConfig(_Strict):
                         f"position {item.x:g} m is off the beam [0, {s.length:g}] m by more than half an element "
                         f"({half:g} m); move it onto the beam",
                     )
+            self._check_supports(s, located)
         else:
             names = s.names
             for path, item in located:
@@ -241,3 +314,15 @@ class RigConfig(_Strict):
             )
         if self.daq.record_length * fs < 2.0:
             raise ConfigFieldError("daq.record_length", "shorter than two samples at daq.sample_rate")
+        if self.hammer.pulse_duration > self.daq.record_length:
+            raise ConfigFieldError(
+                "hammer.pulse_duration",
+                f"{self.hammer.pulse_duration:g} s is longer than the record (daq.record_length {self.daq.record_length:g} s)",
+            )
+        check_limit(
+            "daq.record_length",
+            self.daq.record_length * fs * (n_sensors + 1),
+            MAX_SIMULATED_CHANNEL_SAMPLES,
+            "channel-samples",
+            f"record_length x sample_rate x channels; ~1 GB to simulate; shorten the record or lower the rate, {_ALLOC}",
+        )

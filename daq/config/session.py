@@ -3,55 +3,181 @@
 One device: a ``[device]`` table. Several devices on one timeline (the seed's Ch. 6 test had the hammer
 on one system and the accelerometers on another): ``[[devices]]`` tables plus an optional ``[timeline]``
 table (docs/session.md, "Two devices on one timeline").
+
+Every mistake is one :class:`~analysis.model.loader.ConfigError` line naming file, field and value (exit 2),
+found in three places, all before anything is opened or allocated:
+
+* loading (:func:`~analysis.model.loader.load_config`): types, unknown keys, ``inf``/``nan``, the resource
+  limits below, and :meth:`SessionConfig.check`'s cross-field checks that need the session only;
+* :func:`check_session_against_rig`: what needs the rig too (channel names, buffer sizes in bytes, the span a
+  simulated device computes ahead); the recorder calls it at start-up;
+* :func:`driver_table_error`: a device's ``config`` table, validated by its driver's own model.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+import difflib
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from analysis.model.loader import ConfigFieldError
+from analysis.model.config import (
+    MAX_CHANNELS,
+    MAX_FORCE_N,
+    MAX_SAMPLE_RATE,
+    MAX_SIMULATED_CHANNEL_SAMPLES,
+    MIN_SAMPLE_RATE,
+    SampleRate,
+)
+from analysis.model.loader import (
+    ConfigError,
+    ConfigFieldError,
+    at_least,
+    at_most,
+    at_most_items,
+    check_limit,
+    non_finite,
+    validation_error_to_config_error,
+)
+
+if TYPE_CHECKING:
+    from analysis.model.rig import Rig
+
+# --- limits (rig limits: analysis/model/config.py) ----------------------------------------------------------------
+#: A session's duration: a week-long campaign. The recorder's memory does not grow with the duration (the 1-hour
+#: soak peaked at the same 270 MB as 120 s, docs/session.md); a longer value is a unit mistake (ms for s).
+MAX_DURATION_S = 7 * 86400.0
+#: Seconds of data a queue may hold (the log writer's and the analysis lane's; test_view.py uses 30 s). Queues fill
+#: only when a consumer falls behind, and then hold float32 blocks of every channel.
+MAX_QUEUE_S = 60.0
+#: Bytes one in-memory buffer may hold, checked against the rig's channels and rate (check_session_against_rig):
+#: the queues, a hit record (pre-trigger + record), the analysis window, the timeline aligner's per-stream buffer.
+#: 256 MiB holds 270 s of the seed rig (15 ch x 16384 Hz x 4 B = 0.98 MB/s) but 20 s of 64 ch x 51.2 kHz
+#: (13 MB/s): one full buffer at most doubles the recorder's measured 270 MB peak RSS (docs/session.md).
+MAX_BUFFER_BYTES = 256 << 20
+#: A hit record after the trigger edge (s); the seed's records are 0.3 s (hit gate) and 2 s (rig).
+MAX_RECORD_S = 60.0
+#: The pre-trigger (s). The hit gate keeps it in a float32 ring it shifts on every block: measured (np.roll, 1024-
+#: sample blocks, 64 ch x 51.2 kHz) 0.1 s of CPU per s of data at 1 s, 0.9 s/s at 5 s (the gate falls behind);
+#: 15 ch x 16384 Hz: 0.006 s/s at 1 s. The seed uses 10 ms; a pre-trigger of seconds holds the last hit's ring-down.
+MAX_PRE_TRIGGER_S = 1.0
+#: Rotation: each file repeats the header, schemas, metadata and rig attachment and ends with an index; below
+#: 1 MiB (1 s of the seed rig) or 1 s a session writes files faster than anyone can use them.
+MIN_ROTATE_BYTES = 1 << 20
+MIN_ROTATE_S = 1.0
+#: The near-live analysis window (s): 0.45 / f1 by default (0.0216 s for beam_ch4_exp, 2.4 s for two_dof).
+MAX_ANALYSIS_WINDOW_S = 10.0
+#: Simulated hits in one schedule, double hits and wild frames (the shipped schedules have 4-40 hits).
+MAX_SIM_HITS = 10_000
+MAX_WILD_FRAMES = 1000
+#: Waits at the end of a session and the silence threshold (s): a device is late by seconds, not hours.
+MAX_WAIT_S = 3600.0
+
+_WEEK = "7 days"
 
 Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Seconds = Annotated[float, Field(ge=0), at_most(MAX_DURATION_S, "s", _WEEK)]
+HitForce = Annotated[
+    float, Field(ge=0), at_most(MAX_FORCE_N, "N", "1 MN; the simulator's cost grows without bound with the force")
+]
+QueueSeconds = Annotated[float, Field(gt=0), at_most(MAX_QUEUE_S, "s", "an in-memory buffer")]
+WaitSeconds = Annotated[float, at_most(MAX_WAIT_S, "s", "1 hour")]
+ChannelName = Annotated[str, Field(min_length=1, max_length=64)]
+ChannelList = Annotated[list[ChannelName], at_most_items(MAX_CHANNELS, "channels", "the biggest DAQ frame")]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Unknown keys, ``inf`` and ``nan`` are mistakes; a loaded config never changes."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def _no_repeats(field: str, names: list[str]) -> None:
+    for i, n in enumerate(names):
+        if n in names[:i]:
+            raise ConfigFieldError(field, f"channel {n!r} is listed twice")
 
 
 class SimulateSpec(_Strict):
-    """Start the simulated device for this driver (serial: a pty; modbus: TCP on 127.0.0.1)."""
+    """Start the simulated device for this driver (serial: a pty; modbus: TCP on 127.0.0.1 or RTU on a pty;
+    can: a node on python-can's in-process virtual bus) — daq/sim_devices.py."""
 
-    forces: list[Annotated[float, Field(ge=0)]] = Field(min_length=1)
-    double_hits: list[int] = []  # hit numbers followed by a second tap 4 ms later
-    period: Positive = 0.5
-    first: Annotated[float, Field(ge=0.05)] = 0.2
-    seed: int = 0
-    format: Literal["int16", "int24", "int32", "float32"] = "int24"
-    ranges: dict[str, Positive] = {}  # override sensor ranges (e.g. make a channel clip on every hit)
-    channels: list[str] | None = None  # the rig channels this device serves (default: all)
+    forces: Annotated[list[HitForce], Field(min_length=1), at_most_items(MAX_SIM_HITS, "hits", "a schedule, not a stream")]
+    # hit numbers (from 0) followed by a second tap 4 ms later
+    double_hits: Annotated[list[Annotated[int, Field(ge=0)]], at_most_items(MAX_SIM_HITS, "double hits", "one per hit")] = []
+    period: Annotated[float, Field(gt=0), at_most(MAX_DURATION_S, "s", _WEEK)] = 0.5
+    first: Annotated[float, Field(ge=0.05), at_most(MAX_DURATION_S, "s", _WEEK)] = 0.2
+    seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take a non-negative seed
+    # serial only: the frame's sample format, or "ascii" lines
+    format: Literal["int16", "int24", "int32", "float32", "ascii"] = "int24"
+    ranges: dict[ChannelName, Positive] = {}  # override sensor ranges (e.g. make a channel clip on every hit)
+    channels: ChannelList | None = None  # the rig channels this device serves (default: all)
     # [[devices]] only: this device's clock starts this long after the first simulated device's (s)
     start_delay: Annotated[float, Field(ge=0, le=60)] = 0.0
+    # serve the simulated device at this rate instead of the rig's daq.sample_rate (e.g. 2048 Hz)
+    sample_rate: SampleRate | None = None
+    transport: Literal["tcp", "rtu"] = "tcp"  # modbus only: Modbus TCP on 127.0.0.1, or RTU on a pty
+    # fault knobs for tests (drivers/sim/faults.py), device time in s; per device, not shared
+    stall_at_s: Seconds | None = None  # output pauses here for stall_for_s (data accrues; nothing lost)
+    stall_for_s: Seconds = 0.0
+    disconnect_at_s: Seconds | None = None  # the link closes here for disconnect_for_s (samples lost)
+    disconnect_for_s: Seconds = 0.0
+    restart_at_s: Seconds | None = None  # the device restarts here, down for restart_down_s, index back at 0
+    restart_down_s: Seconds = 0.0
+    # serial only: extra CRC-valid frames at (device time s, first sample index), e.g. [[1.0, 1000000000]]
+    wild_frames: Annotated[
+        list[tuple[Seconds, Annotated[int, Field(ge=0)]]], at_most_items(MAX_WILD_FRAMES, "wild frames", "a test knob")
+    ] = []
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SimulateSpec:
+        n = len(self.forces)
+        for k in self.double_hits:
+            if k >= n:
+                raise ValueError(f"double_hits: hit {k} is not in the schedule (forces has {n} hits, numbered from 0)")
+        for knob, length in (("stall", "stall_for_s"), ("disconnect", "disconnect_for_s"), ("restart", "restart_down_s")):
+            if getattr(self, length) > 0 and getattr(self, f"{knob}_at_s") is None:
+                raise ValueError(f"{length}: give {knob}_at_s too (when the {knob} happens, device time in s)")
+        if self.stall_at_s is not None and self.stall_for_s <= 0:
+            raise ValueError("stall_for_s: a stall needs a length > 0 (s)")
+        if self.disconnect_at_s is not None and self.disconnect_for_s <= 0:
+            raise ValueError("disconnect_for_s: a disconnect needs a length > 0 (s)")
+        if self.channels is not None:
+            _no_repeats("channels", self.channels)
+        return self
 
 
-#: The simulated structure's fields: one structure is shared by every simulated device of a session.
-PHYSICS_FIELDS = ("forces", "double_hits", "period", "first", "seed", "ranges")
+#: The simulated structure's fields: one structure (and one clock rate) is shared by every simulated device of
+#: a session. The fault knobs (stall, disconnect, restart, wild frames) and the transport stay per device.
+PHYSICS_FIELDS = ("forces", "double_hits", "period", "first", "seed", "ranges", "sample_rate")
 
 
 class DeviceSpec(_Strict):
-    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")] = "dev0"
+    name: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")] = "dev0"
     driver: Literal["serial", "modbus", "can", "sim"]
-    config: dict[str, Any] = {}  # the driver's own config table (drivers/<kind>/driver.py)
+    # the driver's own config table (drivers/<kind>/driver.py), validated by the driver's model at start-up
+    # (driver_table_error); here only what the session itself reads: channels, sample_rate, no inf/nan
+    config: dict[str, Any] = {}
     simulate: SimulateSpec | None = None
 
     def channel_names(self) -> list[str] | None:
         """The channels this device delivers, when the config says (driver table or simulate table)."""
-        if self.config.get("channels") is not None:
-            return [str(c) for c in self.config["channels"]]
+        chans = self.config.get("channels")
+        if isinstance(chans, list) and chans:
+            return [str(c) for c in chans]
         if self.simulate is not None and self.simulate.channels is not None:
             return list(self.simulate.channels)
         return None
+
+    def configured_rate(self) -> float | None:
+        """The device's sample rate when the session says (driver table, else the simulated rate), else None."""
+        v = self.config.get("sample_rate")
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            return float(v)
+        return self.simulate.sample_rate if self.simulate is not None else None
 
 
 class TimelineSpec(_Strict):
@@ -60,48 +186,73 @@ class TimelineSpec(_Strict):
     reference: str | None = None  # device name; default: the device carrying the trigger channel
     # seconds by which a device's sample 0 follows the reference's, for clocks already synchronised
     # (PTP/GPS or a shared trigger): no estimate is made for these devices
-    offsets: dict[str, float] = {}
+    offsets: dict[str, Annotated[float, Field(ge=-MAX_DURATION_S, le=MAX_DURATION_S)]] = {}
     settle_s: Annotated[float, Field(gt=0, le=30)] = 0.5  # estimate this long before fixing the offset
-    window_s: Annotated[float, Field(gt=0, le=10)] = 0.1  # one lower-envelope point per window of device time
-    report_s: Annotated[float, Field(gt=0)] = 1.0  # a /daq/timeline message this often (s of data)
+    # one lower-envelope point per window of device time (>= 1 ms: finer is per-block work for nothing)
+    window_s: Annotated[float, Field(le=10), at_least(1e-3, "s", "one envelope point per window")] = 0.1
+    # a /daq/timeline message this often (s of data; >= 10 ms: at most 100 messages a second of data)
+    report_s: Annotated[float, at_least(0.01, "s", "at most 100 messages a second"), at_most(MAX_WAIT_S, "s", "1 hour")] = 1.0
     max_buffer_s: Annotated[float, Field(gt=0, le=120)] = 5.0  # the aligner's buffer bound per stream
 
 
 class TriggerSpec(_Strict):
-    channel: str = "hammer"
+    channel: ChannelName = "hammer"
     level: Positive
-    pre_trigger: Annotated[float, Field(ge=0)] = 0.01
-    record_length: Positive = 0.3
+    pre_trigger: Annotated[
+        float, Field(ge=0), at_most(MAX_PRE_TRIGGER_S, "s", "the gate shifts the pre-trigger ring on every block")
+    ] = 0.01
+    record_length: Annotated[float, Field(gt=0), at_most(MAX_RECORD_S, "s", "a hit record is held in memory")] = 0.3
     hysteresis: Annotated[float, Field(gt=0, le=1)] = 0.5
-    force_range: tuple[float, float] | None = None
-    driving_point: str | None = None
+    force_range: tuple[HitForce, HitForce] | None = None
+    driving_point: ChannelName | None = None
     suspect_after: Annotated[int, Field(ge=1)] = 3
+
+
+class ChannelsSpec(_Strict):
+    """Which channels the hit gate judges (daq/hits.py). Both lists must name recorded channels, not the trigger."""
+
+    exclude: ChannelList = []  # left out of hit verdicts altogether (known bad or unused channels)
+    required: ChannelList = []  # response channels whose failure (clipped or dead) rejects a hit
 
 
 class AnalysisSpec(_Strict):
     """The near-live analysis lane (analysis/operator.py); results go to the log's ``/analysis/...`` topics."""
 
     enabled: bool = True
-    window_s: Positive | None = None  # None: 0.45 / f1 of the rig (the seed's 0.0216 s for beam_ch4_exp)
-    n_keep: Annotated[int, Field(ge=1)] = 4  # NNMs of interest (POMs kept per window)
+    # None: 0.45 / f1 of the rig (the seed's 0.0216 s for beam_ch4_exp)
+    window_s: Annotated[float, Field(gt=0), at_most(MAX_ANALYSIS_WINDOW_S, "s", "one window is held per channel")] | None = None
+    n_keep: Annotated[int, Field(ge=1, le=MAX_CHANNELS)] = 4  # NNMs of interest (POMs kept per window)
     seed_lane: bool = True  # POD/RQ curves and window-robust spikes (off: modal lane only)
-    queue_seconds: Positive = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
+    queue_seconds: QueueSeconds = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
     confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/confirm_lane.py)
 
 
 class SessionConfig(_Strict):
-    name: Annotated[str, Field(min_length=1)]
-    rig: str  # rig TOML or shipped rig name: calibration, positions, model
-    output: str = "session.mcap"
-    duration: Positive | None = None  # seconds; None = until Ctrl-C / SIGTERM
-    queue_seconds: Positive = 0.5
-    rotate_bytes: Annotated[int, Field(gt=0)] | None = None  # start a new file past this size
-    rotate_seconds: Positive | None = None  # or after this many seconds of wall time
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    rig: Annotated[str, Field(min_length=1)]  # rig TOML or shipped rig name: calibration, positions, model
+    output: Annotated[str, Field(min_length=1)] = "session.mcap"
+    overwrite: bool = False  # replace an existing output file (else an existing file is an error, exit 2)
+    duration: Annotated[float, Field(gt=0), at_most(MAX_DURATION_S, "s", _WEEK)] | None = None  # s of data; None = until Ctrl-C
+    # seconds of wall-clock time after `duration` the session waits for a device that delivers less data than
+    # the duration asks for; then it ends with an event naming the device and the missing samples
+    end_grace_s: Annotated[WaitSeconds, Field(ge=0)] = 10.0
+    # a device silent for longer than this is a `silence` event (with its range); None = the larger of 2 s and
+    # four block periods
+    silence_s: Annotated[WaitSeconds, Field(gt=0)] | None = None
+    queue_seconds: QueueSeconds = 0.5  # the log writer's queue
+    # start a new file past this size / after this many seconds of wall time
+    rotate_bytes: Annotated[int, Field(gt=0), at_least(MIN_ROTATE_BYTES, "bytes", "1 MiB; a file per few blocks")] | None = None
+    rotate_seconds: (
+        Annotated[float, at_least(MIN_ROTATE_S, "s", "a file a second at most"), at_most(MAX_DURATION_S, "s", _WEEK)] | None
+    ) = None
     device: DeviceSpec | None = None
-    devices: list[DeviceSpec] | None = None
+    devices: Annotated[list[DeviceSpec], at_most_items(64, "devices", "one thread and one stream each")] | None = None
     timeline: TimelineSpec | None = None
     trigger: TriggerSpec
+    channels: ChannelsSpec = ChannelsSpec()
     analysis: AnalysisSpec = AnalysisSpec()
+
+    _source: str | None = PrivateAttr(default=None)  # the file it was loaded from (analysis/model/loader.py)
 
     @model_validator(mode="before")
     @classmethod
@@ -122,6 +273,11 @@ class SessionConfig(_Strict):
         return {**data, "devices": devices}
 
     @property
+    def source(self) -> str:
+        """What messages name: the file the config was loaded from, else its name."""
+        return self._source or self.name
+
+    @property
     def device_list(self) -> list[DeviceSpec]:
         """Every device of the session, in config order (one for a ``[device]`` session)."""
         return [self.device] if self.device is not None else list(self.devices or [])
@@ -133,29 +289,113 @@ class SessionConfig(_Strict):
     def _field(self, i: int, rest: str = "") -> str:
         return (f"devices[{i}]" if self.multi else "device") + (f".{rest}" if rest else "")
 
+    def listed_channels(self) -> list[str] | None:
+        """The recorded channels when every device lists its own (``config.channels`` or ``simulate.channels``),
+        in device order; None when a device records whatever it has (a single device: the rig's channels)."""
+        out: list[str] = []
+        for d in self.device_list:
+            names = d.channel_names()
+            if names is None:
+                return None
+            out.extend(names)
+        return out
+
     def check(self) -> None:
-        if self.trigger.force_range is not None and self.trigger.force_range[0] >= self.trigger.force_range[1]:
-            raise ConfigFieldError("trigger.force_range", "give [min, max] with min < max")
+        """Cross-field checks that need the session only (the rig's: :func:`check_session_against_rig`)."""
         if self.device is not None and self.devices is not None:
             raise ConfigFieldError("devices", "give either one [device] table or [[devices]] tables, not both")
         if self.device is None and not self.devices:
             raise ConfigFieldError("device", "required: a [device] table, or [[devices]] tables for several devices")
         for i, d in enumerate(self.device_list):
-            if d.simulate is not None and d.driver == "can":
-                raise ConfigFieldError(
-                    self._field(i, "simulate"), "the simulated CAN node runs in-process only; use serial or modbus"
-                )
-            if d.simulate is not None and not self.multi and d.simulate.start_delay:
-                raise ConfigFieldError(
-                    "device.simulate.start_delay", "only for [[devices]] (a second device whose clock starts later)"
-                )
+            self._check_driver_table(i, d)
+            if d.simulate is not None:
+                self._check_simulate(i, d)
+        if self.trigger.force_range is not None and self.trigger.force_range[0] >= self.trigger.force_range[1]:
+            raise ConfigFieldError(
+                "trigger.force_range", f"give [min, max] with min < max (got {list(self.trigger.force_range)})"
+            )
         if self.duration is None and any(d.simulate is not None for d in self.device_list):
             raise ConfigFieldError("duration", "a simulated session needs a duration (s)")
+        if self.rotate_seconds is not None and self.duration is not None and self.rotate_seconds > self.duration:
+            raise ConfigFieldError(
+                "rotate_seconds",
+                f"{self.rotate_seconds:g} s is longer than the session ({self.duration:g} s): no file would rotate",
+            )
+        self._check_channel_roles()
         if not self.multi:
             if self.timeline is not None:
                 raise ConfigFieldError("timeline", "only for a session with several [[devices]]")
-            return
-        self._check_devices()
+        else:
+            self._check_devices()
+        recorded = self.listed_channels()
+        if recorded is not None:
+            check_recorded(self, recorded)
+        self._check_rig_exists()
+
+    def _check_driver_table(self, i: int, d: DeviceSpec) -> None:
+        """What the session reads from a driver's free-form table; the rest is the driver model's (at start-up)."""
+        p = self._field(i, "config")
+        bad = non_finite(d.config)
+        if bad is not None:
+            raise ConfigFieldError(f"{p}.{bad[0]}", f"Input should be a finite number (got {bad[1]!r})")
+        if "channels" in d.config:
+            ch = d.config["channels"]
+            if not isinstance(ch, list) or not ch or not all(isinstance(c, str) and 0 < len(c) <= 64 for c in ch):
+                raise ConfigFieldError(f"{p}.channels", f'give a list of channel names, e.g. ["hammer", "a01"] (got {ch!r:.60})')
+            check_limit(f"{p}.channels", len(ch), MAX_CHANNELS, "channels", "the biggest DAQ frame")
+            _no_repeats(f"{p}.channels", ch)
+        if "sample_rate" in d.config:
+            v = d.config["sample_rate"]
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ConfigFieldError(f"{p}.sample_rate", f"give the sample rate in Hz, a number (got {v!r:.60})")
+            if not MIN_SAMPLE_RATE <= v <= MAX_SAMPLE_RATE:
+                raise ConfigFieldError(
+                    f"{p}.sample_rate",
+                    f"outside the limits of {MIN_SAMPLE_RATE:g} .. {MAX_SAMPLE_RATE:g} Hz (devices run 256 Hz .. 51.2 kHz) "
+                    f"(got {v!r})",
+                )
+        if d.driver == "sim" and "forces" in d.config:  # the in-process simulated device's hit schedule
+            forces = d.config["forces"]
+            if not isinstance(forces, list) or not all(isinstance(f, int | float) and not isinstance(f, bool) for f in forces):
+                raise ConfigFieldError(f"{p}.forces", f"give a list of hit forces in N (got {forces!r:.60})")
+            check_limit(f"{p}.forces", len(forces), MAX_SIM_HITS, "hits", "a schedule, not a stream")
+            for k, f in enumerate(forces):
+                if not 0 <= f <= MAX_FORCE_N:
+                    raise ConfigFieldError(
+                        f"{p}.forces[{k}]",
+                        f"outside 0 .. {MAX_FORCE_N:g} N (the simulator's cost grows with the force) (got {f!r})",
+                    )
+
+    def _check_simulate(self, i: int, d: DeviceSpec) -> None:
+        s = d.simulate
+        assert s is not None
+        p = self._field(i, "simulate")
+        if d.driver == "sim":
+            raise ConfigFieldError(
+                p,
+                "driver 'sim' is the simulated device itself: give its hits in [device] config (forces, period, physics_seconds)",
+            )
+        if not self.multi and s.start_delay:
+            raise ConfigFieldError(f"{p}.start_delay", "only for [[devices]] (a second device whose clock starts later)")
+        if "transport" in s.model_fields_set and d.driver != "modbus":
+            raise ConfigFieldError(f"{p}.transport", f"only for driver 'modbus' (tcp or rtu), not {d.driver!r}")
+        if "format" in s.model_fields_set and d.driver != "serial":
+            raise ConfigFieldError(f"{p}.format", f"only for driver 'serial' (the frame format), not {d.driver!r}")
+        if s.wild_frames and d.driver != "serial":
+            raise ConfigFieldError(f"{p}.wild_frames", f"only for driver 'serial' (extra CRC-valid frames), not {d.driver!r}")
+
+    def _check_channel_roles(self) -> None:
+        """The hit gate's rules (daq/hits.py, TriggerSettings): the force channel is always judged."""
+        t, c = self.trigger, self.channels
+        for what, names in (("exclude", c.exclude), ("required", c.required)):
+            _no_repeats(f"channels.{what}", names)
+            if t.channel in names:
+                raise ConfigFieldError(
+                    f"channels.{what}", f"the trigger channel {t.channel!r} is always required; leave it out of {what}"
+                )
+        both = [n for n in c.required if n in c.exclude]
+        if both:
+            raise ConfigFieldError("channels.required", f"channel {both[0]!r} is both required and excluded")
 
     def _check_devices(self) -> None:
         devs = self.device_list
@@ -183,18 +423,19 @@ class SessionConfig(_Strict):
         dp = self.trigger.driving_point
         if dp is not None and dp not in owner:
             raise ConfigFieldError("trigger.driving_point", f"channel {dp!r} is on no device")
-        rates = {d.name: float(d.config["sample_rate"]) for d in devs if "sample_rate" in d.config}
-        if len(set(rates.values())) > 1:
-            shown = ", ".join(f"{n} {r:g} Hz" for n, r in rates.items())
-            raise ConfigFieldError("devices", f"the devices sample at different rates ({shown}); resampling is not supported")
         sims = [(i, d.simulate) for i, d in enumerate(devs) if d.simulate is not None]
         for i, s in sims[1:]:
             for k in PHYSICS_FIELDS:
                 if getattr(s, k) != getattr(sims[0][1], k):
                     raise ConfigFieldError(
                         f"devices[{i}].simulate.{k}",
-                        "the simulated devices share one structure: give the hit schedule once (first simulated device)",
+                        "the simulated devices share one structure and clock: give the hit schedule and sample_rate once "
+                        "(first simulated device)",
                     )
+        rates = {d.name: r for d in devs if (r := d.configured_rate()) is not None}
+        if len(set(rates.values())) > 1:
+            shown = ", ".join(f"{n} {r:g} Hz" for n, r in rates.items())
+            raise ConfigFieldError("devices", f"the devices sample at different rates ({shown}); resampling is not supported")
         tl = self.timeline or TimelineSpec()
         if tl.reference is not None and tl.reference not in names:
             raise ConfigFieldError("timeline.reference", f"no device named {tl.reference!r} (devices: {', '.join(names)})")
@@ -207,6 +448,19 @@ class SessionConfig(_Strict):
         if tl.max_buffer_s < 2 * tl.settle_s:
             raise ConfigFieldError("timeline.max_buffer_s", f"must be at least 2 x settle_s ({2 * tl.settle_s:g} s)")
 
+    def _check_rig_exists(self) -> None:
+        """The rig is a file or a shipped rig's name: said at ``rig``, not as a missing file later."""
+        from analysis.model.rigs import RIG_DIR, resolve_rig_path
+
+        p = resolve_rig_path(self.rig)
+        if p.is_dir():
+            raise ConfigFieldError("rig", f"{self.rig!r} is a directory; give a rig TOML file or a shipped rig's name")
+        if not p.exists():
+            shipped = ", ".join(sorted(q.stem for q in RIG_DIR.glob("*.toml")))
+            raise ConfigFieldError(
+                "rig", f"no rig file {self.rig!r} and no shipped rig of that name (shipped: {shipped}) (got {self.rig!r})"
+            )
+
     def reference_device(self) -> str:
         """The device whose sample index is the session's timeline (and the hit records' index)."""
         if not self.multi:
@@ -215,3 +469,162 @@ class SessionConfig(_Strict):
         if tl.reference is not None:
             return tl.reference
         return next(d.name for d in self.device_list if self.trigger.channel in (d.channel_names() or []))
+
+
+# --- checks against the rig ------------------------------------------------------------------------------------------
+def _shown(names: list[str], n: int = 16) -> str:
+    return ", ".join(names[:n]) + (f", ... ({len(names)} channels)" if len(names) > n else "")
+
+
+def _unknown(name: str, known: list[str], where: str, label: str) -> str:
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"channel {name!r} is not {where} ({label}: {_shown(known)}){hint}"
+
+
+def check_recorded(cfg: SessionConfig, recorded: list[str], label: str = "recorded") -> None:
+    """The trigger channel, driving point and ``[channels]`` lists name channels the session records."""
+    t = cfg.trigger
+    if t.channel not in recorded:
+        raise ConfigFieldError("trigger.channel", _unknown(t.channel, recorded, "recorded", label))
+    if t.driving_point is not None and t.driving_point not in recorded:
+        raise ConfigFieldError("trigger.driving_point", _unknown(t.driving_point, recorded, "recorded", label))
+    for what in ("exclude", "required"):
+        for k, c in enumerate(getattr(cfg.channels, what)):
+            if c not in recorded:
+                raise ConfigFieldError(f"channels.{what}[{k}]", _unknown(c, recorded, "recorded", label))
+
+
+def _rig_channels(rig: Rig) -> list[str]:
+    return [rig.hammer.name, *(s.name for s in rig.sensors)]
+
+
+def _check_against_rig(cfg: SessionConfig, rig: Rig) -> None:
+    chans = _rig_channels(rig)
+    in_rig, its = f"in rig {rig.name}", "its channels"
+    recorded: list[str] = []
+    rates: list[float] = []
+    for i, d in enumerate(cfg.device_list):
+        listed = d.config.get("channels")
+        if isinstance(listed, list):
+            for k, c in enumerate(listed):
+                if c not in chans:
+                    raise ConfigFieldError(cfg._field(i, f"config.channels[{k}]"), _unknown(c, chans, in_rig, its))
+        s = d.simulate
+        if s is not None:
+            for k, c in enumerate(s.channels or []):
+                if c not in chans:
+                    raise ConfigFieldError(cfg._field(i, f"simulate.channels[{k}]"), _unknown(c, chans, in_rig, its))
+            for c in s.ranges:
+                if c not in chans:
+                    raise ConfigFieldError(cfg._field(i, f"simulate.ranges.{c}"), _unknown(c, chans, in_rig, its))
+        names = d.channel_names()
+        recorded.extend(c for c in (names if names is not None else chans) if c not in recorded)
+        rate = d.configured_rate() or rig.sample_rate
+        rates.append(rate)
+        pulse = rig.config.hammer.pulse_duration
+        if s is not None and s.sample_rate is not None and pulse * s.sample_rate < 2.0:
+            raise ConfigFieldError(
+                cfg._field(i, "simulate.sample_rate"),
+                f"the rig's hammer pulse ({pulse:g} s) is shorter than two samples at {s.sample_rate:g} Hz; "
+                f"needs >= {2.0 / pulse:g} Hz",
+            )
+        if d.driver == "sim" and "rig" not in d.config and rate != rig.sample_rate:
+            raise ConfigFieldError(
+                cfg._field(i, "config.sample_rate"),
+                f"the in-process simulated device runs at the rig's {rig.sample_rate:g} Hz (got {rate:g})",
+            )
+    label = "recorded" if cfg.listed_channels() is not None else f"a device that lists no channels records rig {rig.name}'s"
+    check_recorded(cfg, recorded, label)
+    _check_level(cfg, rig)
+    _check_budgets(cfg, rig, len(recorded), max(rates))
+
+
+def _check_level(cfg: SessionConfig, rig: Rig) -> None:
+    """A trigger level at or above the trigger channel's range can never be crossed: no hit would be found."""
+    t = cfg.trigger
+    placed = {p.name: p for p in [rig.hammer, *rig.sensors]}
+    ranges = {n: p.props.range for n, p in placed.items()}
+    for d in cfg.device_list:
+        if d.simulate is not None:
+            ranges.update(d.simulate.ranges)
+    rng = ranges.get(t.channel)
+    if rng is not None and t.level >= rng:
+        unit = placed[t.channel].unit if t.channel in placed else ""
+        raise ConfigFieldError(
+            "trigger.level",
+            f"{t.level:g} {unit} is at or above the range of {t.channel!r} (±{rng:g} {unit}): the trigger would never fire",
+        )
+
+
+def _check_budgets(cfg: SessionConfig, rig: Rig, n_channels: int, fs: float) -> None:
+    """Buffers in bytes (float32 blocks of every recorded channel) and the span a simulated device computes ahead."""
+    per_s = 4.0 * n_channels * fs
+    why = f"{n_channels} channels x {fs:g} Hz x 4 B = {per_s / 1e6:.3g} MB/s of data"
+    t = cfg.trigger
+    buffers = [("trigger.record_length", t.pre_trigger + t.record_length), ("queue_seconds", cfg.queue_seconds)]
+    if cfg.analysis.enabled:
+        buffers.append(("analysis.queue_seconds", cfg.analysis.queue_seconds))
+        if cfg.analysis.window_s is not None:
+            buffers.append(("analysis.window_s", cfg.analysis.window_s))
+    if cfg.multi:
+        buffers.append(("timeline.max_buffer_s", (cfg.timeline or TimelineSpec()).max_buffer_s))
+    for field, seconds in buffers:
+        if seconds * per_s > MAX_BUFFER_BYTES:
+            raise ConfigFieldError(
+                field,
+                f"{seconds:g} s of data is {seconds * per_s / 2**20:.0f} MiB in memory ({why}): above the limit of "
+                f"{MAX_BUFFER_BYTES >> 20} MiB a buffer; at most {MAX_BUFFER_BYTES / per_s:.3g} s",
+            )
+    n_rig = len(_rig_channels(rig))
+    sims = [d for d in cfg.device_list if d.simulate is not None]
+    if sims:
+        s0 = sims[0].simulate
+        assert s0 is not None
+        rate = s0.sample_rate or rig.sample_rate
+        span = (cfg.duration or 0.0) + 1.0 + max(d.simulate.start_delay for d in sims if d.simulate is not None)
+        _check_span("duration", span, rate, n_rig)
+    for i, d in enumerate(cfg.device_list):
+        if d.driver == "sim" and "rig" not in d.config:
+            phys = d.config.get("physics_seconds", 5.0)
+            if isinstance(phys, int | float) and not isinstance(phys, bool):
+                _check_span(cfg._field(i, "config.physics_seconds"), float(phys), rig.sample_rate, n_rig)
+
+
+def _check_span(field: str, seconds: float, fs: float, n_channels: int) -> None:
+    """A simulated device computes its whole span ahead (drivers/sim/device.py): bounded like a rig's record."""
+    samples = seconds * fs * n_channels
+    if samples > MAX_SIMULATED_CHANNEL_SAMPLES:
+        most = MAX_SIMULATED_CHANNEL_SAMPLES / (fs * n_channels)
+        raise ConfigFieldError(
+            field,
+            f"the simulated device computes {seconds:g} s x {fs:g} Hz x {n_channels} channels = {samples / 1e6:.3g} M "
+            f"channel-samples ahead: above the limit of {MAX_SIMULATED_CHANNEL_SAMPLES / 1e6:.3g} M (~1 GB); "
+            f"at most {math.floor(most * 10) / 10:g} s",
+        )
+
+
+def check_session_against_rig(cfg: SessionConfig, rig: Rig, path: str | Path | None = None) -> None:
+    """What needs the session and its rig, for the recorder to call at start-up before opening anything.
+
+    Channels named in ``config.channels``, ``simulate.channels`` and ``simulate.ranges`` exist in the rig; the
+    trigger channel, driving point and ``[channels]`` lists name recorded channels (a single device that lists
+    none records the rig's: "hammer" and the sensors' names); a trigger level the range can reach; every
+    in-memory buffer and a simulated device's precomputed span within their limits (:data:`MAX_BUFFER_BYTES`,
+    ``MAX_SIMULATED_CHANNEL_SAMPLES``). Raises :class:`ConfigError` (one line). Messages name the file the
+    config was loaded from; ``path`` names a config built in code (default: its ``name``).
+    """
+    try:
+        _check_against_rig(cfg, rig)
+    except ConfigFieldError as exc:
+        raise ConfigError(cfg._source or path or cfg.name, exc.field, exc.problem) from None
+
+
+def driver_table_error(path: str | Path, field_prefix: str, exc: ValidationError) -> ConfigError:
+    """One line for a device's ``config`` table refused by its driver's pydantic model: ``field_prefix`` is
+    ``device`` or ``devices[1]`` (``.config`` is added), e.g. "s.toml: devices[1].config.port: required key is
+    missing". A driver ``model_validator`` message "dbc: DBC file 'x.dbc' not found" lands on ``config.dbc``."""
+    prefix = field_prefix if field_prefix.endswith(".config") else f"{field_prefix}.config"
+    return validation_error_to_config_error(
+        path, exc, prefix, unknown_key="unknown key for this driver (check the spelling; see docs/protocols/)"
+    )

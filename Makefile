@@ -19,10 +19,10 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 	touch $@ $(VENV)/.installed
 
 run: $(VENV)/.installed
-	$(BIN)/gvt demo
+	$(BIN)/gvt demo --overwrite  # replaces its own demo_session.mcap / .rrd from an earlier run
 
 test: $(VENV)/.installed-dev
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
@@ -34,6 +34,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_can.py
 	$(BIN)/python bench/bench_modbus.py
 	$(BIN)/python bench/bench_session.py
+	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_sweep.py
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/eval_detection.py

@@ -317,8 +317,10 @@ class AnalysisOperator:
         self._inflight: tuple[Future, float] | None = None
 
     # --- public -------------------------------------------------------------------------------
-    def feed(self, block: BlockLike) -> None:
-        t_arrival = time.perf_counter()
+    def feed(self, block: BlockLike, t_arrival: float | None = None) -> None:
+        """One block of the stream. ``t_arrival`` (``time.perf_counter()`` clock): when its first sample's block
+        arrived, if the caller held it back (a lane that joins blocks into frames); latencies count from it."""
+        t_arrival = time.perf_counter() if t_arrival is None else t_arrival
         n = int(block.data.shape[0])
         if self._next_index is None or block.first_index != self._next_index:
             if self._next_index is not None:

@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 from rich.console import Console
-from rich.table import Table
 
 from daq.analyze import AnalysisRun
+from daq.terminal import Col, FitTable
 
 
 def summary(run: AnalysisRun) -> dict:
@@ -37,18 +37,33 @@ def print_json(console: Console, run: AnalysisRun, full: bool = False) -> None:
     console.print_json(json.dumps(obj))
 
 
-def events_table(events: list[dict], title: str = "internal-resonance events") -> Table:
-    """IR events (``IREvent.as_dict()`` or the log's ``/analysis/events``) as a table."""
-    table = Table(title=f"{title}: {len(events)}")
-    for col in ("#", "start [s]", "end [s]", "modes", "m:n", "f [Hz]", "gain", "gain/lock/exch/rq", "confidence"):
-        table.add_column(col)
-    for k, e in enumerate(events):
-        sc = e["scores"]
-        table.add_row(
-            str(e.get("id", k)), f"{e['start_s']:.3f}", f"{e['end_s']:.3f}", f"{e['modes'][0]}→{e['modes'][1]}", e["ratio"],
-            f"{e['f_give_hz']:.1f} / {e['f_recv_hz']:.1f}", f"{e['gain']:.1f}",
-            f"{sc['gain']:.2f}/{sc['lock']:.2f}/{sc['exchange']:.2f}/{sc['rq']:.2f}", f"{e['confidence']:.2f}",
-        )  # fmt: skip
+def _event_note(e: dict) -> str | None:
+    """The free text of an event (its evidence, reason or message; a source other than the modal exchange)."""
+    parts = [str(e[k]) for k in ("evidence", "reason", "message") if e.get(k)]
+    if e.get("source") not in (None, "modal-exchange"):
+        parts.insert(0, f"source {e['source']}")
+    return "; ".join(parts) or None
+
+
+def events_table(events: list[dict], title: str = "internal-resonance events", width: int | None = None) -> FitTable:
+    """IR events (``IREvent.as_dict()`` or the log's ``/analysis/events``) as a table that fits ``width``
+    (default: the console's), any free text (evidence, reason) numbered below it."""
+    notes = [_event_note(e) for e in events]
+    cols = [
+        Col("#", "right", key=True), Col("t [s]", "right", key=True), Col("m:n"), Col("modes"),
+        Col("f [Hz]", "right"), Col("gain", "right"), Col("confidence (gain/lock/exch/rq)", "right"),
+    ]  # fmt: skip
+    if any(notes):
+        cols.append(Col("note", note=True, inline_max=12))
+    table = FitTable(f"{title}: {len(events)}", cols, width=width)
+    for k, (e, note) in enumerate(zip(events, notes, strict=True)):
+        sc = e.get("scores", {})
+        scores = "/".join(f"{sc[s]:.2f}" if s in sc else "–" for s in ("gain", "lock", "exchange", "rq"))
+        row = [
+            e.get("id", k), f"{e['start_s']:.2f}–{e['end_s']:.2f}", e["ratio"], f"{e['modes'][0]}→{e['modes'][1]}",
+            f"{e['f_give_hz']:.1f} / {e['f_recv_hz']:.1f}", f"{e['gain']:.1f}", f"{e['confidence']:.2f} ({scores})",
+        ]  # fmt: skip
+        table.add_row(*row, *([note] if any(notes) else []))
     return table
 
 
@@ -62,5 +77,4 @@ def print_report(console: Console, run: AnalysisRun) -> None:
     )
     for w in s["warnings"]:
         console.print(f"warning: {w['message']}", markup=False)
-    table = events_table(run.events)
-    console.print(table)
+    console.print(events_table(run.events))

@@ -95,13 +95,14 @@ def confirm_log(
     return run
 
 
-def write_companion(run: ConfirmRun, out: str | Path) -> Path:
-    """The confirmation records as a small MCAP log (topic ``/analysis/confirmations``)."""
+def write_companion(run: ConfirmRun, out: str | Path, overwrite: bool = True) -> Path:
+    """The confirmation records as a small MCAP log (topic ``/analysis/confirmations``). The verbs check
+    ``--overwrite`` before their work starts; ``overwrite=False`` refuses an existing file here too."""
     from daq.log.writer import LogWriter
 
     out = Path(out)
     meta = {"source_log": Path(run.log).name, "stream": run.stream, "rig": run.rig, "events_from": run.events_from}
-    with LogWriter(out, fsync=True, session_metadata={"kind": "confirmations"}) as w:
+    with LogWriter(out, fsync=True, session_metadata={"kind": "confirmations"}, overwrite=overwrite) as w:
         w.add_metadata(META_CONFIRM, meta)
         for rec in run.records:
             t = rec.get("event", {}).get("end_s")
@@ -109,23 +110,41 @@ def write_companion(run: ConfirmRun, out: str | Path) -> Path:
     return out
 
 
-def confirmations_table(records: list[dict], title: str):
-    """A rich table: one row per event — label, status, confirmed ratio and interval, evidence, why."""
-    from rich.table import Table
+def _confirmation_note(rec: dict) -> str | None:
+    """The free text of a confirmation: which sensor, the orthogonality index, the time taken, and why."""
+    facts = []
+    if rec.get("sensor"):
+        facts.append(f"sensor {rec['sensor']}")
+    if rec.get("orthogonality_index") is not None:
+        facts.append(f"IO {rec['orthogonality_index']:.3f}")
+    if rec.get("elapsed_s") is not None:
+        facts.append(f"{rec['elapsed_s']:.1f} s")
+    why = rec.get("reason") or ""
+    text = ", ".join(facts) + (": " if facts and why else "") + why
+    return text or None
 
-    t = Table(title=title)
-    for col in ("id", "label", "modes", "event (s)", "status", "ratio", "interval (s)", "evidence", "IO", "s", "why"):
-        t.add_column(col, overflow="fold")
+
+def confirmations_table(records: list[dict], title: str, width: int | None = None):
+    """One row per event — its id, label, modes and span, the status, the confirmed ratio, interval and
+    evidence — fitting ``width`` (default: the console's); the sensor, orthogonality index (IO), time taken and
+    the reason are numbered notes below the table (``gvt confirm --json`` and the report carry them too)."""
+    from daq.terminal import Col, FitTable
+
+    t = FitTable(
+        title,
+        [
+            Col("id", "right", key=True), Col("m:n"), Col("modes"), Col("event [s]", "right"), Col("status"),
+            Col("m:n found"), Col("interval [s]", "right"), Col("evidence"), Col("why", note=True, inline_max=3),
+        ],
+        empty="no IR events",
+        width=width,
+    )  # fmt: skip
     for rec in records:
         ev = rec.get("event", {})
-        span = (f"{rec['start_s']:.3f}–{rec['end_s']:.3f}" if rec.get("start_s") is not None else "–")
-        io = rec.get("orthogonality_index")
+        span = f"{rec['start_s']:.2f}–{rec['end_s']:.2f}" if rec.get("start_s") is not None else None
         t.add_row(
-            str(rec.get("event_id")), str(ev.get("ratio", "?")), "→".join(str(m) for m in ev.get("modes", [])),
-            f"{ev.get('start_s', float('nan')):.3f}–{ev.get('end_s', float('nan')):.3f}", rec.get("status", "?"),
-            rec.get("ratio") or "–", span, rec.get("evidence") or "–", "–" if io is None else f"{io:.3f}",
-            f"{rec.get('elapsed_s', 0.0):.1f}", rec.get("reason", ""),
+            rec.get("event_id"), ev.get("ratio", "?"), "→".join(str(m) for m in ev.get("modes", [])) or None,
+            f"{ev.get('start_s', float('nan')):.2f}–{ev.get('end_s', float('nan')):.2f}", rec.get("status", "?"),
+            rec.get("ratio"), span, rec.get("evidence"), _confirmation_note(rec),
         )  # fmt: skip
-    if not records:
-        t.add_row("–", "–", "–", "–", "no IR events", "–", "–", "–", "–", "–", "")
     return t

@@ -20,17 +20,20 @@ log's ``/analysis/confirmations`` topic) as they complete.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import queue
 import threading
 import time
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
+from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from daq.children import die_with_parent
 from daq.fanout import FanOut, Subscription
 from drivers.blocks import SampleBlock
 
@@ -108,16 +111,25 @@ class ConfirmLane:
         self.results: list[dict] = []
         self.dropped_events = 0
         self.error: str | None = None
+        self._ended = threading.Event()  # the end marker has been taken off the event queue
         self._waiting: list[dict] = []
         self._running: list[tuple[dict, Future]] = []
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=die_with_parent, initargs=(os.getpid(),))  # fmt: skip
         self._thread = threading.Thread(target=self._main, name=f"confirm:{stream}", daemon=True)
 
     def start(self) -> ConfirmLane:
         self._thread.start()
         return self
 
-    def offer(self, event: Mapping[str, Any]) -> None:
+    name = "confirm"
+
+    def offer(self, topic: str, obj: dict) -> None:
+        """The Lane protocol (daq/lanes): IR events from ``/analysis/events`` are submitted; other topics ignored."""
+        if topic == "/analysis/events":
+            self.submit(obj)
+
+    def submit(self, event: Mapping[str, Any]) -> None:
         """Hand over an IR event (called from the analysis lane; never blocks)."""
         try:
             self.events.put_nowait(dict(event))
@@ -128,14 +140,46 @@ class ConfirmLane:
     def join(self, timeout: float | None = None) -> list[dict]:
         """After the stream ended *and the analysis lane was joined* (its last events come at its finish):
         confirm what is still waiting, wait for every queued confirmation, return all records."""
+        self.finish(time.monotonic() + (self.s.finish_timeout_s if timeout is None else timeout))
+        return list(self.results)
+
+    def finish(self, deadline: float, progress: Callable[[int, int], None] | None = None, wait: bool = True) -> None:
+        """The Lane protocol's end (after the analysis lane finished): dispatch what is still waiting, then wait
+        for the confirmations in hand — reporting ``progress(done, total)`` about twice a second — until they
+        are done, ``deadline`` or ``finish_timeout_s`` passes. ``wait=False`` (``gvt record --no-wait``) waits
+        for none: each is recorded as skipped, saying how to confirm it later. The worker is always stopped."""
         if self.fetch is not None:
             self.events.put(_END_EVENTS)  # blocking put: the end marker must arrive
-        self._thread.join(timeout)
+        self._thread.join(max(0.0, deadline - time.monotonic()))
         if self.error is None:
             self._dispatch(final=True)
-            self._collect(wait=True)
+            # a replay reads from the log: no deadline of its own (the caller's), nothing skipped for time
+            limit = deadline if self.fetch is not None else min(deadline, time.monotonic() + self.s.finish_timeout_s)
+            self._drain(limit, progress, wait)
         self._pool.shutdown(wait=False, cancel_futures=True)
-        return list(self.results)
+        _stop_workers(self._pool)
+
+    def _drain(self, deadline: float, progress: Callable[[int, int], None] | None, wait: bool) -> None:
+        total = len(self._running)
+        if not wait:
+            for ev, _fut in self._running:
+                self._emit(skipped(ev, "not confirmed: the recorder did not wait (--no-wait); run 'gvt confirm LOG "
+                                       f"--event {ev.get('id')}'"))  # fmt: skip
+            self._running = []
+            return
+        last = 0.0
+        t0 = time.monotonic()
+        while self._running and time.monotonic() < deadline:
+            self._collect()
+            now = time.monotonic()
+            if progress is not None and (now - last >= 0.5 or not self._running):
+                progress(total - len(self._running), total)
+                last = now
+            if self._running:
+                wait_futures([f for _, f in self._running], timeout=0.2, return_when=FIRST_COMPLETED)
+        for ev, _fut in self._running:
+            self._emit(skipped(ev, f"still running {time.monotonic() - t0:.0f} s after the stream ended"))
+        self._running = []
 
     # -- internals -------------------------------------------------------------------------------------
     def _emit(self, rec: dict) -> None:
@@ -149,7 +193,9 @@ class ConfirmLane:
                 ev = self.events.get_nowait()
             except queue.Empty:
                 return
-            if ev is not _END_EVENTS:
+            if ev is _END_EVENTS:
+                self._ended.set()  # seen here, the fetch loop must still learn of it (it waits on the queue)
+            else:
                 self._waiting.append(ev)
 
     def _span(self, ev: dict) -> tuple[int, int]:
@@ -197,8 +243,11 @@ class ConfirmLane:
 
     def _main_fetch(self) -> None:
         try:
-            while True:
-                ev = self.events.get()
+            while not self._ended.is_set():
+                try:
+                    ev = self.events.get(timeout=0.1)
+                except queue.Empty:
+                    continue
                 if ev is _END_EVENTS:
                     return
                 self._waiting.append(ev)
@@ -229,6 +278,30 @@ class ConfirmLane:
                 "message": f"the confirmation lane fell behind and skipped {self.sub.dropped_blocks} blocks "
                            f"({self.sub.dropped_samples} samples); events in those ranges were skipped",
             }, None)  # fmt: skip
+
+
+class DrainingConfirmLane:
+    """A confirmation lane in a recorder's stop order with what the command line adds: progress of the drain
+    after the data ends, and ``--no-wait`` (``wait=False``)."""
+
+    name = "confirm"
+
+    def __init__(self, lane: ConfirmLane, progress: Callable[[int, int], None] | None, wait: bool = True) -> None:
+        self.lane, self.progress, self.wait = lane, progress, wait
+
+    def offer(self, topic: str, obj: dict) -> None:
+        self.lane.offer(topic, obj)
+
+    def finish(self, deadline: float) -> None:
+        self.lane.finish(deadline, self.progress, self.wait)
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """End the worker processes now: ``shutdown(wait=False)`` lets a running confirmation finish on its own
+    (seconds of CPU, ~300 MB), which nobody waits for any more."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        if proc.is_alive():
+            proc.terminate()
 
 
 def start_confirm_lane(

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from analysis.model.rig import Rig
@@ -21,7 +22,8 @@ from daq.simulate_cmd import simulate_hit
 WEAK_FRACTION = 0.02
 
 
-def run_demo(console: Console, rig: Rig, duration: float | None = None, session_out: str = "demo_session.mcap") -> dict:
+def run_demo(console: Console, rig: Rig, duration: float | None = None, session_out: str = "demo_session.mcap",
+             overwrite: bool = False) -> dict:  # fmt: skip
     dur = rig.config.daq.record_length if duration is None else duration
     red = rig.simulator.reduced
     console.print(f"[bold]gvt demo[/bold] — rig {rig.name}: {rig.config.description}")
@@ -42,8 +44,8 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None, session_
     strong = rig.config.hammer.peak_force
     hits = {"strong": strong, "weak": strong * WEAK_FRACTION}
     centres = np.array([0.05, 0.25, 0.5, 1.0, 1.5, 1.95]) * dur / 2.0
-    table = Table(title=f"NNM1 frequency [Hz] after the hit (ground truth, {dur:g} s records)")
-    table.add_column("t [s]", justify="right")
+    table = Table(title=escape(f"NNM1 frequency [Hz] after the hit (ground truth, {dur:g} s records)"))
+    table.add_column(escape("t [s]"), justify="right")
     freqs = {}
     energies = {}
     for label, f in hits.items():
@@ -67,11 +69,11 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None, session_
         f"  linear NNM1 {f0:.2f} Hz; the strong hit starts {freqs['strong'][0] - f0:+.1f} Hz above it and "
         f"relaxes towards it as energy dissipates; the weak hit stays linear ({freqs['weak'][0]:.2f} Hz)."
     )
-    session = run_demo_session(console, rig, session_out) if rig.name == "beam_ch4_exp" else None
+    session = run_demo_session(console, rig, session_out, overwrite) if rig.name == "beam_ch4_exp" else None
     return {"freqs": {k: v.tolist() for k, v in freqs.items()}, "energies": energies, "session": session}
 
 
-def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap") -> dict:
+def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap", overwrite: bool = False) -> dict:
     """A short recorded session: simulated device over a real pty → serial driver → MCAP + hit gate."""
     from pathlib import Path
 
@@ -88,14 +90,10 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap")
         f"\n[bold]Recording a session[/bold]: simulated device over a pseudo-terminal → serial driver → {out} "
         f"({len(forces)} hits at rising force, one double hit, one overload)"
     )
-    res = run_session(cfg, rig, Path(out))
-    table = Table(title=f"hits and verdicts ({len(res.hits)} found)")
-    for col in ("#", "t [s]", "peak [N]", "energy [J]", "verdict", "reason"):
-        table.add_column(col)
-    for h in res.hits:
-        e = "—" if h.input_energy_J is None else f"{h.input_energy_J:.3g}"
-        table.add_row(str(h.hit), f"{h.t_s:.3f}", f"{h.peak_force_N:.0f}", e, h.verdict, "; ".join(h.reasons) or "ok")
-    console.print(table)
+    res = run_session(cfg, rig, Path(out), overwrite=overwrite)
+    from daq.terminal import hits_table
+
+    console.print(hits_table(res.hits, f"hits and verdicts ({len(res.hits)} found)"))
     from daq.analyze_cmd import events_table
 
     console.print(events_table(res.analysis_events, "internal-resonance events flagged near-live"))

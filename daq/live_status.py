@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from rich.console import Console
 from rich.live import Live
-from rich.table import Table
+
+from daq.terminal import Col, FitTable
 
 
 def plain_line(st: dict) -> str:
@@ -16,11 +17,14 @@ def plain_line(st: dict) -> str:
     )
 
 
-def status_table(title: str, st: dict) -> Table:
-    t = Table(title=f"{title} — {st['seconds']:.0f} s, {st['rate']:.0f} S/s, file {st.get('file_bytes', 0) / 1e6:.1f} MB")
-    t.add_column("channel")
-    t.add_column("peak (last s)", justify="right")
-    t.add_column("of range", justify="right")
+def status_table(title: str, st: dict, width: int | None = None) -> FitTable:
+    """Per channel the peak of the last second against its range (red at the range, yellow above 80 %),
+    the counters below the table; fits ``width`` (default: the console's)."""
+    t = FitTable(
+        f"{title} — {st['seconds']:.0f} s, {st['rate']:.0f} S/s, file {st.get('file_bytes', 0) / 1e6:.1f} MB",
+        [Col("channel", key=True), Col("peak (last s)", "right"), Col("of range", "right")],
+        width=width,
+    )
     for ch, lvl in st.get("levels", {}).items():
         rng = st.get("ranges", {}).get(ch)
         frac = f"{100 * lvl / rng:.0f} %" if rng else "—"

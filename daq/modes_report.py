@@ -6,11 +6,11 @@ from typing import Any
 
 import numpy as np
 from rich.console import Console
-from rich.table import Table
 
 from analysis.model.guyan import guyan_reduce
 from analysis.model.modal import modal_analysis, structure_modes
 from analysis.model.rig import Rig
+from daq.terminal import Col, FitTable
 
 
 def modes_report(rig: Rig, limit: str = "low", count: int = 10) -> dict[str, Any]:
@@ -49,20 +49,30 @@ def _has(st, name: str) -> bool:
     return True
 
 
-def print_modes(console: Console, report: dict[str, Any]) -> None:
+def modes_table(report: dict[str, Any], width: int | None = None) -> FitTable:
+    """The modes of :func:`modes_report` as a table that fits ``width`` (default: the console's)."""
     title = (
         f"{report['rig']}: {'low-energy (linear)' if report['limit'] == 'low' else 'high-energy (springs pinned)'} "
         f"limit, {report['n_dof']} DOFs"
     )
-    t = Table(title=title)
-    t.add_column("mode", justify="right")
-    t.add_column("f [Hz]", justify="right")
-    t.add_column(f"Guyan, {report['guyan_masters']} sensor DOFs [Hz]", justify="right")
-    t.add_column("zeta", justify="right")
+    t = FitTable(
+        title,
+        [
+            Col("mode", "right", key=True),
+            Col("f [Hz]", "right"),
+            Col(f"Guyan, {report['guyan_masters']} sensor DOFs [Hz]", "right"),
+            Col("zeta", "right"),
+        ],
+        width=width,
+    )
     for r in report["modes"]:
-        g = "—" if r["guyan_hz"] is None else f"{r['guyan_hz']:.4g}"
-        t.add_row(str(r["mode"]), f"{r['frequency_hz']:.4f}", g, f"{r['damping_ratio']:.4f}")
-    console.print(t)
+        g = None if r["guyan_hz"] is None else f"{r['guyan_hz']:.4g}"
+        t.add_row(r["mode"], f"{r['frequency_hz']:.4f}", g, f"{r['damping_ratio']:.4f}")
+    return t
+
+
+def print_modes(console: Console, report: dict[str, Any], width: int | None = None) -> None:
+    console.print(modes_table(report, width))
 
 
 def fe_frequencies(rig: Rig, limit: str = "low", count: int = 10) -> np.ndarray:

@@ -94,7 +94,9 @@ class Replayer:
     def stop(self) -> None:
         self._stop.set()
 
-    def run(self) -> ReplayStats:
+    def run(self, close: bool = True) -> ReplayStats:
+        """Publish every block (paced or at full speed); ``close``: end the fan-out afterwards (a
+        :class:`~daq.recorder.Recorder` closes it itself, after all its sources stopped)."""
         streams = self.reader.streams()
         start_wall = time.monotonic()
         t_first: float | None = None
@@ -126,6 +128,7 @@ class Replayer:
             self.stats.blocks += 1
             self.stats.samples[blk.stream] = self.stats.samples.get(blk.stream, 0) + blk.n_samples
             self.stats.log_seconds = max(self.stats.log_seconds, t_block + blk.n_samples / blk.sample_rate - (t_first or 0.0))
-        self.fanout.close()
+        if close:
+            self.fanout.close()
         self.stats.wall_seconds = time.monotonic() - start_wall
         return self.stats

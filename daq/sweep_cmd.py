@@ -421,73 +421,99 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     tmp.replace(path)
 
 
-def print_report(console, rep: SweepReport, paths: dict[str, Path]) -> None:
-    from rich.table import Table
+def _span(lo: float, hi: float, fmt: str) -> str:
+    return f"{lo:{fmt}}" + ("" if hi == lo else f"–{hi:{fmt}}")
 
-    t = Table(title=f"{rep.rig}: RQ asymptotes (median of {rep.asymptotes[0]['runs']} runs at each end)")
-    for c in ("end", "NNM", "limit [Hz]", "RQ median [Hz]", "error", "RQ min [Hz]", "within 2 %"):
-        t.add_column(c, justify="right")
+
+def report_tables(rep: SweepReport, width: int | None = None) -> list:
+    """The terminal tables of a sweep (asymptotes, flags, locks, captures), each fitting ``width`` (default:
+    the console's): wide ones continue in a second part that repeats their key columns."""
+    from daq.terminal import Col, FitTable
+
+    tables = []
+    t = FitTable(
+        f"{rep.rig}: RQ asymptotes (median of {rep.asymptotes[0]['runs']} runs at each end)",
+        [Col("end", key=True), Col("NNM", "right", key=True), Col("limit [Hz]", "right"), Col("RQ median [Hz]", "right"),
+         Col("error", "right"), Col("RQ min [Hz]", "right"), Col("within 2 %", "right")],
+        width=width,
+    )  # fmt: skip
     for a in rep.asymptotes:
         t.add_row(
             "fixed-free" if a["end"] == "low" else "fixed-pinned",
-            str(a["nnm"]),
+            a["nnm"],
             f"{a['reference_hz']:.3f}",
             f"{a['median_hz']:.3f}",
             f"{100 * a['error_median']:+.2f} %",
             f"{a['min_hz']:.3f}",
             "yes" if a["pass"] else "NO",
         )
-    console.print(t)
-    t = Table(title=f"flagged NNM1–NNM2 interactions ({len(rep.flags)})")
-    for c in ("kind", "P [N]", "energy [J]", "points", "RQ f1 / f2 at peak [Hz]", "RQ f2/f1 below / above", "m:n RQ",
-              "modal f2/f1 below / peak / above", "m:n modal", "gap closed", "1 ppm"):
-        t.add_column(c, justify="right")
+    tables.append(t)
+    t = FitTable(
+        f"flagged NNM1–NNM2 interactions ({len(rep.flags)})",
+        [Col("kind", key=True), Col("P [N]", "right", key=True), Col("energy [J]", "right"), Col("points", "right"),
+         Col("RQ f1 / f2 at peak [Hz]", "right"), Col("RQ f2/f1 below / above", "right"), Col("m:n RQ", "right"),
+         Col("modal f2/f1 below / peak / above", "right"), Col("m:n modal", "right"), Col("gap closed", "right"),
+         Col("1 ppm", "right")],
+        width=width,
+    )  # fmt: skip
     for f, ok in zip(rep.flags, rep.robust, strict=True):
         t.add_row(
             f.kind,
-            f"{f.p_lo:.4g}" + ("" if f.p_hi == f.p_lo else f"–{f.p_hi:.4g}"),
-            f"{f.energy_lo:.3g}" + ("" if f.energy_hi == f.energy_lo else f"–{f.energy_hi:.3g}"),
-            str(f.n_points),
+            _span(f.p_lo, f.p_hi, ".4g"),
+            _span(f.energy_lo, f.energy_hi, ".3g"),
+            f.n_points,
             f"{f.f1_hz:.2f} / {f.f2_hz:.2f}",
             f"{f.ratio_left:.2f} / {f.ratio_right:.2f}",
             f.rq_label + ("" if f.bracketed else " (nearest)"),
-            "–" if f.modal_label is None else f"{f.modal_ratio_left:.2f} / {f.modal_ratio_peak:.2f} / {f.modal_ratio_right:.2f}",
-            "–" if f.modal_label is None else f.modal_label + ("" if f.modal_bracketed else " (nearest)"),
+            None if f.modal_label is None else f"{f.modal_ratio_left:.2f} / {f.modal_ratio_peak:.2f} / {f.modal_ratio_right:.2f}",
+            None if f.modal_label is None else f.modal_label + ("" if f.modal_bracketed else " (nearest)"),
             f"{100 * f.score:.0f} %",
             "robust" if ok else "not robust",
         )
-    console.print(t)
+    tables.append(t)
     if rep.modal_hz is not None:
         s = rep.spec.settings
-        t = Table(title=f"modal-ratio locks ({len(rep.locks)}): |f2/f1 − m/n| ≤ {100 * s.lock_tol:g} % over ≥ "
-                        f"{s.lock_min_points} points, slope ≤ {s.lock_flatness:g} × each side's")  # fmt: skip
-        for c in ("kind", "m:n", "P [N]", "energy [J]", "points", "modal f2/f1 mean (min–max)",
-                  "slope in / below / above [per decade of E]"):
-            t.add_column(c, justify="right")
+        t = FitTable(
+            f"modal-ratio locks ({len(rep.locks)}): |f2/f1 − m/n| ≤ {100 * s.lock_tol:g} % over ≥ {s.lock_min_points} "
+            f"points, slope ≤ {s.lock_flatness:g} × each side's",
+            [Col("kind", key=True), Col("m:n", key=True), Col("P [N]", "right"), Col("energy [J]", "right"),
+             Col("points", "right"), Col("modal f2/f1 mean (min–max)", "right"),
+             Col("slope in / below / above [per decade of E]", "right")],
+            width=width,
+        )  # fmt: skip
         for lk in rep.locks:
             t.add_row(lk.kind, lk.label, f"{lk.p_lo:.4g}–{lk.p_hi:.4g}", f"{lk.energy_lo:.3g}–{lk.energy_hi:.3g}",
-                      str(lk.n_points), f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
+                      lk.n_points, f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
                       f"{lk.slope_in:.3f} / {lk.slope_below:.3f} / {lk.slope_above:.3f}")  # fmt: skip
-        console.print(t)
+        tables.append(t)
     if rep.capture is not None:
         c = rep.capture
         g = rep.spec.capture.end_guard_s
-        t = Table(title=f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like (reversals ≥ {g:g} s "
-                        f"from the record ends), (m∓1):n bracketing (slowflow.test_ratios); {c.runs} runs re-simulated at "
-                        f"{len(c.passages)} passages within {100 * rep.spec.capture.passage_tol:g} % of m:n, "
-                        f"{len(c.untested)} untested, {c.wall_s:.1f} s")  # fmt: skip
-        for col in ("kind", "m:n", "P [N] confirmed", "energy [J]", "runs ok / tested", "passage P [N]", "passage f2/f1",
-                    "interval [s]", "chain [s]", "strength", "reversals", "Φ range [rad]", "Φ̇ (m−1) / (m+1) [rad/s]"):
-            t.add_column(col, justify="right")
+        t = FitTable(
+            f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like (reversals ≥ {g:g} s from the record ends), "
+            f"(m∓1):n bracketing (slowflow.test_ratios); {c.runs} runs re-simulated at {len(c.passages)} passages "
+            f"within {100 * rep.spec.capture.passage_tol:g} % of m:n, {len(c.untested)} untested, {c.wall_s:.1f} s",
+            [Col("kind", key=True), Col("m:n", key=True), Col("P [N] confirmed", "right", key=True),
+             Col("energy [J]", "right"), Col("runs ok / tested", "right"), Col("passage P [N]", "right"),
+             Col("passage f2/f1", "right"), Col("interval [s]", "right"), Col("chain [s]", "right"),
+             Col("strength", "right"), Col("reversals", "right"), Col("Φ range [rad]", "right"),
+             Col("Φ̇ (m−1) / (m+1) [rad/s]", "right")],
+            width=width,
+        )  # fmt: skip
         for cp in c.captures:
             br = list(cp.bracket.values())
-            t.add_row(cp.kind, cp.label, f"{cp.p_lo:.4g}" + ("" if cp.p_hi == cp.p_lo else f"–{cp.p_hi:.4g}"),
-                      f"{cp.energy_lo:.3g}" + ("" if cp.energy_hi == cp.energy_lo else f"–{cp.energy_hi:.3g}"),
+            t.add_row(cp.kind, cp.label, _span(cp.p_lo, cp.p_hi, ".4g"), _span(cp.energy_lo, cp.energy_hi, ".3g"),
                       f"{cp.n_confirmed} / {cp.n_tested}", f"{cp.passage_p[0]:.4g}–{cp.passage_p[1]:.4g}",
                       f"{cp.passage_ratio[0]:.3f}–{cp.passage_ratio[1]:.3f}",
                       f"{cp.interval_s[0]:.2f}–{cp.interval_s[1]:.2f}", f"{cp.chain_s[0]:.2f}–{cp.chain_s[1]:.2f}",
-                      f"{cp.strength:.2f}", str(cp.sign_changes), f"{cp.phase_range:.2f}",
+                      f"{cp.strength:.2f}", cp.sign_changes, f"{cp.phase_range:.2f}",
                       " / ".join(f"{v:+.0f}" for v in br))  # fmt: skip
+        tables.append(t)
+    return tables
+
+
+def print_report(console, rep: SweepReport, paths: dict[str, Path], width: int | None = None) -> None:
+    for t in report_tables(rep, width):
         console.print(t)
     caps = int(rep.result.substep_cap_hits.sum())
     console.print(

@@ -95,7 +95,7 @@ def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_e
     if not res.analysis_events:
         pytest.fail("the strong hit produced no IR event to confirm")  # the detector's recall is tested in test_detection
     first = res.analysis_events[0]
-    p = _gvt("confirm", str(log), "--event", str(0), "--json")
+    p = _gvt("confirm", str(log), "--event", str(0), "--json", "--overwrite")
     assert p.returncode == 0, p.stderr
     obj = json.loads(p.stdout)
     assert [r["event_id"] for r in obj["confirmations"]] == [0]
@@ -125,8 +125,10 @@ def test_gvt_confirm_bad_event_and_bad_log_are_one_line_errors(tmp_path):
 @pytest.mark.slow
 def test_gvt_confirm_unknown_event_id(log_with_events):
     log, _res = log_with_events
-    p = _gvt("confirm", str(log), "--event", "999")
+    p = _gvt("confirm", str(log), "--event", "999", "--overwrite")
     assert p.returncode == 2 and "no IR event with id 999" in p.stderr and "Traceback" not in p.stderr
+    q = _gvt("confirm", str(log), "--event", "0", "--out", str(log))  # the session log itself: never replaced
+    assert q.returncode == 2 and "exists; pass --overwrite" in q.stderr and len(q.stderr.splitlines()) == 1
 
 
 @pytest.mark.slow

@@ -78,11 +78,11 @@ def test_each_event_is_confirmed_on_exactly_its_samples_and_written_to_the_sink(
     fan, out = FanOut(), []
     lane = _lane(fan, lambda topic, obj, t: out.append((topic, obj, t)), echo_confirm, buffer_s=3.0)
     data = _data(6000)
-    lane.offer({"id": 0, "start_s": 1.0, "end_s": 1.5})
-    lane.offer({"id": 1, "start_s": 5.5, "end_s": 5.9})  # its 0.3 s after-margin runs past the stream's end
+    lane.submit({"id": 0, "start_s": 1.0, "end_s": 1.5})
+    lane.submit({"id": 1, "start_s": 5.5, "end_s": 5.9})  # its 0.3 s after-margin runs past the stream's end
     _publish(fan, data)
     lane._thread.join(timeout=30)  # the stream is consumed (test-only peek): the ring now holds 3.0–6.0 s
-    lane.offer({"id": 2, "start_s": 0.5, "end_s": 0.6})  # offered late: its data has left the 3 s ring
+    lane.submit({"id": 2, "start_s": 0.5, "end_s": 0.6})  # offered late: its data has left the 3 s ring
     recs = {r["event_id"]: r for r in lane.join(timeout=60)}
     assert set(recs) == {0, 1, 2}
     a, b = 900, 1800  # (1.0 - pre 0.1) .. (1.5 + post 0.3) s
@@ -97,7 +97,7 @@ def test_each_event_is_confirmed_on_exactly_its_samples_and_written_to_the_sink(
 def test_a_gap_inside_an_event_skips_it_with_the_reason():
     fan, out = FanOut(), []
     lane = _lane(fan, lambda *a: out.append(a), echo_confirm)
-    lane.offer({"id": 7, "start_s": 2.0, "end_s": 2.5})
+    lane.submit({"id": 7, "start_s": 2.0, "end_s": 2.5})
     _publish(fan, _data(4000), skip=(2200, 2300))
     (rec,) = lane.join(timeout=60)
     assert rec["status"] == "skipped" and "gap" in rec["reason"]
@@ -112,7 +112,7 @@ def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said()
     data = _data(20000)
     t0 = time.perf_counter()
     for i in range(6):
-        lane.offer({"id": i, "start_s": 1.0 + 0.2 * i, "end_s": 1.1 + 0.2 * i})
+        lane.submit({"id": i, "start_s": 1.0 + 0.2 * i, "end_s": 1.1 + 0.2 * i})
     worst = _publish(fan, data)
     wall = time.perf_counter() - t0
     assert worst < 0.05 and wall < 2.0
@@ -126,8 +126,31 @@ def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said()
 def test_a_failing_confirmation_is_an_error_record_and_the_lane_goes_on():
     fan = FanOut()
     lane = _lane(fan, lambda *a: None, failing_confirm)
-    lane.offer({"id": 0, "start_s": 0.5, "end_s": 0.7})
-    lane.offer({"id": 1, "start_s": 1.5, "end_s": 1.7})
+    lane.submit({"id": 0, "start_s": 0.5, "end_s": 0.7})
+    lane.submit({"id": 1, "start_s": 1.5, "end_s": 1.7})
     _publish(fan, _data(3000))
     recs = lane.join(timeout=60)
     assert [r["status"] for r in recs] == ["error", "error"] and "ValueError: no IMFs" in recs[0]["reason"]
+
+
+def test_a_replay_lane_ends_even_when_its_end_marker_is_taken_while_it_dispatches():
+    """The end marker can be taken off the event queue by a dispatch already running (a replay's events come in
+    bursts); the lane must still end — it used to wait for ever (found by a hung `gvt replay --view` test)."""
+    data = _data(4000)
+    calls = {"n": 0}
+
+    def fetch(a, b):
+        calls["n"] += 1
+        time.sleep(0.05)  # the dispatch is busy when the end marker arrives
+        return data[a:b][:, [CHANNELS.index(s) for s in SENSORS]]
+
+    got = []
+    for _ in range(5):
+        lane = ConfirmLane(FanOut(), "acc", CHANNELS, SENSORS, FS, lambda t, o, ns: got.append(o), Ctx(),
+                           confirm=echo_confirm, fetch=fetch).start()  # fmt: skip
+        for i in range(4):
+            lane.submit({"id": i, "start_s": 0.5 + 0.5 * i, "end_s": 0.7 + 0.5 * i})
+        t0 = time.monotonic()
+        lane.finish(time.monotonic() + 60)
+        assert time.monotonic() - t0 < 30 and not lane._thread.is_alive()
+        assert sorted(r["event_id"] for r in lane.results) == [0, 1, 2, 3]

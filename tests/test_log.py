@@ -258,12 +258,10 @@ def test_rotation_by_size_keeps_every_sample(tmp_path):
 
 
 def test_writer_failure_is_reported_to_the_producer(tmp_path):
-    w = LogWriter(tmp_path / "missing-dir" / "x.mcap")
-    time.sleep(0.2)
-    with pytest.raises(LogWriterError, match="log writer failed"):
-        w.add_stream("dev0", _chs(1), 100.0)
-    with pytest.raises(LogWriterError):
-        w.close()
+    """An output that cannot be written is refused by the constructor, on the caller's thread, as bad input."""
+    with pytest.raises(LogWriterError, match="does not exist") as exc:
+        LogWriter(tmp_path / "missing-dir" / "x.mcap")
+    assert exc.value.exit_code == 2 and "\n" not in str(exc.value)
 
 
 def test_replay_keeps_blocks_and_indices_and_paces(tmp_path):

@@ -45,7 +45,12 @@ def test_twenty_hits_found_with_pre_trigger_and_reasons(session20):
         if f > 2224:
             assert "hammer" in res.hits[k].clipped_channels and res.hits[k].verdict == "overload"
     assert res.suspects == ["a09"]  # clipped on every hit, as the seed's 9th accelerometer
-    assert all("a09" in h.clipped_channels for h in res.hits)
+    assert res.suspect_reasons["a09"] == "clipped on every one of 20 hits"
+    assert all("a09" in h.clipped_channels and "a09" in h.excluded_channels for h in res.hits)
+    # one clipping accelerometer no longer costs the hits: a09 is left out of each, the other 13 channels kept
+    bad = {k for k, f in enumerate(cfg.device.simulate.forces) if f > 2224} | set(cfg.device.simulate.double_hits)
+    assert [h.hit for h in res.hits if h.verdict == "accepted"] == [k for k in range(20) if k not in bad]
+    assert all(h.channel_verdicts["a09"] == "clipped" for h in res.hits)
 
 
 def test_the_session_log_holds_hits_events_and_every_sample(session20):
@@ -55,7 +60,8 @@ def test_the_session_log_holds_hits_events_and_every_sample(session20):
     hits = r.json_messages("/daq/hits")
     assert len(hits) == 20 and [h["verdict"] for h in hits] == [h.verdict for h in res.hits]
     ev = r.json_messages("/daq/events")
-    assert any(e["kind"] == "suspect_channel" and "a09" in e["message"] for e in ev)
+    assert [e["channel"] for e in ev if e["kind"] == "suspect_channel"] == ["a09"]
+    assert all(h["channels"]["a09"] == "clipped" and "a09" in h["excluded_channels"] for h in hits)
     d = r.read_stream("dev0")
     assert d.gaps == [] and len(d.index) == res.samples and d.index[0] == 0
     assert "gvtlink.config" in r.metadata() and any(a.startswith("rig/") for a in r.attachments())

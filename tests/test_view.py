@@ -218,7 +218,7 @@ def test_gvt_replay_view_and_analyze_rrd(session_log, tmp_path):
 
 
 def test_a_confirming_replay_does_not_show_the_recorded_confirmations_again():
-    from daq.cli.replay import recorded_topics
+    from daq.replay_session import recorded_topics
 
     assert "/analysis/confirmations" not in recorded_topics(confirming=True)
     assert "/analysis/confirmations" in recorded_topics(confirming=False)

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import Progress, err, fail, open_rig, out
+from daq.cli.common import OverwriteOpt, Progress, check_output, err, open_rig, out
 
 
 def confirm(
@@ -16,21 +16,20 @@ def confirm(
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
     out_path: Annotated[Path | None, typer.Option("--out", help="Where the results go (default: LOG.confirm.mcap).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the confirmation records as JSON.")] = False,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Confirm IR events with WBEMD + slow-flow phase analysis (seed Ch. 3); results to a companion log."""
     import json
 
-    from daq.analyze import AnalyzeError
     from daq.confirm_cmd import companion_path, confirm_log, confirmations_table, write_companion
 
+    dest = out_path or companion_path(log)
+    check_output(dest, overwrite)  # before minutes of work, not after
     r = open_rig(rig) if rig is not None else None
     console = err if json_out else out
-    try:
-        with Progress(console) as report:
-            run = confirm_log(log, r, event, progress=lambda f: report("confirming", f))
-    except AnalyzeError as exc:
-        fail(str(exc))
-    dest = write_companion(run, out_path or companion_path(log))
+    with Progress(console) as report:
+        run = confirm_log(log, r, event, progress=lambda f: report("confirming", f))
+    dest = write_companion(run, dest)
     if json_out:
         slim = [{k: v for k, v in rec.items() if k != "trajectory"} for rec in run.records]
         out.print_json(json.dumps({"log": str(log), "stream": run.stream, "events_from": run.events_from, "out": str(dest),

@@ -7,15 +7,20 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import RigArg, open_rig, out
+from daq.cli.common import OverwriteOpt, RigArg, check_output, open_rig, out
 
 
 def demo(
     rig: RigArg = "beam_ch4_exp",
     duration: Annotated[float | None, typer.Option(min=0.1, help="Seconds per hit (default: the rig's record length).")] = None,
     session_out: Annotated[Path, typer.Option("--out", help="Where the demo session log goes.")] = Path("demo_session.mcap"),
+    overwrite: OverwriteOpt = False,
 ) -> None:
-    """The experimental beam rig: modes, a strong and a weak hit, then a recorded session over a real pty."""
+    """The experimental beam rig: modes, a strong and a weak hit, then a recorded session over a real pty.
+
+    Writes the session log (--out) and a rerun recording beside it (.rrd); existing ones only with --overwrite."""
     from daq.demo import run_demo
 
-    run_demo(out, open_rig(rig), duration=duration, session_out=str(session_out))
+    check_output(session_out, overwrite)
+    check_output(session_out.with_suffix(".rrd"), overwrite)
+    run_demo(out, open_rig(rig), duration=duration, session_out=str(session_out), overwrite=overwrite)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from typing import Annotated
@@ -19,7 +20,7 @@ def serve(
     transport: Annotated[str, typer.Option(help="serial (a pty), can (python-can interface) or modbus (TCP).")] = "serial",
     hits: Annotated[int, typer.Option(min=0, max=1000, help="Hits on the schedule, rising to the rig's nominal force.")] = 5,
     period: Annotated[float, typer.Option(min=0.05, help="Seconds between scheduled hits.")] = 2.0,
-    seconds: Annotated[float | None, typer.Option(min=0.1, help="Stop after this long (default: until Ctrl-C).")] = None,
+    seconds: Annotated[float | None, typer.Option(min=0.1, help="Stop after this long (default: until Ctrl-C/SIGTERM).")] = None,
     seed: Annotated[int, typer.Option(help="Noise and fault seed.")] = 0,
     channels: Annotated[str | None, typer.Option(help="Comma-separated channel subset (default: what the link carries).")] = None,
     fmt: Annotated[str, typer.Option("--format", help="Serial sample format: int16, int24, int32, float32 or ascii.")] = "int24",
@@ -31,7 +32,7 @@ def serve(
     drop: Annotated[float, typer.Option(min=0.0, max=1.0, help="Serial/CAN: frame drop probability.")] = 0.0,
     timeouts: Annotated[float, typer.Option(min=0.0, max=1.0, help="Modbus: probability of not answering a request.")] = 0.0,
 ) -> None:
-    """Serve the simulated device over a real transport and print how to connect."""
+    """Serve the simulated device over a real transport, print how to connect; Ctrl-C or SIGTERM stops it."""
     from drivers.sim.device import HitSchedule, SimulatedDevice
     from drivers.sim.faults import Faults
 
@@ -48,6 +49,14 @@ def serve(
         unknown = [c for c in subset if c not in device.channels]
         if unknown:
             fail(f"--channels: unknown {unknown}; the device has {list(device.channels)}")
+    stop = threading.Event()
+
+    def _stop(*_: object) -> None:
+        stop.set()
+
+    # Ctrl-C and SIGTERM (from here on, the start included) end the wait: the server stops, the loss line prints
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
     try:
         if transport == "serial":
             from drivers.serial.sim_server import SerialSimServer
@@ -72,13 +81,14 @@ def serve(
     except Exception as exc:  # a bad option combination or a port in use: one line, exit 2
         fail(f"cannot start the {transport} device: {type(exc).__name__}: {exc}")
     out.print(info, markup=False)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    how = f"Ctrl-C or SIGTERM (kill {os.getpid()})"
+    out.print(f"serving for {seconds:g} s; {how} stops it sooner" if seconds else f"serving until {how}", markup=False)
     try:
         stop.wait(seconds)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the handlers above make this unlikely; stop cleanly all the same
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C while stopping: the usual way out
         server.stop()
     lost = faults.injected_samples()
     out.print(f"stopped; injected loss: {lost} samples in {len(faults.injected)} ranges", markup=False)

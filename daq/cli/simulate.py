@@ -55,7 +55,7 @@ def simulate(
     rec = r.config.daq.record_length
     plan = SessionPlan(forces=peaks, pre_trigger=0.1, spacing=spacing or rec, tail=duration or rec, block_size=1024)
     with Progress(out) as report:
-        summary = simulate_session(r, out_path, plan, seed=seed, progress=report)
+        summary = simulate_session(r, out_path, plan, seed=seed, progress=report, writer_kwargs={"overwrite": overwrite})
     clip = ", ".join(f"{k}: {v}" for k, v in summary["clipped"].items()) or "none"
     out.print(
         f"wrote {out_path}: {summary['hits']} hits, {summary['samples']} samples x {summary['channels']} channels "

@@ -19,13 +19,16 @@ from mcap.writer import CompressionType, Writer
 from daq.log import layout
 from daq.log.proto import BlockDecodeError, decode_block
 from daq.log.reader import LogReader, LogReadError, SalvageReport
+from drivers.blocks import BlockStatus
+
+RESTART = int(BlockStatus.RESTART)
 
 
 def log_info(path: str | Path) -> dict[str, Any]:
     r = LogReader(path)
     streams = []
     for name, info in sorted(r.streams().items()):
-        firsts, counts, bad, statuses = [], [], 0, 0
+        firsts, counts, bad, statuses, restarts = [], [], 0, 0, []
         for _ch, msg in r.iter_messages([info.topic], time_order=True):
             try:
                 b = decode_block(msg.data)
@@ -35,12 +38,17 @@ def log_info(path: str | Path) -> dict[str, Any]:
             firsts.append(b.first_index)
             counts.append(b.data.shape[0])
             statuses |= b.status
+            if b.status & RESTART:
+                restarts.append(b.first_index)
         order = np.argsort(firsts) if firsts else []
         f = np.asarray(firsts, np.int64)[order] if firsts else np.zeros(0, np.int64)
         n = np.asarray(counts, np.int64)[order] if counts else np.zeros(0, np.int64)
         gaps = [(int(f[i] + n[i]), int(f[i + 1])) for i in range(len(f) - 1) if f[i + 1] > f[i] + n[i]]
         total = int(n.sum())
         span = int(f[-1] + n[-1] - f[0]) if len(f) else 0
+        cuts = [int(f[0]), *sorted(restarts)] if len(f) else []
+        ends = [*cuts[1:], int(f[-1] + n[-1])] if len(f) else []
+        segments = [(a, b) for a, b in zip(cuts, ends, strict=True)]
         streams.append(
             {
                 "stream": name,
@@ -55,6 +63,8 @@ def log_info(path: str | Path) -> dict[str, Any]:
                 "end_index": int(f[-1] + n[-1]) if len(f) else None,
                 "gaps": gaps,
                 "missing_samples": int(sum(b - a for a, b in gaps)),
+                # a device restart starts a new segment (BlockStatus.RESTART); the gap before it is estimated
+                "segments": segments,
                 "undecodable_blocks": bad,
                 "status_flags": int(statuses),
             }
@@ -188,6 +198,9 @@ def info_text(info: dict[str, Any]) -> str:
             + (f", {s['undecodable_blocks']} undecodable blocks" if s["undecodable_blocks"] else "")
             + (f", NOT RECORDED (writer overrun): {s['overrun_samples']} samples" if s["overrun_samples"] else "")
         )
+        if len(s.get("segments", ())) > 1:
+            segs = ", ".join(f"[{a}, {b})" for a, b in s["segments"])
+            lines.append(f"    segments (the device restarted; each gap before a segment is estimated): {segs}")
         lines.append(f"    channels: {', '.join(f'{c} [{u}]' for c, u in zip(s['channels'], s['units'], strict=False))}")
     ev = ", ".join(f"{k}: {v}" for k, v in sorted(info["events"].items())) or "none"
     lines.append(f"  hits: {info['hits']}  events: {ev}")

@@ -10,25 +10,36 @@ still queued — about one second at the configured rate when the queue holds ab
 
 No silent loss: ``write_block`` never blocks; when the queue is full the block is not recorded, its
 exact sample range is remembered, and the thread writes an ``overrun`` event to ``/daq/events`` as
-soon as it can. Control records (streams, metadata, attachments, events) wait for queue space, with
-a timeout that raises rather than hangs.
+soon as it can. Control records (streams, metadata, attachments, events) wait for queue space.
+
+The output is the user's (docs/log-format.md, "Output and writer failures"): the constructor opens it
+on the caller's thread and refuses, with one line, a path it cannot write, an existing file (unless
+``overwrite``) and a file another recorder holds (an exclusive ``flock`` for the writer's lifetime,
+which the kernel drops when a process dies, SIGKILL included). A failure while running (disk full, an
+I/O error, the file deleted or moved) never raises into a producer: the thread stops taking data,
+counts every later block as lost with its range, makes what was written readable, and ``failure``
+holds the one line the session prints before it stops.
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
 import os
 import queue
+import stat
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcap.opcode import Opcode
 from mcap.writer import CompressionType, Writer
 
-from analysis.errors import RuntimeFailure
+from analysis.errors import BadInput, DataLost, RuntimeFailure
 from daq.log import layout
 from daq.log.proto import SCHEMA_NAME, encode_block, sample_block_descriptor_set
 from drivers.blocks import SampleBlock
@@ -50,7 +61,38 @@ HIT_SCHEMA = {"type": "object", "title": "gvtlink.Hit", "properties": {"index": 
 
 
 class LogWriterError(RuntimeFailure):
-    """The writer thread failed (e.g. disk full); the message says why. Raised to producers."""
+    """The log writer failed while running (disk full, an I/O error, the writer stalled): exit 1.
+
+    ``str()`` is the one line for the user. Never raised into a producer: the writer reports it through
+    ``LogWriter.failure`` and, if nobody read that, from ``close()``.
+    """
+
+
+class LogOutputError(LogWriterError, BadInput):
+    """The output cannot be opened for a new log (missing directory, a directory, no permission, a read-only
+    file system): exit 2, raised by the constructor on the caller's thread.
+
+    Why both bases: it is a writer problem (``except LogWriterError`` keeps catching every one of them), but
+    the user fixes it with another ``--out``, so its kind is BadInput and its exit code 2. ``exit_code`` is
+    set here because the MRO would otherwise find RuntimeFailure's 1 first.
+    """
+
+    exit_code = 2
+
+
+class LogOutputExistsError(LogOutputError):
+    """The output exists and the caller did not pass ``overwrite``: the file is the user's, left untouched."""
+
+
+class LogOutputInUseError(LogOutputError):
+    """Another recorder (this process or another) holds the output's lock."""
+
+
+class LogOutputLostError(LogWriterError, DataLost):
+    """The output file was deleted while recording: what it held is gone. Exit 3 (DataLost), not 1: the run
+    ran, the data did not survive, and the message says which."""
+
+    exit_code = 3
 
 
 @dataclass
@@ -62,6 +104,13 @@ class WriterStats:
     overrun_samples: int = 0
     flushes: int = 0
     files: list[str] = field(default_factory=list)
+    #: after a failure: blocks not recorded (offered after it, queued at it, or in the part of the file it cut off)
+    lost_after_failure_blocks: int = 0
+    lost_after_failure_samples: int = 0
+    #: (stream, start_index, end_index) of those, merged; final after ``close()``
+    lost_after_failure_ranges: list[tuple[str, int, int]] = field(default_factory=list)
+    #: control records (events, hits, JSON, metadata, attachments, streams) dropped after a failure
+    dropped_after_failure: int = 0
 
 
 @dataclass(frozen=True)
@@ -79,9 +128,274 @@ class ChannelInfo:
 
 _STOP = object()
 
+#: what a failed write means, said the way a user can act on it
+_IO_WHAT = {
+    errno.ENOSPC: "the disk is full",
+    errno.EDQUOT: "the disk quota is used up",
+    errno.EIO: "the disk reported an input/output error",
+    errno.EROFS: "the file system became read-only",
+    errno.EFBIG: "the file grew too large for the file system",
+}
+
+
+# --- opening the output ----------------------------------------------------------------------------
+def open_output(path: Path, overwrite: bool) -> int:
+    """Open ``path`` for a new log and return its descriptor, locked and empty; raise :class:`LogOutputError`.
+
+    Order matters: open *without* truncating, take the lock, and only then check ``overwrite`` and
+    truncate — a file that another recorder is writing is never cut, and "in use" is said before
+    "exists" (``--overwrite`` would not help). ``flock`` rather than a pid file: the kernel releases it
+    when the holder dies, SIGKILL included, so there are no stale locks to clean up.
+    """
+    for _attempt in range(3):
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
+            created = True
+            break
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise _open_error(path, exc) from None
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CLOEXEC)
+            created = False
+            break
+        except FileNotFoundError:
+            if path.is_symlink():
+                raise LogOutputError(f"{path}: a symbolic link to a missing file; remove it or choose another --out") from None
+            continue  # removed between the two opens: try again
+        except OSError as exc:
+            raise _open_error(path, exc) from None
+    else:
+        raise LogOutputError(f"{path}: keeps appearing and disappearing; choose another --out")
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise LogOutputError(f"{path}: not a regular file; give a file name for --out")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise LogOutputInUseError(_in_use(path, st)) from None
+        except OSError as exc:  # a file system without locks (some network mounts): write, unprotected
+            if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP):
+                raise _open_error(path, exc) from None
+        if not created:
+            if not overwrite:
+                raise LogOutputExistsError(f"{path}: exists; pass --overwrite to replace it")
+            os.ftruncate(fd, 0)
+    except OSError as exc:
+        os.close(fd)
+        raise _open_error(path, exc) from None
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _open_error(path: Path, exc: OSError) -> LogOutputError:
+    e = exc.errno
+    if e == errno.ENOENT:
+        missing = path.parent
+        while not missing.parent.exists() and missing.parent != missing:
+            missing = missing.parent
+        return LogOutputError(f"{path}: directory {missing} does not exist; create it or choose another --out")
+    if e == errno.ENOTDIR:
+        return LogOutputError(f"{path}: a part of the path is a file, not a directory; choose another --out")
+    if e == errno.EISDIR:
+        return LogOutputError(f"{path}: is a directory; give a file name, e.g. {path / 'session.mcap'}")
+    if e in (errno.EACCES, errno.EPERM):
+        return LogOutputError(f"{path}: permission denied; choose a location you can write to")
+    if e == errno.EROFS:
+        return LogOutputError(f"{path}: read-only file system; choose a writable location for --out")
+    if e in (errno.ENOSPC, errno.EDQUOT):
+        return LogOutputError(f"{path}: no space left on the device; free some or choose another disk")
+    return LogOutputError(f"{path}: cannot open for writing: {exc.strerror or exc}")
+
+
+def _in_use(path: Path, st: os.stat_result) -> str:
+    pid = _lock_holder(st)
+    if pid is None:
+        who = "another recorder"
+    elif pid == os.getpid():
+        who = f"another writer in this process (pid {pid})"
+    else:
+        who = f"another recorder (pid {pid})"
+    return f"{path}: in use by {who}; stop it or choose another --out"
+
+
+def _lock_holder(st: os.stat_result) -> int | None:
+    """The pid holding the flock on this inode, from /proc/locks (Linux); None when it cannot tell."""
+    key = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    try:
+        lines = Path("/proc/locks").read_text().splitlines()
+    except OSError:
+        return None
+    for ln in lines:
+        parts = ln.split()
+        if len(parts) >= 6 and parts[1] == "FLOCK" and parts[5] == key:  # waiters ("->") have parts[1] == "->"
+            try:
+                return int(parts[4])
+            except ValueError:
+                return None
+    return None
+
+
+class _Sink:
+    """The file as the mcap Writer sees it: ``write`` never raises and never leaves half a record on disk.
+
+    Why: mcap's Writer updates its indexes and statistics around each write; an exception from inside it
+    leaves them out of step with the file (a chunk half written, its messages counted, the chunk builder not
+    reset) and a later ``finish()`` would write a summary that lies. So the first failed write (ENOSPC, EIO)
+    is remembered in ``error``, the file is cut back to where that write began — the end of the last record
+    that reached the disk whole — and that write and every later one are kept in memory (at most the open
+    chunk and the summary: the writer takes no data after a failure). ``retry()`` tries once to put that tail
+    on disk, which gives a complete file; if it fails too, the file stays cut at ``complete``, which the
+    tolerant reader and ``gvt log recover`` read to the end.
+
+    ``on_chunk`` is told the logical end offset of every Chunk record, so the writer knows which blocks a
+    cut removed.
+    """
+
+    def __init__(self, fd: int, path: Path, on_chunk: Callable[[int], None]) -> None:
+        self.fd = fd
+        self.path = path
+        self._on_chunk = on_chunk
+        self._pos = 0  # logical end: what mcap's offsets count
+        self.complete = 0  # end of the last write that reached the file whole (a record boundary)
+        self.synced = 0  # end of what the last successful fsync covered
+        self.error: OSError | None = None
+        self._tail: bytearray | None = None  # writes since the first failure, from ``complete`` on
+        self._retryable = True
+        self.cut_failed = False
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        n = len(data)
+        if n == 0:
+            return 0
+        start = self._pos
+        self._pos += n
+        if self._tail is None:
+            try:
+                _pwrite_all(self.fd, data, start)
+                self.complete = self._pos
+            except OSError as exc:
+                self.error = exc
+                self._tail = bytearray(data)
+                self._cut()
+        else:
+            self._tail += data
+        if data[0] == Opcode.CHUNK:  # mcap writes each Chunk record with one write of its own
+            self._on_chunk(self._pos)
+        return n
+
+    def tell(self) -> int:
+        return self._pos
+
+    @property
+    def whole(self) -> bool:
+        """Everything written so far is on disk (no failure, or a retry that succeeded)."""
+        return self._tail is None
+
+    def flush(self) -> None:
+        """Nothing buffered here: every ``write`` went to the kernel (or, after a failure, to the tail)."""
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def sync(self, fsync: bool) -> None:
+        """fsync; a failure means the pages since the last good fsync may be gone: cut back to it, no retry."""
+        if self._tail is not None:
+            return
+        if fsync:
+            try:
+                os.fsync(self.fd)
+            except OSError as exc:
+                self.error = exc
+                self._tail = bytearray()
+                self._retryable = False
+                self.complete = self.synced
+                self._cut()
+                return
+        self.synced = self._pos
+
+    def retry(self, fsync: bool) -> bool:
+        """Put the tail on disk after a failure; True when the whole file is there (or nothing was pending)."""
+        if self._tail is None:
+            return True
+        if not self._retryable:
+            return False
+        try:
+            _pwrite_all(self.fd, self._tail, self.complete)
+            if fsync:
+                os.fsync(self.fd)
+        except OSError:
+            self._cut()
+            return False
+        self.complete = self.synced = self._pos
+        self._tail = None
+        return True
+
+    def _cut(self) -> None:
+        try:
+            os.ftruncate(self.fd, self.complete)
+        except OSError:
+            self.cut_failed = True
+
+    def close(self) -> None:
+        """Close the descriptor, which releases the lock."""
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+
+
+def _pwrite_all(fd: int, data: bytes | bytearray | memoryview, offset: int) -> None:
+    """``pwrite`` until all of ``data`` is written: a short write is how a full disk starts."""
+    view = memoryview(data)
+    while view:
+        n = os.pwrite(fd, view, offset)
+        if n <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        view = view[n:]
+        offset += n
+
+
+@dataclass
+class _Failure:
+    """What stopped the writer; ``LogWriter.failure`` builds the line from it and the final counts."""
+
+    kind: str  # "io", "deleted", "moved", "stalled", "error"
+    what: str
+    file: Path
+    moved_to: str | None = None
+    outcome: str = "pending"  # "complete", "cut", "cut_failed", "none" (nothing open), "gone" (deleted)
+    cut_at: int = 0
+    earlier_parts: int = 0
+
+
+def _io_failure(exc: OSError, file: Path) -> _Failure:
+    what = _IO_WHAT.get(exc.errno or 0, "writing failed")
+    return _Failure("io", f"the log writer stopped: {what} ({exc.strerror or exc})", file)
+
+
+class _Stop(Exception):
+    """Internal: the writer thread stops with this failure."""
+
+    def __init__(self, failure: _Failure) -> None:
+        super().__init__(failure.what)
+        self.failure = failure
+
 
 class LogWriter:
-    """Write a session log. Use as a context manager; ``close()`` finalises the file."""
+    """Write a session log. Use as a context manager; ``close()`` finalises the file.
+
+    Raises from the constructor only (one line each): :class:`LogOutputError` (exit 2) when ``path`` cannot
+    be written, :class:`LogOutputExistsError` (exit 2) when it exists and ``overwrite`` is false,
+    :class:`LogOutputInUseError` (exit 2) when another recorder holds it. After that nothing raises into a
+    producer: a failure sets ``failed``, ``failure`` is its one line and ``failure_error`` the exception to
+    raise (:class:`LogWriterError`, exit 1, or :class:`LogOutputLostError`, exit 3, when the file was
+    deleted). ``close()`` raises ``failure_error`` only when nobody read ``failure`` or ``failure_error``.
+    """
 
     def __init__(
         self,
@@ -95,8 +409,10 @@ class LogWriter:
         rotate_seconds: float | None = None,
         session_metadata: Mapping[str, str] | None = None,
         control_timeout: float = 10.0,
+        overwrite: bool = False,
     ) -> None:
         self.path = Path(path)
+        self._overwrite = overwrite
         self._queue: queue.Queue = queue.Queue(maxsize=max(2, queue_size))
         self._chunk_size = chunk_size
         self._flush_interval = flush_interval
@@ -112,13 +428,32 @@ class LogWriter:
             **dict(session_metadata or {}),
         }
         self.stats = WriterStats()
+        #: set once the writer has failed (and finalised what it could); the session stops on it
+        self.failed = threading.Event()
+        self._failure: _Failure | None = None
+        self._failure_seen = False
         self._overruns: list[tuple[str, int, int]] = []
         self._overrun_lock = threading.Lock()
-        self._error: BaseException | None = None
+        self._acct_lock = threading.Lock()  # durable/lost accounting: read by ``failure`` on other threads
         self._streams: dict[str, dict[str, Any]] = {}  # registered in the thread, replayed on rotation
         self._attachments: list[tuple[str, bytes, str]] = []
         self._metadata: list[tuple[str, dict[str, str]]] = []
+        self._rates: dict[str, float] = {}
+        # which blocks are where: the open chunk, chunks written since the last fsync (offset, blocks), and
+        # per stream [first, end, samples] of everything fsynced; the current part's ranges (for a deletion)
+        self._open_blocks: list[tuple[str, int, int]] = []
+        self._unsynced: list[tuple[int, list[tuple[str, int, int]]]] = []
+        self._durable: dict[str, list[int]] = {}
+        self._durable_at_part: dict[str, list[int]] = {}
+        self._part_ranges: dict[str, list[list[int]]] = {}
+        self._lost: dict[str, list[list[int]]] = {}
         self._closed = False
+        self._sink: _Sink | None = None
+        self._mcap: Writer | None = None
+        if (rotate_bytes is not None or rotate_seconds is not None) and not overwrite:
+            self._refuse_existing_parts()
+        fd = open_output(self.path, overwrite)  # on the caller's thread: the error is the caller's to report
+        self._first_fd: int | None = fd
         self._thread = threading.Thread(target=self._run, name=f"mcap-writer:{self.path.name}", daemon=True)
         self._thread.start()
 
@@ -132,6 +467,41 @@ class LogWriter:
     def queue_size(self) -> int:
         return self._queue.maxsize
 
+    @property
+    def failure(self) -> str | None:
+        """One line: what stopped the writer, what the log holds (per stream, to which sample and time), how
+        many samples from when were not recorded, and whether the file is complete or needs ``gvt log recover``.
+        None while all is well. Reading it counts as reporting it (``close()`` then does not raise); its
+        counts are final after ``close()``."""
+        if self._failure is None:
+            return None
+        self._failure_seen = True
+        return self._failure_line()
+
+    @property
+    def failure_error(self) -> LogWriterError | None:
+        """``failure`` as the exception of its kind, to raise: LogWriterError (exit 1) or, for a deleted output,
+        LogOutputLostError (exit 3). Reading it counts as reporting it."""
+        line = self.failure
+        if line is None:
+            return None
+        assert self._failure is not None
+        return (LogOutputLostError if self._failure.kind == "deleted" else LogWriterError)(line)
+
+    @property
+    def failure_exit_code(self) -> int:
+        """The exit code of the failure's kind: 3 (DataLost) for a deleted output, 1 for any other, 0 for none.
+        Does not count as reporting it (that is ``failure``'s job)."""
+        if self._failure is None:
+            return 0
+        return LogOutputLostError.exit_code if self._failure.kind == "deleted" else LogWriterError.exit_code
+
+    @property
+    def lost_ranges(self) -> list[tuple[str, int, int]]:
+        """(stream, start, end) not recorded because of a failure, merged; grows until ``close()``."""
+        with self._acct_lock:
+            return _merge([(s, a, b) for s, rs in self._lost.items() for a, b in rs])
+
     def add_stream(self, stream: str, channels: Sequence[ChannelInfo], sample_rate: float, t0_ns: int | None = None) -> None:
         spec = {
             "stream": stream,
@@ -142,13 +512,16 @@ class LogWriter:
         self._control(("stream", spec))
 
     def write_block(self, block: SampleBlock, wait: bool = False) -> bool:
-        """Queue a block; False if the queue was full (the range is logged as an overrun event).
+        """Queue a block; False if it was not taken. Never raises, and never blocks unless ``wait``.
 
-        Live producers never wait. Offline producers (simulation, replay into a new log, recovery)
-        pass ``wait=True`` and get back-pressure instead: they wait for space, up to the control
-        timeout, and only then count an overrun.
+        A full queue counts the block as an overrun (logged as an event with its exact range); after a
+        failure it counts as lost (``stats.lost_after_failure_*``, ``lost_ranges``). Live producers never
+        wait. Offline producers (simulation, replay into a new log, recovery) pass ``wait=True`` and get
+        back-pressure instead: they wait for space, up to the control timeout, and only then count an overrun.
         """
-        self._raise_if_failed()
+        if self.failed.is_set():
+            self._lose(block.stream, block.first_index, block.end_index, block.sample_rate, written=False)
+            return False
         try:
             if wait:
                 self._queue.put(("block", block), timeout=self._control_timeout)
@@ -178,37 +551,115 @@ class LogWriter:
         self._control(("attach", name, bytes(data), media_type))
 
     def close(self) -> WriterStats:
-        """Finish the file (summary, indexes, footer); re-raises a writer-thread failure."""
+        """Finish the file (summary, indexes, footer), release the lock, return the stats.
+
+        After a failure the file was finalised (or cut back) when it happened; ``close()`` then raises
+        ``failure_error`` — once — only if nobody read ``failure`` or ``failure_error``: a caller that checks
+        ``failure`` prints it itself, and one that never looks cannot lose it.
+        """
         if not self._closed:
             self._closed = True
             self._queue.put(_STOP)
             self._thread.join()
-        self._raise_if_failed()
+            with self._acct_lock:
+                self.stats.lost_after_failure_ranges = _merge([(s, a, b) for s, rs in self._lost.items() for a, b in rs])
+        if self._failure is not None and not self._failure_seen:
+            err = self.failure_error
+            assert err is not None
+            raise err
         return self.stats
 
     def __enter__(self) -> LogWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        try:
+            self.close()
+        except LogWriterError:
+            pass  # the exception already on its way out is the one to report
 
     def _control(self, item: tuple) -> None:
-        self._raise_if_failed()
+        """Queue a control record. After a failure it is dropped and counted; a writer that takes nothing for
+        ``control_timeout`` seconds (a disk that stopped answering) is a failure too — never a traceback."""
         if self._closed:
-            raise LogWriterError(f"{self.path}: writer is closed")
-        try:
-            self._queue.put(item, timeout=self._control_timeout)
-        except queue.Full:
-            raise LogWriterError(f"{self.path}: writer thread stalled for {self._control_timeout} s") from None
+            raise LogWriterError(f"{self.path}: writer is closed")  # a programming error, not a run-time one
+        if not self.failed.is_set():
+            try:
+                self._queue.put(item, timeout=self._control_timeout)
+                return
+            except queue.Full:
+                self._set_failure(
+                    _Failure("stalled", f"the log writer took nothing for {self._control_timeout:g} s (is the disk answering?)",
+                             self._current_file()),
+                    now=True,
+                )  # fmt: skip
+        with self._acct_lock:
+            self.stats.dropped_after_failure += 1
 
-    def _raise_if_failed(self) -> None:
-        if self._error is not None:
-            raise LogWriterError(f"{self.path}: log writer failed: {self._error}") from self._error
+    def _current_file(self) -> Path:
+        return Path(self.stats.files[-1]) if self.stats.files else self.path
+
+    def _refuse_existing_parts(self) -> None:
+        """With rotation, a later part (``name-0001.mcap``...) must not overwrite an earlier log's part either;
+        checked up front, since refusing in the middle of a recording would lose data."""
+        parts = sorted(self.path.parent.glob(f"{self.path.stem}-[0-9][0-9][0-9][0-9]{self.path.suffix}"))
+        if parts:
+            raise LogOutputExistsError(f"{parts[0]}: exists (a part of an earlier rotated log); pass --overwrite to replace it")
+
+    # --- accounting ----------------------------------------------------------------------------
+    def _lose(self, stream: str, first: int, end: int, rate: float, *, written: bool, blocks: int = 1) -> None:
+        """Count ``blocks`` blocks [first, end) that a failure kept out of the log; ``written``: they had been
+        counted as written (they were in a part of the file that is gone)."""
+        with self._acct_lock:
+            ranges = self._lost.setdefault(stream, [])
+            if ranges and ranges[-1][1] == first:
+                ranges[-1][1] = end
+            else:
+                ranges.append([first, end])
+            self._rates.setdefault(stream, rate)
+            self.stats.lost_after_failure_blocks += blocks
+            self.stats.lost_after_failure_samples += end - first
+            if written:
+                self.stats.blocks_written -= blocks
+                self.stats.samples_written -= end - first
+
+    def _chunk_written(self, end_offset: int) -> None:
+        """The sink wrote (or holds) a Chunk ending at ``end_offset``: the open blocks are in it."""
+        self._unsynced.append((end_offset, self._open_blocks))
+        self._open_blocks = []
+
+    def _commit(self, upto: int | None = None) -> None:
+        """Blocks in chunks ending at or before ``upto`` (all, if None) are in the file for good; a cut
+        removed the others, and the blocks of the still-open chunk: count those as lost."""
+        keep, lose = [], []
+        for end, blocks in self._unsynced:
+            (keep if upto is None or end <= upto else lose).extend(blocks)
+        self._unsynced = []
+        if upto is not None:
+            lose.extend(self._open_blocks)
+            self._open_blocks = []
+        with self._acct_lock:
+            for s, a, b in keep:
+                d = self._durable.setdefault(s, [a, b, 0])
+                d[0], d[1], d[2] = min(d[0], a), max(d[1], b), d[2] + (b - a)
+        for s, a, b in lose:
+            self._lose(s, a, b, self._rates.get(s, 1.0), written=True)
 
     # --- writer thread -----------------------------------------------------------------------
-    def _open(self, path: Path) -> None:
-        self._file = open(path, "wb")
-        self._mcap = Writer(self._file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
+    def _start_file(self, path: Path) -> None:
+        fd, self._first_fd = self._first_fd, None
+        if fd is None:
+            fd = open_output(path, self._overwrite)
+        self._sink = _Sink(fd, path, self._chunk_written)
+        self.stats.files.append(str(path))
+        with self._acct_lock:
+            self._durable_at_part = {s: list(v) for s, v in self._durable.items()}
+        self._part_ranges = {}
+        self._finish_started = False
+        self._mcap = Writer(self._sink, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
         self._mcap.start(profile=layout.PROFILE, library=f"gvtlink {_version()}")
         self._file_started = time.monotonic()
         self._channel_ids: dict[str, int] = {}
@@ -222,13 +673,14 @@ class LogWriter:
             self._mcap.add_metadata(name, data)
         for name, data, media in self._attachments:
             self._attach(name, data, media)
-        self.stats.files.append(str(path))
+        self._check_sink()
 
     def _rotated_path(self) -> Path:
         n = len(self.stats.files)
         return self.path.with_name(f"{self.path.stem}-{n:04d}{self.path.suffix}")
 
     def _register_stream(self, spec: dict[str, Any]) -> None:
+        assert self._mcap is not None
         topic = layout.samples_topic(spec["stream"])
         meta = {
             "stream": spec["stream"],
@@ -244,6 +696,7 @@ class LogWriter:
         )
 
     def _json_channel(self, topic: str) -> int:
+        assert self._mcap is not None
         if topic not in self._channel_ids:
             schema = (
                 EVENT_SCHEMA if topic == layout.EVENTS_TOPIC else HIT_SCHEMA if topic == layout.HITS_TOPIC else {"type": "object"}
@@ -255,10 +708,12 @@ class LogWriter:
         return self._channel_ids[topic]
 
     def _attach(self, name: str, data: bytes, media: str) -> None:
+        assert self._mcap is not None
         now = time.time_ns()
         self._mcap.add_attachment(create_time=now, log_time=now, name=name, media_type=media, data=data)
 
     def _message(self, channel_id: int, log_time: int, data: bytes) -> None:
+        assert self._mcap is not None
         seq = self._seq.get(channel_id, 0)
         self._seq[channel_id] = seq + 1
         self._mcap.add_message(channel_id, log_time=log_time, data=data, publish_time=time.time_ns(), sequence=seq)
@@ -274,6 +729,14 @@ class LogWriter:
             t0 = spec["t0_ns"]
             log_time = t0 + round(b.first_index * 1e9 / b.sample_rate)
             raw = encode_block(b.stream, b.first_index, b.sample_rate, b.data, int(b.status), t0)
+            self._rates[b.stream] = b.sample_rate
+            self._open_blocks.append((b.stream, b.first_index, b.end_index))  # before add_message: it may close the chunk
+            ranges = self._part_ranges.setdefault(b.stream, [])  # [first, end, blocks], contiguous runs
+            if ranges and ranges[-1][1] == b.first_index:
+                ranges[-1][1] = b.end_index
+                ranges[-1][2] += 1
+            else:
+                ranges.append([b.first_index, b.end_index, 1])
             self._message(self._channel_ids[layout.samples_topic(b.stream)], log_time, raw)
             self.stats.blocks_written += 1
             self.stats.samples_written += b.n_samples
@@ -284,9 +747,12 @@ class LogWriter:
         elif kind == "stream":
             spec = item[1]
             self._streams[spec["stream"]] = spec
+            self._rates[spec["stream"]] = spec["sample_rate"]
+            assert self._mcap is not None
             self._register_stream(spec)
         elif kind == "meta":
             self._metadata.append((item[1], item[2]))
+            assert self._mcap is not None
             self._mcap.add_metadata(item[1], item[2])
         elif kind == "attach":
             self._attachments.append((item[1], item[2], item[3]))
@@ -306,65 +772,212 @@ class LogWriter:
             }
             self._message(self._json_channel(layout.EVENTS_TOPIC), time.time_ns(), json.dumps(obj).encode())
 
+    def _check_sink(self) -> None:
+        assert self._sink is not None
+        if self._sink.error is not None:
+            raise _Stop(_io_failure(self._sink.error, self._sink.path))
+
+    def _check_output(self) -> None:
+        """Is the file we write still the one at its path? Deleted (no links left) or moved/replaced (the path
+        names another inode, or nothing): writing on would record into a file the user cannot find."""
+        sink = self._sink
+        assert sink is not None
+        try:
+            ours = os.fstat(sink.fd)
+        except OSError:
+            return
+        if ours.st_nlink == 0:
+            raise _Stop(_Failure("deleted", "the output file was deleted while recording", sink.path))
+        try:
+            now = os.stat(sink.path)
+        except FileNotFoundError:
+            now = None
+        except OSError:
+            return
+        if now is None or (now.st_ino, now.st_dev) != (ours.st_ino, ours.st_dev):
+            try:
+                where = os.readlink(f"/proc/self/fd/{sink.fd}")
+            except OSError:
+                where = None
+            raise _Stop(_Failure("moved", "the output file was moved or replaced while recording", sink.path, moved_to=where))
+
     def _sync(self) -> None:
+        assert self._mcap is not None and self._sink is not None
         self._mcap.flush()  # closes the open chunk and writes it out
-        if self._fsync:
-            os.fsync(self._file.fileno())
+        self._sink.sync(self._fsync)
+        self._check_sink()
+        self._commit()
         self.stats.flushes += 1
 
-    def _finish(self) -> None:
+    def _finish_file(self) -> None:
+        assert self._mcap is not None and self._sink is not None
         self._emit_overruns()
+        self._finish_started = True  # a failure from here on must not finish it again
         self._mcap.finish()
-        self._file.flush()
-        if self._fsync:
-            os.fsync(self._file.fileno())
-        self._file.close()
+        self._sink.sync(self._fsync)
+        self._check_sink()
+        self._commit()
+        self._sink.close()
+        self._sink, self._mcap = None, None
 
     def _run(self) -> None:
+        stop_seen = False
         try:
-            self._open(self.path)
+            self._start_file(self.path)
             next_flush = time.monotonic() + self._flush_interval
-            while True:
+            while not self.failed.is_set():
                 timeout = max(0.0, next_flush - time.monotonic())
                 try:
                     item = self._queue.get(timeout=timeout)
                 except queue.Empty:
                     item = None
                 if item is _STOP:
+                    stop_seen = True
                     break
                 if item is not None:
                     self._handle(item)
                 if self._overruns:
                     self._emit_overruns()
+                self._check_sink()
                 now = time.monotonic()
                 if now >= next_flush:
                     self._sync()
+                    self._check_output()
                     next_flush = now + self._flush_interval
                     if self._should_rotate(now):
-                        self._finish()
-                        self._open(self._rotated_path())
-            self._finish()
-        except BaseException as exc:  # reported to producers on their next call and on close()
-            self._error = exc
+                        self._finish_file()
+                        self._start_file(self._rotated_path())
+            if not self.failed.is_set():
+                self._check_output()
+                self._finish_file()
+        except _Stop as stop:
+            self._set_failure(stop.failure)
+        except LogOutputError as exc:  # the next rotated part could not be opened
+            self._set_failure(_Failure("error", f"could not start the next part: {exc}", self._current_file()))
+        except OSError as exc:
+            self._set_failure(_io_failure(exc, self._current_file()))
+        except BaseException as exc:  # a bug or a bad item: reported as the failure, never a thread traceback
+            self._set_failure(_Failure("error", f"the log writer failed: {_describe(exc)}", self._current_file()))
+        if self._failure is not None:
             try:
-                self._file.close()
-            except Exception:
-                pass
-            # Keep draining so producers never block on a dead writer; count what is lost.
-            while True:
-                try:
-                    item = self._queue.get(timeout=0.1)
-                except queue.Empty:
-                    if self._closed:
-                        return
-                    continue
+                self._finalise_after_failure()
+            except BaseException as exc:  # never leave producers without a line
+                assert self._failure is not None
+                self._failure.outcome = "cut_failed"
+                self._failure.what += f"; finalising failed: {_describe(exc)}"
+            self.failed.set()
+            while not stop_seen:  # keep taking items so nobody blocks on a dead writer; count what is lost
+                item = self._queue.get()
                 if item is _STOP:
-                    return
+                    break
+                if item[0] == "block":
+                    b = item[1]
+                    self._lose(b.stream, b.first_index, b.end_index, b.sample_rate, written=False)
+                else:
+                    with self._acct_lock:
+                        self.stats.dropped_after_failure += 1
+        if self._sink is not None:
+            self._sink.close()  # releases the lock; held until close() even after a failure
+            self._sink = None
+
+    def _set_failure(self, failure: _Failure, now: bool = False) -> None:
+        """The first failure wins. ``now``: set ``failed`` at once (a producer saw the writer stall; the thread
+        may never come back to do it); the thread sets it itself after finalising."""
+        with self._acct_lock:
+            if self._failure is None:
+                failure.earlier_parts = max(0, len(self.stats.files) - 1)
+                self._failure = failure
+        if now:
+            self.failed.set()
+
+    def _finalise_after_failure(self) -> None:
+        """Make what was written usable: finish the file (summary, footer) if the disk takes it, else leave it
+        cut at its last complete record; count everything that did not make it as lost, with its range."""
+        f = self._failure
+        assert f is not None
+        sink = self._sink
+        if sink is None:  # between rotated parts: every earlier part is complete
+            f.outcome = "none"
+            return
+        if f.kind == "deleted":  # everything this part held went with it
+            f.outcome = "gone"
+            self._unsynced, self._open_blocks = [], []
+            with self._acct_lock:
+                self._durable = {s: list(v) for s, v in self._durable_at_part.items()}
+            for s, ranges in self._part_ranges.items():
+                for a, b, n in ranges:
+                    self._lose(s, a, b, self._rates.get(s, 1.0), written=True, blocks=n)
+            return
+        ok = False
+        try:
+            if not self._finish_started:
+                assert self._mcap is not None
+                self._finish_started = True
+                self._emit_overruns()
+                note = {"kind": "writer_failure", "message": f.what}
+                self._message(self._json_channel(layout.EVENTS_TOPIC), time.time_ns(), json.dumps(note).encode())
+                self._mcap.finish()
+            ok = sink.retry(self._fsync)
+            if ok:
+                sink.sync(self._fsync)
+                ok = sink.whole
+        except Exception:
+            ok = False
+        if ok:
+            f.outcome = "complete"
+            self._commit()
+        else:
+            f.outcome = "cut_failed" if sink.cut_failed else "cut"
+            f.cut_at = sink.complete
+            self._commit(upto=sink.complete)
 
     def _should_rotate(self, now: float) -> bool:
+        assert self._sink is not None
         if self._rotate_seconds is not None and now - self._file_started >= self._rotate_seconds:
             return True
-        return self._rotate_bytes is not None and self._file.tell() >= self._rotate_bytes
+        return self._rotate_bytes is not None and self._sink.tell() >= self._rotate_bytes
+
+    # --- the failure line ------------------------------------------------------------------------
+    def _failure_line(self) -> str:
+        f = self._failure
+        assert f is not None
+        with self._acct_lock:
+            durable = {s: list(v) for s, v in self._durable.items()}
+            lost = _merge([(s, a, b) for s, rs in self._lost.items() for a, b in rs])
+            n_lost = self.stats.lost_after_failure_samples
+        rates = dict(self._rates)
+
+        def t(stream: str, index: int) -> float:
+            return index / rates.get(stream, 1.0)
+
+        lost_from = min((t(s, a) for s, a, _b in lost), default=None)
+        lost_txt = (
+            f"{n_lost} samples from t={lost_from:.3f} s on were not recorded" if n_lost and lost_from is not None
+            else "no samples were lost"
+        )  # fmt: skip
+        if f.kind == "deleted":
+            earlier = f"; the {f.earlier_parts} earlier part(s) are complete" if f.earlier_parts else ""
+            return f"{f.file}: {f.what}; {lost_txt}{earlier}"
+        holds = ", ".join(f"{s} samples {a}-{b - 1} (to t={t(s, b):.3f} s)" for s, (a, b, _n) in sorted(durable.items()) if b > a)
+        holds_txt = f"the log holds {holds}" if holds else "the log holds no samples"
+        recover = f"`gvt log recover {f.file} FIXED.mcap`"
+        outcome = {
+            "complete": "the file is complete",
+            "none": "every part written is complete",
+            "cut": (
+                "the file is empty" if f.cut_at == 0
+                else f"the file ends at its last complete chunk (byte {f.cut_at}): {recover} restores its index"
+            ),
+            "cut_failed": f"the file could not be cut back to its last complete chunk: {recover} rewrites what is readable",
+            "pending": "finishing the file",
+        }.get(f.outcome, "")  # fmt: skip
+        moved = f" (it is now {f.moved_to})" if f.moved_to else ""
+        return f"{f.file}: {f.what}{moved}; {holds_txt}; {lost_txt}; {outcome}"
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}"[:200] if text else type(exc).__name__
 
 
 def _merge(ranges: list[tuple[str, int, int]]) -> list[tuple[str, int, int]]:

@@ -37,6 +37,7 @@ from pathlib import Path
 import rerun as rr
 
 from analysis.errors import RuntimeFailure
+from daq.children import pdeathsig
 from daq.fanout import END, FanOut, Subscription
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
@@ -149,8 +150,9 @@ def open_view(kind: str, where: str | None = None, web_port: int | None = None, 
     env = {**os.environ, "RERUN_TELEMETRY": "0"}
     cmd = [_server_binary(), "--serve-web", "--bind", HOST, "--port", str(g), "--web-viewer-port", str(w),
            "--server-memory-limit", memory_limit, "--hide-welcome-screen"]  # fmt: skip
+    # its own session (stopped as a group), and PDEATHSIG: it dies with us even when we are SIGKILLed (daq/children.py)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
-                            start_new_session=True)  # fmt: skip
+                            start_new_session=True, preexec_fn=pdeathsig)  # fmt: skip
     try:
         _wait_port(g, proc)
         _wait_port(w, proc)
@@ -166,6 +168,10 @@ def open_view(kind: str, where: str | None = None, web_port: int | None = None, 
 
 class ViewLane:
     """Fan-out subscriber + result tee → one rerun logging thread. Never blocks its producers."""
+
+    name = "view"
+    #: where :meth:`finish` reports a ``view_overrun`` (the session's log, through the results router)
+    report_sink = None
 
     def __init__(
         self, fan: FanOut, setup: ViewSetup, rec: rr.RecordingStream, maxsize: int = 16, result_maxsize: int = 4096,
@@ -215,6 +221,13 @@ class ViewLane:
             self.offer(topic, obj)
 
         return tee
+
+    def finish(self, deadline: float) -> None:
+        """The Lane protocol's end: ``drain_s`` = 2 s to catch up (never past ``deadline``), then the overrun note."""
+        self.join(min(2.0, max(0.0, deadline - time.monotonic())))
+        ev = self.overrun_event()
+        if ev is not None and self.report_sink is not None:
+            self.report_sink("/daq/events", ev, None)
 
     def join(self, drain_s: float = 2.0) -> None:
         """Call after the fan-out closed and every result producer finished. The view gets ``drain_s`` to

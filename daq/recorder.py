@@ -1,0 +1,140 @@
+"""The Recorder: sources of sample blocks, one fan-out, lanes, and the order in which it all stops.
+
+``gvt record`` and ``gvt replay`` are the same machine with different parts (:mod:`daq.session` and
+:mod:`daq.replay_session` assemble them):
+
+* **sources** (:mod:`daq.sources`) put blocks on the fan-out — devices (recording to the log lane first),
+  or a log being replayed;
+* **lanes** (:mod:`daq.lanes`) read their own fan-out subscriptions and get results by topic through the
+  :class:`~daq.lanes.Results` router: hit gate, near-live analysis, confirmation, live view;
+* the **log lane** owns the file; it is finished last, so every lane's final records are in it.
+
+Who owns what (docs/session.md): the recorder owns the sources, the lanes and the fan-out; each source
+owns its driver (and so the driver's thread); each lane owns its threads, the confirmation lane its
+worker process; the log lane owns the writer thread and the file lock. The stop order is fixed:
+
+1. sources stop reading and close their links (no block can enter after this);
+2. the fan-out closes (every subscriber gets END);
+3. lanes finish in the order given (hit gate, analysis, confirmation, view): each one's last results may
+   feed the next (the analysis' last IR events reach the confirmation lane before it drains);
+4. the log lane finalises the file.
+
+A session ends only for a reason it states (:class:`Outcome`): the duration reached in data time, a
+stop request (Ctrl-C, SIGTERM), a source that ended or failed, the wall-clock deadline (duration +
+grace) with data missing, or a writer failure.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from daq.fanout import FanOut
+from daq.lanes import Lane, Results
+from daq.lanes.log import LogLane
+from daq.log import layout
+from daq.sources import Source
+
+#: seconds a lane may take to finish after the source ended, by lane name (the confirmation lane has its own)
+FINISH_S = {"hits": 30.0, "analysis": 60.0, "view": 12.0, "confirm": 3600.0}  # a replay's confirmations have no deadline
+
+
+@dataclass
+class Outcome:
+    """Why the recording ended, the one line for the user, and the exit code (0, 1 failure, 3 data lost)."""
+
+    reason: str  # duration | stopped | source_ended | source_failed | deadline | writer_failed
+    message: str | None
+    exit_code: int
+    seconds: float
+
+
+class Recorder:
+    def __init__(
+        self, *, fan: FanOut, results: Results, sources: Sequence[Source], lanes: Sequence[Lane],
+        log: LogLane | None = None, stop: threading.Event | None = None, duration_s: float | None = None,
+        end_grace_s: float = 10.0, start_servers: Callable[[], None] | None = None,
+    ) -> None:  # fmt: skip
+        self.fan = fan
+        self.results = results
+        self.sources = list(sources)
+        self.lanes = list(lanes)
+        self.log = log
+        self.stop = stop or threading.Event()
+        self.duration_s = duration_s
+        self.end_grace_s = end_grace_s
+        self.start_servers = start_servers  # simulated devices hold their clocks until the links are open
+        self.t0 = time.monotonic()
+
+    # --- running --------------------------------------------------------------------------------------
+    def run(self, status: Callable[[float], None] | None = None, status_every_s: float = 1.0) -> Outcome:
+        """Open every source, record until a reason to end, then stop everything in order."""
+        try:
+            for s in self.sources:
+                s.open()
+        except Exception:
+            self.shutdown()
+            raise
+        if self.start_servers is not None:
+            self.start_servers()
+        self.t0 = time.monotonic()
+        for s in self.sources:
+            s.start()
+        outcome = self._wait(status, status_every_s)
+        self.shutdown()
+        outcome.seconds = time.monotonic() - self.t0
+        return self._after_finish(outcome)
+
+    def _wait(self, status: Callable[[float], None] | None, every: float) -> Outcome:
+        deadline = None if self.duration_s is None else self.t0 + self.duration_s + self.end_grace_s
+        last_status = self.t0
+        while True:
+            if self.stop.wait(0.05):
+                return Outcome("stopped", None, 0, 0.0)
+            now = time.monotonic()
+            if self.log is not None and self.log.failure is not None:
+                return Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code, 0.0)
+            failed = [f for s in self.sources if s.done.is_set() and (f := s.failure()) is not None]
+            if failed:
+                return Outcome("source_failed", "; ".join(m for m, _ in failed), max(c for _, c in failed), 0.0)
+            if self.sources and all(s.done.is_set() for s in self.sources):
+                if all(s.report.reached_end for s in self.sources):
+                    return Outcome("duration", None, 0, 0.0)
+                if self.duration_s is not None:
+                    return Outcome("source_ended", self._short_message("the device stopped delivering data"), 3, 0.0)
+                return Outcome("source_ended", None, 0, 0.0)
+            if deadline is not None and now >= deadline:
+                why = f"no more data within {self.end_grace_s:g} s (wall clock) after the duration"
+                return Outcome("deadline", self._short_message(why), 3, 0.0)
+            if status is not None and now - last_status >= every:
+                status(now - self.t0)
+                last_status = now
+
+    def _short_message(self, why: str) -> str:
+        parts = [f"{s.name} recorded {s.report.samples} of {s.need} samples" for s in self.sources if not s.report.reached_end]
+        return f"{why}: {'; '.join(parts)}" if parts else why
+
+    # --- stopping -------------------------------------------------------------------------------------
+    def shutdown(self) -> None:
+        """Stop in the documented order (module docstring). Safe to call twice."""
+        for s in self.sources:
+            s.stop()
+        for s in self.sources:
+            s.join(10.0)
+            s.drain_events()
+        self.fan.close()
+        for lane in self.lanes:
+            lane.finish(time.monotonic() + FINISH_S.get(lane.name, 60.0))
+
+    def _after_finish(self, outcome: Outcome) -> Outcome:
+        """Say in the log why the session ended, then finalise the file."""
+        if outcome.reason in ("deadline", "source_ended") and outcome.message:
+            self.results.emit(layout.EVENTS_TOPIC, {"kind": "duration_not_reached", "message": outcome.message}, None)
+        if self.log is not None:
+            self.log.finish(time.monotonic() + 30.0)
+            if outcome.exit_code == 0 and self.log.failure is not None:
+                outcome = Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code,
+                                  outcome.seconds)  # fmt: skip
+        return outcome

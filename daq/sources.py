@@ -1,0 +1,222 @@
+"""Sources of sample blocks for a :class:`~daq.recorder.Recorder`: a device (a driver and its reading thread),
+or a log being replayed.
+
+A device source is the recording path: each block goes to the log lane first (never blocked by anyone),
+then to the fan-out. When it ends is the session's business, and it ends only for a reason it can state
+(docs/session.md, "When a session ends"):
+
+* the stream reached the session's **duration in data time** (``end_index``: the first sample index plus
+  duration × fs); the block that crosses it is cut so that the log holds exactly that span;
+* the driver ended or died (the error is kept, one line);
+* the recorder told it to stop (Ctrl-C, SIGTERM, the wall-clock deadline, a writer failure).
+
+A quiet link never ends it: silence longer than ``silence_s`` is a ``silence`` event with its range
+(the sample index where the data stopped and where it resumed, and how long on the host clock), and the
+driver reconnects as it already can.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from daq.fanout import FanOut
+from daq.lanes import Sink
+from daq.lanes.log import LogLane
+from daq.log import layout
+from drivers.base import Driver, DriverError
+from drivers.blocks import SampleBlock
+
+
+class Source(Protocol):
+    """What a recorder needs of a source of blocks (a device, or a log being replayed)."""
+
+    name: str
+    need: int | None  # samples the session asks of it (None: until stopped)
+    report: SourceReport
+    done: threading.Event  # set when it stopped putting blocks on the fan-out, for any reason
+
+    def open(self) -> None: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+    def join(self, timeout: float) -> None: ...
+    def drain_events(self) -> None: ...
+    def failure(self) -> tuple[str, int] | None:
+        """(one line, exit code) when it ended because something failed; None otherwise."""
+
+
+@dataclass
+class SourceReport:
+    """What one source recorded and why it ended."""
+
+    name: str
+    samples: int = 0
+    end_index: int | None = None  # the data-time end the session asked for (None: until stopped)
+    reached_end: bool = False
+    last_index: int | None = None  # one past the last sample recorded
+    error: str | None = None
+    silences: list[tuple[int, int, float]] = field(default_factory=list)  # (last index before, first after, seconds)
+
+
+class DeviceSource:
+    """One device: its driver, opened and closed here, and the thread that reads it."""
+
+    def __init__(
+        self, name: str, driver: Driver, log: LogLane | None, fan: FanOut, sink: Sink, *, need_samples: int | None,
+        silence_s: float, poll_s: float = 0.1,
+    ) -> None:  # fmt: skip
+        self.name = name
+        self.driver = driver
+        self.log = log
+        self.fan = fan
+        self.sink = sink
+        self.need = need_samples
+        self.silence_s = silence_s
+        self.poll_s = poll_s
+        self.report = SourceReport(name)
+        self._levels: dict[str, float] = {}  # peak |value| per channel since the last status (CAN: channels from the DBC)
+        self.levels_lock = threading.Lock()
+        self.events: dict[str, int] = {}
+        self.done = threading.Event()
+        self._stop = threading.Event()
+        self._last_t: float | None = None
+        self._silent_since: float | None = None
+        self._thread: threading.Thread | None = None
+        self._opened = False
+
+    # --- owner side -----------------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the link (raises :class:`DriverError`, one line; a link budget error is bad input)."""
+        self.driver.open()
+        self._opened = True
+
+    def start(self) -> None:
+        self._last_t = time.monotonic()  # a device that never starts delivering is silent from here
+        self._thread = threading.Thread(target=self._main, name=f"read:{self.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop reading and close the link (the driver's own thread ends with it)."""
+        self._stop.set()
+        if self._opened:
+            self._opened = False
+            try:
+                self.driver.close()
+            except Exception as exc:  # a link that fails to close is said, never a traceback
+                self.report.error = self.report.error or f"closing the link failed: {type(exc).__name__}: {exc}"
+
+    def join(self, timeout: float) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def take_levels(self) -> dict[str, float]:
+        """Peak |value| per channel since the last call (the live status)."""
+        with self.levels_lock:
+            out, self._levels = self._levels, {}
+        return out
+
+    def failure(self) -> tuple[str, int] | None:
+        if self.report.error is None:
+            return None
+        return f"the driver stopped: {self.name}: {self.report.error}", 1
+
+    @property
+    def silent_for(self) -> float:
+        """Seconds without a block right now (0 while data flows)."""
+        return 0.0 if self._last_t is None else max(0.0, time.monotonic() - self._last_t)
+
+    # --- the reading thread ---------------------------------------------------------------------------
+    def _main(self) -> None:
+        try:
+            while not self._stop.is_set():
+                for blk in self.driver.blocks(timeout=self.poll_s):
+                    if not self._on_block(blk) or self._stop.is_set():
+                        return
+                if not self._driver_running():
+                    return
+                self._watch_silence(time.monotonic())
+        except DriverError as exc:
+            self.report.error = str(exc)
+            self.sink(layout.EVENTS_TOPIC, {"kind": "driver_error", "stream": self.name, "message": str(exc)}, None)
+        except Exception as exc:  # never a traceback from a reading thread: the session stops and says why
+            self.report.error = f"reading {self.name} failed: {type(exc).__name__}: {exc}"
+            self.sink(layout.EVENTS_TOPIC, {"kind": "driver_error", "stream": self.name, "message": self.report.error}, None)
+        finally:
+            self._close_silence(None)
+            self.drain_events()
+            self.done.set()
+
+    def _driver_running(self) -> bool:
+        t = getattr(self.driver, "_thread", None)
+        return t is not None and t.is_alive()
+
+    def _on_block(self, blk: SampleBlock) -> bool:
+        """Record one block; False once the session's duration is reached."""
+        now = time.monotonic()
+        self._close_silence(blk.first_index)
+        self._last_t = now
+        blk.extra["t_host"] = now  # arrival: the clock-offset estimate's input, and the analysis' latency origin
+        rep = self.report
+        if self.need is not None:
+            if rep.end_index is None:
+                start = self.driver.config.expect_first_index
+                rep.end_index = (blk.first_index if start is None else start) + self.need
+            if blk.first_index >= rep.end_index:
+                rep.reached_end = True
+                return False
+            if blk.end_index > rep.end_index:  # cut the block at the session's end: exactly duration × fs
+                n = rep.end_index - blk.first_index
+                blk = SampleBlock(blk.stream, blk.first_index, blk.sample_rate, blk.channels, blk.data[:n], blk.status, blk.extra)
+        if self.log is not None:
+            self.log.write_block(blk, wait=not self.driver.realtime)
+        self.fan.publish(blk)
+        rep.samples += blk.n_samples
+        rep.last_index = blk.end_index
+        if blk.n_samples:
+            peaks = np.max(np.abs(blk.data), axis=0).tolist()
+            with self.levels_lock:
+                for c, v in zip(blk.channels, peaks, strict=True):
+                    if v > self._levels.get(c, 0.0):
+                        self._levels[c] = v
+        self.drain_events()
+        if rep.end_index is not None and blk.end_index >= rep.end_index:
+            rep.reached_end = True
+            return False
+        return True
+
+    def drain_events(self) -> None:
+        for ev in self.driver.drain_events():
+            d = ev.as_dict()
+            self.events[ev.kind] = self.events.get(ev.kind, 0) + 1
+            self.sink(layout.EVENTS_TOPIC, d, None)
+
+    def _watch_silence(self, now: float) -> None:
+        if self._silent_since is None and self._last_t is not None and now - self._last_t > self.silence_s:
+            self._silent_since = self._last_t
+
+    def _close_silence(self, resumed_at: int | None) -> None:
+        """The link was quiet longer than ``silence_s`` and now delivers again (or the session ends): one event."""
+        if self._last_t is None:
+            return
+        now = time.monotonic()
+        quiet = now - self._last_t
+        if self._silent_since is None and not (resumed_at is not None and quiet > self.silence_s):
+            return
+        self._silent_since = None
+        last = self.report.last_index
+        after = "the start" if last is None else f"sample {last}"
+        ev: dict = {"kind": "silence", "stream": self.name, "seconds": round(quiet, 3)}
+        if last is not None:
+            ev["start_index"] = last
+            ev["end_index"] = resumed_at if resumed_at is not None else last
+        if resumed_at is None:
+            ev["message"] = f"no data for {quiet:.2f} s (host clock) after {after}, until the session ended"
+        else:
+            ev["message"] = f"no data for {quiet:.2f} s (host clock) after {after}; resumed at sample {resumed_at}"
+        self.report.silences.append((-1 if last is None else last, -1 if resumed_at is None else resumed_at, quiet))
+        self.events["silence"] = self.events.get("silence", 0) + 1
+        self.sink(layout.EVENTS_TOPIC, ev, None)

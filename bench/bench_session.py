@@ -11,7 +11,9 @@
    block arrived): the lane thread's CPU per second of data and the per-window latency (first block arrival →
    result) p50 / p99 / max.
 
-    python bench/bench_session.py [--seconds 20] [--pairs 3] [--base 3ccae7c] [--quick]
+    python bench/bench_session.py [--seconds 20] [--pairs 5] [--base 3ccae7c] [--quick]
+
+Each case first runs once per tree unrecorded (page cache, numba cache), then the counted pairs.
 
 Prints tables; writes bench/results/bench_session.json.
 """
@@ -108,6 +110,9 @@ def compare(base_tree: Path, seconds: float, pairs: int, tmp: Path) -> list[dict
         toml = tmp / "s.toml"
         toml.write_text(text)
         new_cpu, base_cpu = [], []
+        for tag, tree in (("new", ROOT), ("base", base_tree)):  # one warm-up each (page cache, numba cache): not counted
+            record_cpu(tree, toml, tmp / f"warm-{tag}.mcap")
+            (tmp / f"warm-{tag}.mcap").unlink(missing_ok=True)
         for k in range(pairs):
             order = [("new", ROOT), ("base", base_tree)] if k % 2 == 0 else [("base", base_tree), ("new", ROOT)]
             for tag, tree in order:
@@ -148,7 +153,7 @@ def frames(seconds: float, tmp: Path) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
-    ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--pairs", type=int, default=5)
     ap.add_argument("--base", default=BASE_DEFAULT, help="git revision of the previous recorder")
     ap.add_argument("--quick", action="store_true", help="6 s sessions, 1 pair")
     args = ap.parse_args()

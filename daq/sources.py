@@ -78,7 +78,8 @@ class DeviceSource:
         self.silence_s = silence_s
         self.poll_s = poll_s
         self.report = SourceReport(name)
-        self._levels: dict[str, float] = {}  # peak |value| per channel since the last status (CAN: channels from the DBC)
+        #: per stream: (channels, peak |value| per channel since the last status); CAN streams' channels come from the DBC
+        self._levels: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
         self.levels_lock = threading.Lock()
         self.events: dict[str, int] = {}
         self.done = threading.Event()
@@ -115,8 +116,11 @@ class DeviceSource:
 
     def take_levels(self) -> dict[str, float]:
         """Peak |value| per channel since the last call (the live status)."""
+        out: dict[str, float] = {}
         with self.levels_lock:
-            out, self._levels = self._levels, {}
+            for chans, lv in self._levels.values():
+                out.update(zip(chans, lv.tolist(), strict=True))
+                lv[:] = 0
         return out
 
     def failure(self) -> tuple[str, int] | None:
@@ -157,7 +161,8 @@ class DeviceSource:
     def _on_block(self, blk: SampleBlock) -> bool:
         """Record one block; False once the session's duration is reached."""
         now = time.monotonic()
-        self._close_silence(blk.first_index)
+        if self._silent_since is not None or (self._last_t is not None and now - self._last_t > self.silence_s):
+            self._close_silence(blk.first_index)
         self._last_t = now
         blk.extra["t_host"] = now  # arrival: the clock-offset estimate's input, and the analysis' latency origin
         rep = self.report
@@ -176,13 +181,14 @@ class DeviceSource:
         self.fan.publish(blk)
         rep.samples += blk.n_samples
         rep.last_index = blk.end_index
-        if blk.n_samples:
-            peaks = np.max(np.abs(blk.data), axis=0).tolist()
+        if blk.n_samples:  # peak |value| per channel, in place (one array per stream: CAN may have several)
             with self.levels_lock:
-                for c, v in zip(blk.channels, peaks, strict=True):
-                    if v > self._levels.get(c, 0.0):
-                        self._levels[c] = v
-        self.drain_events()
+                lv = self._levels.get(blk.stream)
+                if lv is None or lv[0] != blk.channels:
+                    lv = self._levels[blk.stream] = (blk.channels, np.zeros(len(blk.channels), np.float32))
+                np.maximum(lv[1], np.abs(blk.data).max(axis=0), out=lv[1])
+        if not self.driver.events.empty():
+            self.drain_events()
         if rep.end_index is not None and blk.end_index >= rep.end_index:
             rep.reached_end = True
             return False

@@ -118,7 +118,7 @@ class Recorder:
 
     # --- stopping -------------------------------------------------------------------------------------
     def shutdown(self) -> None:
-        """Stop in the documented order (module docstring). Safe to call twice."""
+        """Stop in the documented order (module docstring)."""
         for s in self.sources:
             s.stop()
         for s in self.sources:

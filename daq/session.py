@@ -34,6 +34,7 @@ from daq.log import layout
 from daq.log.writer import ChannelInfo
 from daq.recorder import Outcome, Recorder
 from daq.sim_devices import SimHarness, start_simulation
+from daq.sim_session import channel_infos
 from daq.sources import DeviceSource
 from drivers.base import Driver, available_drivers
 
@@ -358,9 +359,3 @@ class Session:
         res.writer_overrun_samples = self.log.stats.overrun_samples
         res.files = list(self.log.stats.files)
         return res
-
-
-def channel_infos(rig: Rig) -> list[ChannelInfo]:
-    from daq.sim_session import channel_infos as infos
-
-    return infos(rig)

@@ -140,7 +140,7 @@ class DeviceSource:
                 for blk in self.driver.blocks(timeout=self.poll_s):
                     if not self._on_block(blk) or self._stop.is_set():
                         return
-                if not self._driver_running():
+                if not self.driver.alive:
                     return
                 self._watch_silence(time.monotonic())
         except DriverError as exc:
@@ -153,10 +153,6 @@ class DeviceSource:
             self._close_silence(None)
             self.drain_events()
             self.done.set()
-
-    def _driver_running(self) -> bool:
-        t = getattr(self.driver, "_thread", None)
-        return t is not None and t.is_alive()
 
     def _on_block(self, blk: SampleBlock) -> bool:
         """Record one block; False once the session's duration is reached."""

@@ -131,6 +131,11 @@ class LinkStats:
     rejected_blocks: int = 0  # blocks (frames) with an implausible index, never emitted
     segments: list[Segment] = field(default_factory=list)  # every stream's segments, in order
 
+    def device_index(self, stream: str, index: int) -> int:
+        """The device's own sample index of stream index ``index`` (a restarted device counts from 0 again)."""
+        seg = [s for s in self.segments if s.stream == stream and s.stream_first <= index][-1]
+        return index - seg.stream_first + seg.device_first
+
 
 @dataclass(frozen=True)
 class LinkBudget:
@@ -195,6 +200,11 @@ class Driver(ABC):
         finally:
             if self._thread is not None:
                 self._thread.join(timeout=10)
+
+    @property
+    def alive(self) -> bool:
+        """The reading thread runs: blocks may still come (False once the driver ended, died or closed)."""
+        return self._thread is not None and self._thread.is_alive()
 
     def __enter__(self) -> Driver:
         return self.open()

@@ -347,11 +347,7 @@ def test_cantools_vs_fast_speed_recorded():
 
 # --- restarts, wild counters, stalls, the connect line, config ---------------------------------------
 def _device_pairs(drv, blocks):
-    out = []
-    for b in blocks:
-        seg = [s for s in drv.stats.segments if s.stream == b.stream and s.stream_first <= b.first_index][-1]
-        out.append((b.first_index - seg.stream_first + seg.device_first, b))
-    return out
+    return [(drv.stats.device_index(b.stream, b.first_index), b) for b in blocks]
 
 
 def test_node_restart_is_a_new_segment_never_stitched(device):

@@ -39,6 +39,7 @@ from daq.config.session import (
     check_session_against_rig,
     driver_table_error,
 )
+from tests.test_config import _paths
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSIONS = ROOT / "configs" / "sessions"
@@ -517,17 +518,6 @@ def test_a_week_is_the_longest_session():
 
 
 # --- fuzz: whatever a user writes, loading and the rig checks answer with a ConfigError or a valid session ----------
-def _paths(obj: Any, prefix: tuple = ()):
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            yield (*prefix, k)
-            yield from _paths(v, (*prefix, k))
-    elif isinstance(obj, list):
-        for i, v in enumerate(obj):
-            yield (*prefix, i)
-            yield from _paths(v, (*prefix, i))
-
-
 _BASES = {n: _load(SESSIONS / f"{n}.toml") for n in ("sim_serial_20hits", "sim_modbus", "sim_two_devices", "soak_1h")}
 _FUZZ_PATHS = [(n, p) for n, d in _BASES.items() for p in _paths(d)]
 _leaf = st.one_of(

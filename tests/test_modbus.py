@@ -251,11 +251,7 @@ def test_unreachable_device_is_one_line_error():
 # --- restarts and stalls ------------------------------------------------------------------------
 def device_pairs(drv, blocks):
     """(device index, block): stream index minus its segment's offset."""
-    out = []
-    for b in blocks:
-        seg = [s for s in drv.stats.segments if s.stream == b.stream and s.stream_first <= b.first_index][-1]
-        out.append((b.first_index - seg.stream_first + seg.device_first, b))
-    return out
+    return [(drv.stats.device_index(b.stream, b.first_index), b) for b in blocks]
 
 
 def check_device_data(device, pairs, channels, map_: RegisterMap) -> None:

@@ -158,8 +158,7 @@ def _check_device(device, srv, drv, blocks):
     ref_idx = [device.channels.index("hammer")]
     scale = srv.map.fifo.channels[srv.map.fifo_channel_index("hammer")].scale
     for b in blocks:
-        seg = [s for s in drv.stats.segments if s.stream_first <= b.first_index][-1]
-        d = b.first_index - seg.stream_first + seg.device_first
+        d = drv.stats.device_index(b.stream, b.first_index)
         assert np.abs(b.data - device.samples(d, d + b.n_samples)[:, ref_idx]).max() <= scale / 2 + 1e-3
 
 

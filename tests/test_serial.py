@@ -257,11 +257,7 @@ def test_disconnect_2s_reconnects_and_reports_gap(device):
 # --- restarts, wild frames, stalls ------------------------------------------------------------
 def device_blocks(drv, blocks):
     """(device index, block) for each block: stream index minus its segment's offset."""
-    out = []
-    for b in blocks:
-        seg = [s for s in drv.stats.segments if s.stream_first <= b.first_index][-1]
-        out.append((b.first_index - seg.stream_first + seg.device_first, b))
-    return out
+    return [(drv.stats.device_index(b.stream, b.first_index), b) for b in blocks]
 
 
 def check_device_data(device, srv, pairs, fmt):

@@ -13,7 +13,6 @@ from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 
 from analysis.errors import BadInput
 
@@ -32,11 +31,6 @@ def fail(message: str, code: int = 2) -> NoReturn:
 
 def note(message: str) -> None:
     err.print(f"gvt: note: {message}", markup=False, soft_wrap=True)
-
-
-def header(name: str) -> str:
-    """A table column header as rich shows it: ``t [s]`` would lose ``[s]`` to rich's markup."""
-    return escape(name)
 
 
 def open_rig(rig: str):

@@ -104,10 +104,7 @@ class HitGateLane:
 
     def suspects(self) -> dict[str, str]:
         """Channels that failed every hit, with why (the gate's own wording)."""
-        d = self.detector
-        if hasattr(d.health, "suspect_reasons"):
-            return dict(d.health.suspect_reasons(d.s.suspect_after))
-        return {c: f"clipped on every one of {d.health.hits} hits" for c in d.suspects()}
+        return dict(self.detector.suspect_reasons())
 
     def timeline_metadata(self) -> dict[str, str] | None:
         """The ``gvtlink.timeline`` metadata record (None with one device)."""

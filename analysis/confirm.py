@@ -34,6 +34,7 @@ import scipy.signal
 from numpy.typing import NDArray
 
 from analysis.preprocess import PreprocessSettings, acc_to_disp
+from analysis.records import Confirmation
 from analysis.slowflow import DetectorParams, candidate_ratios, mean_frequency_hz, test_ratios, trajectory
 from analysis.wavelet import analytic
 
@@ -176,15 +177,14 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     dec = wbemd(x, fs, freqs, params=s.wbemd or WbemdParams())
     i_lo = int(np.argmin(np.abs(dec.char_freqs_hz - f_low)))
     i_hi = int(np.argmin(np.abs(dec.char_freqs_hz - max(f_give, f_recv))))
-    base = {
+    examined = {  # the keys of every record whose segment was decomposed (records.Confirmation)
         "event_id": event.get("id"), "event": dict(event), "sensor": context.sensors[k],
         "imf_freqs_hz": dec.char_freqs_hz.tolist(), "orthogonality_index": float(dec.orthogonality_index),
         "segment_s": [t0_s, t0_s + acc.shape[0] / fs],
     }  # fmt: skip
     if i_lo == i_hi:
-        return {**base, "status": "not_confirmed", "reason": "the two event frequencies fell on one IMF", "ratio": None,
-                "m": None, "n": None, "start_s": None, "end_s": None, "candidates": [], "trajectory": None,
-                "elapsed_s": time.perf_counter() - t_start}  # fmt: skip
+        return Confirmation(**examined, status="not_confirmed", reason="the two event frequencies fell on one IMF",
+                            elapsed_s=time.perf_counter() - t_start).to_json()  # fmt: skip
     lo_imf, hi_imf = dec.imfs[i_lo], dec.imfs[i_hi]
     params = s.detector or DetectorParams()
     c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=params, t0=t0_s)
@@ -202,21 +202,22 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     else:
         status, evidence, (cm, cn), span = "not_confirmed", None, (None, None), (None, None)
         loops = c.reason if c.status != "confirmed" else (
-            f"loops at {c.start_s:.3f}–{c.end_s:.3f} s do not overlap the event or come without an energy gain")
+            f"loops at {c.start_s:.3f}–{c.end_s:.3f} s do not overlap the event or come without an energy gain")  # fmt: skip
         reason = (f"no captured loops ({loops}); slow-angle test: gain ×{sa.gain:.2f} (needs {s.min_gain}), "
-                  f"slowest Φ_{sa.ratio[0]}:{sa.ratio[1]} moved {sa.phase_range[sa.ratio]:.2f} rad (needs < {s.max_turn:.2f})")
-    return {
-        **base, "status": status, "evidence": evidence, "reason": reason,
-        "ratio": f"{cm}:{cn}" if cm is not None else None, "m": cm, "n": cn,
-        "label_agrees": status == "confirmed" and (cm, cn) == (m, n),
-        "start_s": span[0], "end_s": span[1], "bracketed": bool(c.bracketed),
-        "slow_angle": {"gain": sa.gain, "phase_range": {f"{k[0]}:{k[1]}": v for k, v in sa.phase_range.items()},
-                       "slowest": f"{sa.ratio[0]}:{sa.ratio[1]}"},
-        "candidates": [{"ratio": f"{rt.m}:{rt.n}", "captured_fraction": float(rt.captured_fraction),
-                        "intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if not iv.end_effect],
-                        "end_effect_intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if iv.end_effect],
-                        "drift_sign": int(rt.drift_sign)} for rt in c.candidates],
-        "trajectory": {"t": np.asarray(c.t).tolist(), "phi": np.asarray(c.phi).tolist(),
-                       "phi_dot": np.asarray(c.phi_dot).tolist()},
-        "elapsed_s": time.perf_counter() - t_start,
-    }  # fmt: skip
+                  f"slowest Φ_{sa.ratio[0]}:{sa.ratio[1]} moved {sa.phase_range[sa.ratio]:.2f} rad "
+                  f"(needs < {s.max_turn:.2f})")  # fmt: skip
+    return Confirmation(
+        **examined, status=status, evidence=evidence, reason=reason,
+        ratio=f"{cm}:{cn}" if cm is not None else None, m=cm, n=cn,
+        label_agrees=status == "confirmed" and (cm, cn) == (m, n),
+        start_s=span[0], end_s=span[1], bracketed=bool(c.bracketed),
+        slow_angle={"gain": sa.gain, "phase_range": {f"{k[0]}:{k[1]}": v for k, v in sa.phase_range.items()},
+                    "slowest": f"{sa.ratio[0]}:{sa.ratio[1]}"},
+        candidates=[{"ratio": f"{rt.m}:{rt.n}", "captured_fraction": float(rt.captured_fraction),
+                     "intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if not iv.end_effect],
+                     "end_effect_intervals": [[iv.start_s, iv.end_s] for iv in rt.intervals if iv.end_effect],
+                     "drift_sign": int(rt.drift_sign)} for rt in c.candidates],
+        trajectory={"t": np.asarray(c.t).tolist(), "phi": np.asarray(c.phi).tolist(),
+                    "phi_dot": np.asarray(c.phi_dot).tolist()},
+        elapsed_s=time.perf_counter() - t_start,
+    ).to_json()  # fmt: skip

@@ -14,7 +14,8 @@ run on every block, both causal with state carried across blocks:
   Guyan modes, windowed modal energies and frequencies, energy-exchange IR events with their m:n,
   evidence scores and confidence.
 
-Results go to a sink ``emit(topic, obj)``: ``/analysis/rq`` and ``/analysis/modal`` per window,
+Results go to a sink ``emit(topic, record)`` as typed records (analysis/records.py: ``RQWindow``,
+``ModalWindow``, ``IREventRecord``, ``RQSpike``, ``AnalysisWarning``): ``/analysis/rq`` and ``/analysis/modal`` per window,
 ``/analysis/events`` per IR event, ``/analysis/rq_spikes`` per window-robust spike interval,
 ``/analysis/warnings`` for the seed's assumptions that do not hold. A gap in the stream restarts both
 lanes at the first sample after it (filters and windows cannot bridge missing data); the restart is
@@ -36,9 +37,23 @@ import numpy as np
 from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, ModalWindower, WindowFeatures, with_rq_score
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.preprocess import CausalPreprocessor, PreprocessSettings
+from analysis.records import (
+    IR_EVENTS_TOPIC,
+    MODAL_TOPIC,
+    RQ_SPIKES_TOPIC,
+    RQ_TOPIC,
+    WARNINGS_TOPIC,
+    AnalysisWarning,
+    IREventRecord,
+    ModalWindow,
+    Record,
+    RQSpike,
+    RQWindow,
+)
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
 
-Emit = Callable[[str, dict], None]
+#: ``emit(topic, record)``: a typed record of analysis/records.py (a read-only Mapping of its JSON keys)
+Emit = Callable[[str, Record], None]
 
 
 class BlockLike(Protocol):
@@ -438,10 +453,8 @@ class AnalysisOperator:
                                         f"{w.t_start_s:.3f} s: windows too long for the seed's assumption 10 (L68)")  # fmt: skip
         self._peak_e1 = max(self._peak_e1, float(w.energy[0]))
         self.stats.modal_windows += 1
-        self.emit("/analysis/modal", {
-            "index": w.index, "start": w.start, "stop": w.stop, "t_start_s": w.t_start_s, "t_end_s": w.t_end_s,
-            "modal_energy_J": w.energy.tolist(), "modal_freq_hz": w.freq_hz.tolist(), "input": w.input_active,
-        })  # fmt: skip
+        self.emit(MODAL_TOPIC, ModalWindow(w.index, w.start, w.stop, w.t_start_s, w.t_end_s, tuple(w.energy.tolist()),
+                                           tuple(w.freq_hz.tolist()), w.input_active))  # fmt: skip
         for ev in self._detector.feed(w):
             self._event(ev)
 
@@ -465,14 +478,14 @@ class AnalysisOperator:
             ev = with_rq_score(ev, float(np.mean(votes)) if votes else 0.0, self._ex_settings.weights)
             self.events.append(ev)
             self.stats.events += 1
-            self.emit("/analysis/events", {"id": len(self.events) - 1, **ev.as_dict()})
+            self.emit(IR_EVENTS_TOPIC, IREventRecord.of(len(self.events) - 1, ev))  # a typed record through to the log
         self._pending = keep
         if not self.s.seed_lane:
             return
         res = 0.25 * self.window_s
         for t0, t1, frac in robust_spike_intervals([g.flagged for g in self._grids], self.s.spikes.min_fraction, res):
             if t1 < until - res and t0 >= self._spikes_until:
-                self.emit("/analysis/rq_spikes", {"start_s": t0, "end_s": t1, "agreement": frac})
+                self.emit(RQ_SPIKES_TOPIC, RQSpike(t0, t1, frac))
                 self._spikes_until = t1 + res
         # bounded memory: forget flagged windows that no pending event and no future interval can touch
         horizon = min([until - 4 * self._max_len / self.fs, self._spikes_until - 4 * self._max_len / self.fs,
@@ -543,10 +556,8 @@ class AnalysisOperator:
                     if flags[i0 + k]:
                         g.flagged.append((t0, t1))
                     self.stats.rq_windows += 1
-                    self.emit("/analysis/rq", {
-                        "start": start, "stop": start + g.length, "t_start_s": t0, "t_end_s": t1,
-                        "rq_hz": rq_rows[k], "pov_fraction": pov_rows[k], "seed_spike": bool(seed[k]),
-                    })  # fmt: skip
+                    self.emit(RQ_TOPIC, RQWindow(start, start + g.length, t0, t1, tuple(rq_rows[k]), tuple(pov_rows[k]),
+                                                 bool(seed[k])))  # fmt: skip
                     self.stats.latencies_s.append(time.perf_counter() - t_arrival)
                 if len(self.stats.latencies_s) > 100_000:
                     del self.stats.latencies_s[:50_000]
@@ -569,4 +580,4 @@ class AnalysisOperator:
         if key in self._warned and not restart:
             return
         self._warned.add(key)
-        self.emit("/analysis/warnings", {"kind": key, "message": message})
+        self.emit(WARNINGS_TOPIC, AnalysisWarning(key, message))

@@ -18,6 +18,12 @@ Write 64 channels x 51.2 kHz float32 (3.28 M samples/s) for 60 s of data through
 3. Read back the back-pressured file: ``open_log(path).read_stream("dev0")`` (all 64 channels, target
    >= 20 M samples/s), against ``mcap.reader.make_reader`` iteration + ``np.frombuffer`` + concatenate.
    The file was just written, so it is read from the page cache: this measures decoding, not the disk.
+4. Sample-block layouts (docs/decisions.md D30), same data, bare mcap Writer, interleaved, best of two:
+   format 1 (row-major ``data``, what logs held before) against format 2 (channel-major, one field per
+   channel: what Foxglove can plot) — bytes/sample, write rate, ``read_stream`` rate, each rate with the
+   1-min load average beside it; target: format 2 within 10 % of format 1. Alternatives, for their size and
+   write rate: ``repeated ChannelData channels``, one topic per channel, and format 2 plus a per-block JSON
+   envelope topic (min/max/rms per channel).
 
 CPU is ``time.process_time()`` (all threads of the process); the writer thread's share is that minus
 the producer's own ``time.thread_time()``.
@@ -43,7 +49,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from daq.log import layout
-from daq.log.proto import SCHEMA_NAME, encode_block, sample_block_descriptor_set
+from daq.log.proto import SCHEMA_NAME, block_schema, encode_block, encode_block_f1, sample_block_descriptor_set
 from daq.log.reader import open_log
 from daq.log.writer import ChannelInfo, LogWriter
 from drivers.blocks import SampleBlock
@@ -186,7 +192,8 @@ def run_mcap_baseline(path: Path, pool: list[np.ndarray], n_blocks: int, chunk_s
     with open(path, "wb") as f:
         w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         w.start(profile=layout.PROFILE, library="bench")
-        schema = w.register_schema(SCHEMA_NAME, "protobuf", sample_block_descriptor_set())
+        name, fds, _fields = block_schema(STREAM, list(_NAMES))
+        schema = w.register_schema(name, "protobuf", fds)
         ch = w.register_channel(layout.samples_topic(STREAM), "protobuf", schema)
         for i in range(n_blocks):
             fi = i * BLOCK
@@ -236,22 +243,182 @@ def read_gvtlink(path: Path, pool: list[np.ndarray], n_blocks: int) -> dict:
     return {"case": "open_log().read_stream", "samples": n, "wall_s": wall, "cpu_s": cpu, "samples_per_s": n / wall}
 
 
+def crc_cost(path: Path, repeats: int = 3) -> dict:
+    """read_stream of the whole log with and without the chunk CRC check (best of ``repeats`` each, alternating):
+    what verifying every chunk costs on a full read (issue 19 target: <= 15 %)."""
+    import daq.log.verify as verify_mod
+
+    best = {True: float("inf"), False: float("inf")}
+    for _ in range(repeats):
+        for verify in (True, False):
+            verify_mod.VERIFY_CRC = verify
+            t0 = time.perf_counter()
+            n = open_log(path).read_stream(STREAM).data.size
+            best[verify] = min(best[verify], time.perf_counter() - t0)
+    verify_mod.VERIFY_CRC = True
+    return {"case": "read_stream with/without CRC", "samples": n, "verified_s": best[True], "unverified_s": best[False],
+            "crc_cost": best[True] / best[False] - 1}  # fmt: skip
+
+
 def read_mcap(path: Path, pool: list[np.ndarray], n_blocks: int) -> dict:
-    payload = BLOCK * N_CH * 4
+    stride = 4 + BLOCK * 4  # format 2: each channel field is a 2-byte tag, a 2-byte length and BLOCK floats
     t0 = time.perf_counter()
     c0 = time.process_time()
     parts = []
     with open(path, "rb") as f:
         for _schema, _ch, msg in make_reader(f).iter_messages(topics=[layout.samples_topic(STREAM)], log_time_order=False):
-            # the packed float payload is followed by status (2 bytes) and t0_ns (1 + 9 bytes) in encode_block's layout
-            end = len(msg.data) - 2 - 10
-            parts.append(np.frombuffer(msg.data, "<f4", BLOCK * N_CH, end - payload).reshape(BLOCK, N_CH))
+            # the N_CH channel fields end the message in encode_block's layout: one strided view, one copy
+            off = len(msg.data) - N_CH * stride + 4
+            view = np.ndarray((N_CH, BLOCK), "<f4", buffer=msg.data, offset=off, strides=(stride, 4))
+            parts.append(view.T)
     data = np.concatenate(parts)
     wall = time.perf_counter() - t0
     cpu = time.process_time() - c0
     _check(data, pool, n_blocks)
     n = data.size
     return {"case": "make_reader + np.frombuffer", "samples": n, "wall_s": wall, "cpu_s": cpu, "samples_per_s": n / wall}
+
+
+# --- layout comparison (issue 19, docs/decisions.md D30): which block layout Foxglove can plot, at what cost ----
+
+LAYOUTS = ("row-major (format 1)", "channel-major (format 2)", "nested ChannelData", "topic per channel", "format 2 + envelope")
+LAYOUT_TOLERANCE = 0.10  # format 2 must stay within 10 % of format 1's bytes/sample, write and read rate
+
+
+def _nested_block(fi: int, d: np.ndarray) -> bytes:
+    """``repeated ChannelData channels = 9 {string name = 1; repeated float data = 2}``: size/rate only."""
+    head = encode_block(STREAM, fi, FS, d[:0], 0, T0_NS)
+    cols = np.ascontiguousarray(d.T)
+    parts = [head]
+    for k, name in enumerate(_NAMES):
+        col = cols[k].tobytes()
+        sub = b"\x0a" + bytes([len(name)]) + name.encode() + b"\x12" + _pb_varint(len(col)) + col
+        parts += [b"\x4a", _pb_varint(len(sub)), sub]
+    return b"".join(parts)
+
+
+def _pb_varint(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append(n & 0x7F | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _envelope(fi: int, d: np.ndarray) -> bytes:
+    """One JSON message per block, a field per channel: Foxglove's Timestamp plot of ``.acc00.max`` spans the log."""
+    lo, hi = d.min(axis=0), d.max(axis=0)
+    rms = np.sqrt(np.mean(np.square(d, dtype=np.float64), axis=0))
+    obj = {"first_index": fi} | {
+        n: {"min": float(a), "max": float(b), "rms": float(c)} for n, a, b, c in zip(_NAMES, lo, hi, rms, strict=True)
+    }
+    return json.dumps(obj, separators=(",", ":")).encode()
+
+
+def run_layout(path: Path, pool: list[np.ndarray], n_blocks: int, which: str) -> dict:
+    """The bare mcap Writer (4 MiB zstd chunks, calling thread) writing the same blocks in one layout; the
+    samples channel carries LogWriter's metadata so open_log() reads formats 1 and 2."""
+    meta = {
+        "stream": STREAM,
+        "sample_rate": repr(FS),
+        "t0_ns": str(T0_NS),
+        "channels": json.dumps(list(_NAMES)),
+        "units": json.dumps(["m/s^2"] * N_CH),
+    }
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
+        w.start(profile=layout.PROFILE, library="bench")
+        if which == "row-major (format 1)":
+            sid = w.register_schema(SCHEMA_NAME, "protobuf", sample_block_descriptor_set())
+        else:
+            name, fds, _f = block_schema(STREAM, list(_NAMES))
+            sid = w.register_schema(name, "protobuf", fds)
+        if which == "topic per channel":
+            chans = [w.register_channel(f"/daq/{STREAM}/{n}", "protobuf", sid) for n in _NAMES]
+        else:
+            chans = [w.register_channel(layout.samples_topic(STREAM), "protobuf", sid, meta)]
+        env = w.register_channel(f"/daq/{STREAM}/envelope", "json", w.register_schema("env", "jsonschema", b"{}"))
+        for i in range(n_blocks):
+            fi, d = i * BLOCK, pool[i % POOL]
+            lt = T0_NS + round(fi * 1e9 / FS)
+            if which == "row-major (format 1)":
+                msgs = [encode_block_f1(STREAM, fi, FS, d, 0, T0_NS)]
+            elif which == "nested ChannelData":
+                msgs = [_nested_block(fi, d)]
+            elif which == "topic per channel":
+                msgs = [encode_block(STREAM, fi, FS, d[:, k : k + 1], 0, T0_NS) for k in range(N_CH)]
+            else:
+                msgs = [encode_block(STREAM, fi, FS, d, 0, T0_NS)]
+            for ch, raw in zip(chans, msgs, strict=True):
+                w.add_message(ch, log_time=lt, data=raw, publish_time=lt, sequence=i)
+            if which == "format 2 + envelope":
+                w.add_message(env, log_time=lt, data=_envelope(fi, d), publish_time=lt, sequence=i)
+        w.finish()
+    wall = time.perf_counter() - t0
+    n = n_blocks * BLOCK * N_CH
+    row = {"layout": which, "write_s": wall, "write_samples_per_s": n / wall, "file_bytes": path.stat().st_size}
+    row.update(bytes_per_sample=row["file_bytes"] / n, load_write=load)
+    if which in LAYOUTS[:2]:
+        reads = [read_gvtlink(path, pool, n_blocks) for _ in range(2)]  # best of two (page cache)
+        row.update(read_samples_per_s=max(r["samples_per_s"] for r in reads), load_read=os.getloadavg()[0])
+    return row
+
+
+def compare_layouts(tmpd: Path, pool: list[np.ndarray], n_blocks: int, repeats: int = 2) -> dict[str, dict]:
+    """Each layout ``repeats`` times, interleaved (old, new, old, new, ...) so drifting load hits both; best kept."""
+    best: dict[str, dict] = {}
+    for _ in range(repeats):
+        for which in LAYOUTS:
+            if which not in LAYOUTS[:2] and which in best:
+                continue  # the alternatives are there for their size: once is enough
+            path = tmpd / "layout.mcap"
+            print(f"  {which} ...", end="", flush=True)
+            r = run_layout(path, pool, n_blocks, which)
+            path.unlink()
+            print(f" {r['write_s']:.1f} s", flush=True)
+            old = best.get(which)
+            if old is None:
+                best[which] = r
+            else:  # best of each rate, each with its own load
+                if r["write_samples_per_s"] > old["write_samples_per_s"]:
+                    old.update(write_s=r["write_s"], write_samples_per_s=r["write_samples_per_s"], load_write=r["load_write"])
+                if r.get("read_samples_per_s", 0) > old.get("read_samples_per_s", 0):
+                    old.update(read_samples_per_s=r["read_samples_per_s"], load_read=r["load_read"])
+    return best
+
+
+def _layout_ratios(layouts: dict[str, dict]) -> dict[str, float]:
+    old, new = layouts[LAYOUTS[0]], layouts[LAYOUTS[1]]
+    return {
+        "bytes_per_sample": new["bytes_per_sample"] / old["bytes_per_sample"],
+        "write_rate": new["write_samples_per_s"] / old["write_samples_per_s"],
+        "read_rate": new["read_samples_per_s"] / old["read_samples_per_s"],
+        "envelope_bytes": layouts[LAYOUTS[4]]["bytes_per_sample"] / new["bytes_per_sample"] - 1.0,
+    }
+
+
+def _layout_lines(add, layouts: dict[str, dict]) -> None:
+    """Table rows: every layout's bytes/sample and rates with the 1-min load average beside each rate."""
+    add("sample-block layouts (load = 1-min load average)", "")
+    for which in LAYOUTS:
+        r = layouts[which]
+        add(f"  {which}: bytes/sample", f"{r['bytes_per_sample']:.3f}")
+        add(f"    write (load {r['load_write']:.2f})", _fmt_rate(r["write_samples_per_s"]))
+        if "read_samples_per_s" in r:
+            add(f"    read_stream (load {r['load_read']:.2f})", _fmt_rate(r["read_samples_per_s"]))
+    q, tol = _layout_ratios(layouts), LAYOUT_TOLERANCE
+    add(
+        "  ratios format 2 / format 1: bytes/sample",
+        f"{q['bytes_per_sample']:.3f}",
+        f"<= {1 + tol:.2f}",
+        q["bytes_per_sample"] <= 1 + tol,
+    )
+    add("    write rate", f"{q['write_rate']:.3f}", f">= {1 - tol:.2f}", q["write_rate"] >= 1 - tol)
+    add("    read rate", f"{q['read_rate']:.3f}", f">= {1 - tol:.2f}", q["read_rate"] >= 1 - tol)
+    add("  envelope topic adds [% of file]", f"{100 * q['envelope_bytes']:.2f}")
 
 
 def _fmt_rate(x: float) -> str:
@@ -312,9 +479,14 @@ def main() -> None:
             reads[key] = fn(path, pool, n_blocks)
         for key in ("gvtlink", "mcap"):  # best of two: the first read may still pay for page-cache misses
             reads[key] = max(reads[key], reads.pop(f"{key}_2"), key=lambda r: r["samples_per_s"])
+        reads["crc"] = crc_cost(path)
+        print(f"  chunk CRC check on a full read: +{100 * reads['crc']['crc_cost']:.1f} % "
+              f"({reads['crc']['verified_s']:.3f} s vs {reads['crc']['unverified_s']:.3f} s; target <= 15 %)", flush=True)
         with open(path, "rb") as f:
             summary = make_reader(f).get_summary()
         chunks = int(summary.statistics.chunk_count)
+        print("4) sample-block layouts (bare mcap Writer, 4 MiB zstd chunks; read with open_log().read_stream)", flush=True)
+        layouts = compare_layouts(tmpd, pool, n_blocks)
 
     bp, base4, base1 = rows["gvt_backpressure"], rows["mcap_4MiB"], rows["mcap_1MiB"]
     full, paced = rows["gvt_full"], rows.get("gvt_paced")
@@ -380,6 +552,7 @@ def main() -> None:
     add("  open_log().read_stream", _fmt_rate(g["samples_per_s"]), ">= 20 M/s", g["samples_per_s"] >= READ_TARGET)
     add("  baseline make_reader + np.frombuffer", _fmt_rate(m["samples_per_s"]))
     add("  ratio read_stream / baseline", f"{g['samples_per_s'] / m['samples_per_s']:.2f}")
+    _layout_lines(add, layouts)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     add("peak RSS of this process [MB]", f"{peak:.0f}")
 
@@ -409,6 +582,8 @@ def main() -> None:
         "write": rows,
         "chunks_backpressured": chunks,
         "read": reads,
+        "layouts": layouts,
+        "layout_ratios": _layout_ratios(layouts),
         "peak_rss_mb": peak,
     }
     (RESULTS / "bench_log.json").write_text(json.dumps(out, indent=2))

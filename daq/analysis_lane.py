@@ -20,6 +20,7 @@ import numpy as np
 from analysis.exchange import IREvent
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from daq.fanout import END, FanOut, Subscription
+from daq.log import layout
 from drivers.blocks import SampleBlock, coalesce
 
 Sink = Callable[[str, dict, int | None], None]  # topic, object, log time (ns) or None
@@ -115,7 +116,7 @@ class AnalysisLane:
     def join(self, timeout: float | None = None) -> list[IREvent]:
         self._thread.join(timeout)
         if self.sub.dropped_blocks:
-            self.sink("/daq/events", {
+            self.sink(layout.EVENTS_TOPIC, {
                 "kind": "analysis_overrun", "stream": self.stream, "count": self.sub.dropped_samples,
                 "message": f"the analysis fell behind and skipped {self.sub.dropped_blocks} blocks "
                            f"({self.sub.dropped_samples} samples); it restarted after each gap",
@@ -163,7 +164,7 @@ class AnalysisLane:
             self.op.finish()
         except Exception as exc:  # reported and logged; the recording goes on without analysis
             self.error = f"{type(exc).__name__}: {exc}"
-            self.sink("/daq/events", {"kind": "analysis_error", "stream": self.stream, "message": self.error}, None)
+            self.sink(layout.EVENTS_TOPIC, {"kind": "analysis_error", "stream": self.stream, "message": self.error}, None)
             for _ in self.sub:  # keep draining so close() never has to drop for us
                 pass
         finally:

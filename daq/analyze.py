@@ -12,14 +12,17 @@ the log's own ``rig/*.toml`` attachment.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from analysis import records
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from daq.analysis_lane import analysis_stream
+from daq.log import layout
 from daq.log.reader import LogReader, LogReadError
 from daq.replay import iter_log_blocks
 from drivers.blocks import SampleBlock, coalesce
@@ -40,7 +43,7 @@ class AnalysisRun:
 
     @property
     def events(self) -> list[dict]:
-        return self.results.get("/analysis/events", [])
+        return self.results.get(layout.IR_EVENTS_TOPIC, [])
 
     @property
     def speed(self) -> float:
@@ -60,6 +63,12 @@ def rig_from_log(reader: LogReader) -> Rig:
         raise AnalyzeError(f"{reader.path}: the log carries no rig attachment; give the rig with --rig NAME_OR_TOML")
     name, data = sorted(rigs.items())[0]
     where = f"{reader.path}:{name}"
+    from analysis.model.loader import MAX_CONFIG_BYTES
+
+    if len(data) > MAX_CONFIG_BYTES:  # the limits a rig file has (elements, sensors: validate) before any parse
+        raise AnalyzeError(
+            f"{where}: {len(data)} bytes, over the {MAX_CONFIG_BYTES // 1024} kB limit for a rig; give the rig with --rig"
+        )
     try:
         return build_rig(validate(RigConfig, tomllib.loads(data.decode()), where), where)
     except ConfigError as exc:
@@ -111,8 +120,8 @@ def analyze_log(
     info = reader.streams()[name]
     run = AnalysisRun(stream=name, rig=rig.name)
 
-    def emit(topic: str, obj: dict) -> None:
-        run.results.setdefault(topic, []).append(obj)
+    def emit(topic: str, obj: Mapping[str, Any]) -> None:  # kept as the log keeps it: the record's JSON
+        run.results.setdefault(topic, []).append(records.encode(obj))
 
     try:
         op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit, pipelined=True)

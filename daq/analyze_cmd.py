@@ -8,11 +8,12 @@ import numpy as np
 from rich.console import Console
 
 from daq.analyze import AnalysisRun
+from daq.log import layout
 from daq.terminal import Col, FitTable
 
 
 def summary(run: AnalysisRun) -> dict:
-    rq = run.results.get("/analysis/rq", [])
+    rq = run.results.get(layout.RQ_TOPIC, [])
     f = np.array([r["rq_hz"] for r in rq]) if rq else np.zeros((0, 0))
     return {
         "stream": run.stream,
@@ -21,19 +22,19 @@ def summary(run: AnalysisRun) -> dict:
         "wall_seconds": run.wall_seconds,
         "speed_x_real_time": run.speed,
         "rq_windows": len(rq),
-        "modal_windows": len(run.results.get("/analysis/modal", [])),
+        "modal_windows": len(run.results.get(layout.MODAL_TOPIC, [])),
         "seed_spikes": int(sum(r["seed_spike"] for r in rq)),
-        "rq_spikes": run.results.get("/analysis/rq_spikes", []),
+        "rq_spikes": run.results.get(layout.RQ_SPIKES_TOPIC, []),
         "rq_median_hz": np.median(f, axis=0).tolist() if f.size else [],
         "events": run.events,
-        "warnings": run.results.get("/analysis/warnings", []),
+        "warnings": run.results.get(layout.WARNINGS_TOPIC, []),
     }
 
 
 def print_json(console: Console, run: AnalysisRun, full: bool = False) -> None:
     obj = summary(run)
     if full:
-        obj["windows"] = {k: v for k, v in run.results.items() if k in ("/analysis/rq", "/analysis/modal")}
+        obj["windows"] = {k: v for k, v in run.results.items() if k in (layout.RQ_TOPIC, layout.MODAL_TOPIC)}
     console.print_json(json.dumps(obj))
 
 

@@ -24,6 +24,7 @@ from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
 from analysis.model.rig import Rig
 from daq.analyze import AnalyzeError, analyze_log, open_for_analysis
 from daq.confirm_lane import CONFIRM_TOPIC, skipped
+from daq.log import layout
 from daq.log.reader import LogReader
 
 META_CONFIRM = "gvtlink.confirm"
@@ -62,7 +63,7 @@ def confirm_log(
     """Confirm every IR event of the log (or the one with ``event_id``)."""
     settings = settings if settings is not None else ConfirmSettings()
     reader, rig, model, stream = open_for_analysis(path, rig, None)
-    events = reader.json_messages("/analysis/events")
+    events = reader.json_messages(layout.IR_EVENTS_TOPIC)
     source = "log"
     if not events:
         events = analyze_log(path, rig).events
@@ -87,7 +88,7 @@ def confirm_log(
             try:
                 rec = confirm_segment(np.asarray(data.data, np.float64), fs, float(data.index[0]) / fs, ev, ctx)
             except ValueError as exc:
-                rec = {**skipped(ev, str(exc)), "status": "error"}
+                rec = skipped(ev, str(exc), status="error")
         run.records.append(rec)
         if progress is not None:
             progress((i + 1) / len(events))
@@ -102,12 +103,24 @@ def write_companion(run: ConfirmRun, out: str | Path, overwrite: bool = True) ->
 
     out = Path(out)
     meta = {"source_log": Path(run.log).name, "stream": run.stream, "rig": run.rig, "events_from": run.events_from}
-    with LogWriter(out, fsync=True, session_metadata={"kind": "confirmations"}, overwrite=overwrite) as w:
+    origin = _stream_t0_ns(run.log, run.stream)  # on the source log's timeline: its event times are the stream's
+    with LogWriter(out, fsync=True, session_metadata={"kind": "confirmations"}, overwrite=overwrite, origin_ns=origin) as w:
         w.add_metadata(META_CONFIRM, meta)
         for rec in run.records:
             t = rec.get("event", {}).get("end_s")
             w.write_json(CONFIRM_TOPIC, rec, None if t is None else round(float(t) * 1e9))
     return out
+
+
+def _stream_t0_ns(log: str | Path, stream: str | None) -> int:
+    """log_time of ``stream``'s sample 0 in the source log (docs/log-format.md, "Time base"); 0 when it cannot be read."""
+    from daq.log.export import time_base
+    from daq.log.reader import LogReader, LogReadError
+
+    try:
+        return time_base(LogReader(log)).stream_t0_ns(stream or "")
+    except (LogReadError, OSError, ValueError, KeyError):
+        return 0
 
 
 def _confirmation_note(rec: dict) -> str | None:

@@ -33,11 +33,13 @@ from typing import Any
 
 import numpy as np
 
+from analysis.records import Confirmation
 from daq.children import die_with_parent
 from daq.fanout import FanOut, Subscription
+from daq.log import layout
 from drivers.blocks import SampleBlock
 
-CONFIRM_TOPIC = "/analysis/confirmations"
+CONFIRM_TOPIC = layout.CONFIRMATIONS_TOPIC
 _END_EVENTS = object()
 
 Sink = Callable[[str, dict, int | None], None]
@@ -51,10 +53,10 @@ class LaneSettings:
     finish_timeout_s: float = 120.0  # at the end, confirmations still running after this are skipped and said
 
 
-def skipped(event: Mapping[str, Any], reason: str) -> dict:
-    """The confirmation record of an event that was not examined, with the reason."""
-    return {"event_id": event.get("id"), "event": dict(event), "status": "skipped", "reason": reason, "ratio": None,
-            "m": None, "n": None, "start_s": None, "end_s": None, "candidates": [], "trajectory": None}  # fmt: skip
+def skipped(event: Mapping[str, Any], reason: str, status: str = "skipped") -> dict:
+    """The confirmation record (records.Confirmation, as JSON) of an event that was not examined (``status``
+    skipped, or error), with the reason."""
+    return Confirmation.skipped(event, reason, status).to_json()
 
 
 class _Ring:
@@ -126,7 +128,7 @@ class ConfirmLane:
 
     def offer(self, topic: str, obj: dict) -> None:
         """The Lane protocol (daq/lanes): IR events from ``/analysis/events`` are submitted; other topics ignored."""
-        if topic == "/analysis/events":
+        if topic == layout.IR_EVENTS_TOPIC:
             self.submit(obj)
 
     def submit(self, event: Mapping[str, Any]) -> None:
@@ -235,7 +237,7 @@ class ConfirmLane:
                 except FutureTimeout:
                     rec = skipped(ev, f"still running {self.s.finish_timeout_s:.0f} s after the stream ended")
                 except Exception as exc:  # reported as the event's record; the lane goes on
-                    rec = {**skipped(ev, f"{type(exc).__name__}: {exc}"), "status": "error"}
+                    rec = skipped(ev, f"{type(exc).__name__}: {exc}", status="error")
                 self._emit(rec)
             else:
                 still.append((ev, fut))
@@ -255,7 +257,7 @@ class ConfirmLane:
                 self._collect()
         except Exception as exc:  # said; the replay is unaffected
             self.error = f"{type(exc).__name__}: {exc}"
-            self.sink("/daq/events", {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
+            self.sink(layout.EVENTS_TOPIC, {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
 
     def _main(self) -> None:
         if self.sub is None:
@@ -269,11 +271,11 @@ class ConfirmLane:
                     self._collect()
         except Exception as exc:  # said on /daq/events; the recording is unaffected
             self.error = f"{type(exc).__name__}: {exc}"
-            self.sink("/daq/events", {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
+            self.sink(layout.EVENTS_TOPIC, {"kind": "confirm_error", "stream": self.stream, "message": self.error}, None)
             for _ in self.sub:
                 pass
         if self.sub is not None and self.sub.dropped_blocks:
-            self.sink("/daq/events", {
+            self.sink(layout.EVENTS_TOPIC, {
                 "kind": "confirm_overrun", "stream": self.stream, "count": self.sub.dropped_samples,
                 "message": f"the confirmation lane fell behind and skipped {self.sub.dropped_blocks} blocks "
                            f"({self.sub.dropped_samples} samples); events in those ranges were skipped",

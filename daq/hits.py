@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis.records import Hit
 from drivers.blocks import SampleBlock
 
 #: A sample at or above this fraction of a channel's range counts as clipped: a saturated value comes
@@ -236,13 +237,13 @@ class HitRecord:
     excluded_channels: tuple[str, ...] = ()  # response channels not usable for this hit (failed or configured out)
 
     def summary(self) -> dict:
-        return {
-            "hit": self.hit, "index": self.index, "t_s": self.t_s, "peak_force_N": self.peak_force_N,
-            "pulse_width_s": self.pulse_width_s, "impulse_Ns": self.impulse_Ns, "input_energy_J": self.input_energy_J,
-            "verdict": self.verdict, "reason": "; ".join(self.reasons) or "ok", "clipped_channels": list(self.clipped_channels),
-            "start_index": self.start_index, "end_index": self.end_index,
-            "channels": dict(self.channel_verdicts), "excluded_channels": list(self.excluded_channels),
-        }  # fmt: skip
+        """The ``/daq/hits`` record (analysis/records.py ``Hit``) as JSON: the hit without its samples."""
+        return Hit(
+            self.hit, self.index, self.t_s, self.peak_force_N, self.pulse_width_s, self.input_energy_J, self.verdict,
+            impulse_Ns=self.impulse_Ns, reason="; ".join(self.reasons) or "ok", clipped_channels=tuple(self.clipped_channels),
+            start_index=self.start_index, end_index=self.end_index, channels=dict(self.channel_verdicts),
+            excluded_channels=tuple(self.excluded_channels),
+        ).to_json()  # fmt: skip
 
 
 @dataclass

@@ -15,8 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from daq.fanout import FanOut
-from daq.log.proto import BlockDecodeError, decode_block
-from daq.log.reader import LogReader, LogReadError
+from daq.log.reader import Damage, DamageRanges, LogDamagedError, LogReader, LogReadError
 from drivers.blocks import BlockStatus, SampleBlock
 
 
@@ -45,9 +44,10 @@ def iter_log_blocks(
 
     Blocks are decoded as they are read, with at most ``reorder`` blocks per stream held back to restore
     sample order. A block further out of place than that is yielded where it is found (consumers treat
-    it like any discontinuity). A block that does not decode is skipped — a gap to the consumer, like a
-    lost block — and described in ``bad`` (one line each) when a list is given; without one it raises
-    :class:`LogReadError`.
+    it like any discontinuity). Every chunk is CRC-checked and every block checked (``block_problem``); a
+    damaged chunk or a block that does not decode or is implausible is skipped — a gap to the consumer,
+    like a lost block — and its exact sample range described in ``bad`` (one line each) when a list is
+    given; without one it raises :class:`LogDamagedError` (exit 3, naming ``gvt log recover``).
     """
     infos = reader.streams()
     names = sorted(infos) if streams is None else sorted(set(streams))
@@ -58,23 +58,32 @@ def iter_log_blocks(
     def one(name: str) -> Iterator[tuple[float, str, int, SampleBlock]]:
         info = infos[name]
         held: list[tuple[int, int, SampleBlock]] = []
+        tracker = DamageRanges(info, {ch.id for ch in reader.channels() if ch.topic == info.topic})
 
         def out(b) -> tuple[float, str, int, SampleBlock]:
             blk = SampleBlock(name, b.first_index, b.sample_rate, tuple(info.channels), b.data, BlockStatus(b.status))
             return (info.t0_ns / 1e9 + b.first_index / b.sample_rate, name, b.first_index, blk)
 
-        for seq, (_ch, msg) in enumerate(reader.iter_messages([info.topic], time_order=True)):
-            try:
-                b = decode_block(msg.data)
-            except BlockDecodeError as exc:
-                what = f"{reader.path}: bad sample block in {info.topic} (sequence {msg.sequence}): {exc}"
+        def report(ranges: list[tuple[int, int, str]]) -> None:
+            for a, z, why in ranges:
+                what = f"{reader.path}: {name} samples [{a}, {z}) skipped: {why}"
                 if bad is None:
-                    raise LogReadError(what) from None
+                    raise LogDamagedError(f"{what}; `gvt log recover {reader.path} FIXED.mcap` keeps the rest")
                 bad.append(what)
+
+        for seq, item in enumerate(reader.iter_blocks(name)):
+            if isinstance(item, Damage):
+                tracker.damage(item)
                 continue
+            b = item[1]
+            done = len(tracker.ranges)
+            tracker.block(b.first_index, b.first_index + b.data.shape[0])
+            report(tracker.ranges[done:])
             heapq.heappush(held, (b.first_index, seq, b))
             if len(held) > reorder:
                 yield out(heapq.heappop(held)[2])
+        done = len(tracker.ranges)
+        report(tracker.finish(reader.stream_records().get(name, {}).get("end_index"))[done:])
         while held:
             yield out(heapq.heappop(held)[2])
 

@@ -18,6 +18,7 @@ from typing import Any
 from daq.confirm_lane import DrainingConfirmLane
 from daq.fanout import END, FanOut
 from daq.lanes import Lane, Results
+from daq.log import layout
 from daq.recorder import Outcome, Recorder
 from daq.replay import Replayer, ReplayStats
 from daq.sources import SourceReport
@@ -96,7 +97,7 @@ def recorded_topics(confirming: bool) -> tuple[str, ...]:
     """The log's own results a replay view shows as recorded: hits and driver events always (a replay does not
     detect them again); the recorded confirmations only when the replay does not confirm its events anew —
     otherwise each would be drawn twice."""
-    return ("/daq/hits", "/daq/events") + (() if confirming else ("/analysis/confirmations",))
+    return (layout.HITS_TOPIC, layout.EVENTS_TOPIC) + (() if confirming else (layout.CONFIRMATIONS_TOPIC,))
 
 
 @dataclass
@@ -143,7 +144,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
         from daq.confirm_lane import start_confirm_lane
 
         clane = start_confirm_lane(fan, alane, results.emit, log_path=str(log))
-        results.route(clane, ["/analysis/events"])
+        results.route(clane, [layout.IR_EVENTS_TOPIC])
     draining = DrainingConfirmLane(clane, drain_progress) if clane is not None else None
     lanes += [lane for lane in (alane, draining, vlane, counter) if lane is not None]
     source = ReplaySource(rep)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from daq.log import layout
 from daq.log.reader import LogReader
 from daq.log.tools import log_info
 
@@ -88,7 +89,7 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
             rig = None
     res, source = log_results(reader, rig)
     summary = ReportSummary(Path(out), results_from=source)
-    hits = reader.json_messages("/daq/hits")
+    hits = reader.json_messages(layout.HITS_TOPIC)
     streams = reader.streams()
     fs = next(iter(streams.values())).sample_rate if streams else 1.0
     setup = ViewSetup.from_rig(rig, {n: tuple(i.channels) for n, i in streams.items()}, fs) if rig is not None else None
@@ -120,9 +121,9 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
         figs.append(("signals", _png(fig)))
 
     # --- RQ per NNM with IR events, modal energies -------------------------------------------------
-    rq = res.get("/analysis/rq", [])
-    modal = res.get("/analysis/modal", [])
-    ir = res.get("/analysis/events", [])
+    rq = res.get(layout.RQ_TOPIC, [])
+    modal = res.get(layout.MODAL_TOPIC, [])
+    ir = res.get(layout.IR_EVENTS_TOPIC, [])
     if rq or modal:
         fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
         if rq:
@@ -211,7 +212,7 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
             ax.set_xlabel("sensor position [m]")
             ax.legend(fontsize=6)
         figs.append(("POM shapes over IR events (acceleration POD)", _png(fig)))
-    confs = res.get("/analysis/confirmations", [])
+    confs = res.get(layout.CONFIRMATIONS_TOPIC, [])
     if not confs:  # gvt confirm / gvt replay write theirs next to the log (docs/decisions.md D22)
         from daq.confirm_cmd import read_confirmations
 
@@ -237,11 +238,11 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
     parts.append(_table("hits and verdicts", HIT_COLS, [_hit_row(h) for h in hits]))
     parts.append(_table(f"internal-resonance events (near-live analysis, results from {source})", IR_COLS,
                         [_ir_row(k, e) for k, e in enumerate(ir)]))  # fmt: skip
-    spikes = [[_f(s["start_s"]), _f(s["end_s"]), _f(s.get("agreement"), ".2f")] for s in res.get("/analysis/rq_spikes", [])]
+    spikes = [[_f(s["start_s"]), _f(s["end_s"]), _f(s.get("agreement"), ".2f")] for s in res.get(layout.RQ_SPIKES_TOPIC, [])]
     parts.append(_table("window-robust RQ spikes", ["start [s]", "end [s]", "agreement"], spikes))
     parts.append(_table("confirmations (WBEMD + slow flow)", CONF_COLS, [_conf_row(c) for c in confs],
                         "none (no /analysis/confirmations in this log)"))  # fmt: skip
-    warns = [[w.get("kind"), w.get("message")] for w in res.get("/analysis/warnings", [])]
+    warns = [[w.get("kind"), w.get("message")] for w in res.get(layout.WARNINGS_TOPIC, [])]
     parts.append(_table("analysis warnings", ["kind", "message"], warns))
     summary.tables = [p.split("</h2>")[0][4:] for p in parts]
     summary.figures = [name for name, _ in figs]

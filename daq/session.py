@@ -192,13 +192,21 @@ class Session:
     def _log_lane(self) -> LogLane:
         cfg = self.cfg
         overwrite = self.opts.overwrite if self.opts.overwrite is not None else cfg.overwrite
+        hold_s = (cfg.timeline or TimelineSpec()).max_buffer_s  # a second device waits at most this for its offset
         lane = LogLane(self.out, queue_size=self._queue_blocks(cfg.queue_seconds), rotate_bytes=cfg.rotate_bytes,
                        rotate_seconds=cfg.rotate_seconds, metadata={"session": cfg.name, "rig": self.rig.name},
-                       overwrite=overwrite)  # fmt: skip
+                       overwrite=overwrite, max_hold_s=hold_s)  # fmt: skip
         infos = {c.name: c for c in channel_infos(self.rig)}
-        for drv in self.drivers.values():
+        offsets = (cfg.timeline or TimelineSpec()).offsets if cfg.multi else {}
+        ref = self.result.reference
+        for dev, drv in self.drivers.items():
             for name, (chans, rate) in device_streams(drv).items():
-                lane.add_stream(name, [infos.get(c, ChannelInfo(c, "other", "")) for c in chans], rate, t0_ns=0)
+                # one device: every stream on its clock; several: the reference's, the others placed by the timeline
+                own = name.removesuffix(".poll")
+                on_ref = not cfg.multi or dev == ref or own == ref
+                off = offsets.get(own, offsets.get(dev))
+                lane.add_stream(name, [infos.get(c, ChannelInfo(c, "other", "")) for c in chans], rate, reference=on_ref,
+                                offset_s=off, method="configured")  # fmt: skip
         lane.add_metadata(layout.META_CONFIG, {"session_toml": cfg.model_dump_json()})
         if Path(self.rig.path).exists():
             lane.add_attachment(f"rig/{Path(self.rig.path).name}", Path(self.rig.path).read_bytes(), "application/toml")
@@ -247,7 +255,7 @@ class Session:
         detector = HitDetector(settings, det_channels, self.fs, self._ranges())
         maxsize = max(64, self._queue_blocks(cfg.queue_seconds))
         return HitGateLane(self.fan, detector, self.results.emit, aligner=aligner, maxsize=maxsize,
-                           metadata=self.log.add_metadata).start()  # fmt: skip
+                           metadata=self.log.add_metadata, offsets=self.log.set_offset).start()  # fmt: skip
 
     def _analysis_lane(self):
         spec = self.cfg.analysis
@@ -262,8 +270,10 @@ class Session:
         frame = {} if self.opts.analysis_frame_s is None else {
             "frame_wait_s": self.opts.analysis_frame_s, "frame_samples": 1024 if self.opts.analysis_frame_s > 0 else 1}
         try:
-            return start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
+            lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
                                        **frame)  # fmt: skip
+            self.log.clocks[layout.ANALYSIS_PREFIX] = lane.stream  # its windows are timed on the analysed stream's clock
+            return lane
         except LaneUnavailable as exc:
             self.results.emit(layout.EVENTS_TOPIC, {"kind": "analysis_error", "message": f"analysis off: {exc}"}, None)
             return None
@@ -274,7 +284,7 @@ class Session:
         from daq.confirm_lane import DrainingConfirmLane, start_confirm_lane
 
         lane = start_confirm_lane(self.fan, self.analysis, self.results.emit)
-        self.results.route(lane, ["/analysis/events"])
+        self.results.route(lane, [layout.IR_EVENTS_TOPIC])
         return DrainingConfirmLane(lane, self.opts.drain_progress, self.opts.wait_confirmations)
 
     def _view_lane(self):

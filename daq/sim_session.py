@@ -11,6 +11,11 @@ The session is computed and written in segments of whole blocks (the integrator 
 state at the end of the previous one: ``ImpactSimulator.run_segments``), so memory stays bounded however
 long it is. Each channel draws, segment by segment, the stretch of the seed's noise stream a one-piece
 run gives it (:func:`channel_noise`), so the log does not depend on the segment length.
+
+Time base: a simulated session has no wall clock to tie to, so its origin is fixed at 0 (the Unix epoch;
+``gvtlink.time`` says so): every ``log_time`` is the session time in ns — blocks at their first sample, hits
+at their first sample, ``/sim/*`` at the sample they describe, events at the data time reached — and the
+same seed gives the same times.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ import numpy as np
 
 from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals
+from analysis.records import Hit, SimEnergy
+from daq.log import layout
 from daq.log.writer import ChannelInfo, LogWriter
 from drivers.blocks import BlockStatus, SampleBlock
 from drivers.sim.sensor_model import AdcModel, Measurement, channel_models_for, measure
@@ -137,7 +144,7 @@ def simulate_session(
     segments = sim.run_segments(force, plan.duration, fs, amplitudes=[1.0], segment=seg)
     first = next(segments)
     with LogWriter(out, **(writer_kwargs or {})) as w:
-        w.add_stream(STREAM, channel_infos(rig), fs, t0_ns=0)
+        w.add_stream(STREAM, channel_infos(rig), fs, offset_ns=0)  # origin 0 (the writer's default): see below
         w.add_metadata(
             "gvtlink.simulation",
             {
@@ -169,33 +176,33 @@ def simulate_session(
                 w.write_block(block, wait=True)  # offline: back-pressure
                 last = stop - 1
                 w.write_json(
-                    "/sim/energy",
-                    {
-                        "index": int(n0 + last),
-                        "modal_energy_J": res.modal_energy[0, last, :n_modes].tolist(),
-                        "kinetic_J": float(e.kinetic[0, last]),
-                        "potential_linear_J": float(e.potential_linear[0, last]),
-                        "potential_nonlinear_J": float(e.potential_nonlinear[0, last]),
-                        "dissipated_J": float(e.dissipated[0, last]),
-                        "input_work_J": float(e.input_work[0, last]),
-                    },
+                    layout.SIM_ENERGY_TOPIC,
+                    SimEnergy(
+                        index=int(n0 + last),
+                        modal_energy_J=tuple(res.modal_energy[0, last, :n_modes].tolist()),
+                        kinetic_J=float(e.kinetic[0, last]),
+                        potential_linear_J=float(e.potential_linear[0, last]),
+                        potential_nonlinear_J=float(e.potential_nonlinear[0, last]),
+                        dissipated_J=float(e.dissipated[0, last]),
+                        input_work_J=float(e.input_work[0, last]),
+                    ),
                     log_time_ns=round((n0 + last) * 1e9 / fs),
                 )
             if progress:
                 progress("simulating", (n0 + m) / n)
         for k, ((i0, i1), peak) in enumerate(zip(spans, plan.forces, strict=True)):
-            hit = {
-                "hit": k,
-                "index": i0,
-                "t_s": i0 / fs,
-                "peak_force_N": float(peak),
-                "pulse_width_s": dur,
-                "input_energy_J": work_at[i1] - work_at[max(i0 - 1, 0)],
-                "verdict": "accepted",
-                "source": "simulator",
-            }
-            w.write_hit(hit)
-            w.write_json("/sim/hits", hit, log_time_ns=round(i0 * 1e9 / fs))
+            hit = Hit(
+                hit=k,
+                index=i0,
+                t_s=i0 / fs,
+                peak_force_N=float(peak),
+                pulse_width_s=dur,
+                input_energy_J=work_at[i1] - work_at[max(i0 - 1, 0)],
+                verdict="accepted",
+                source="simulator",
+            )
+            w.write_hit(hit, log_time_ns=round(i0 * 1e9 / fs))
+            w.write_json(layout.SIM_HITS_TOPIC, hit, log_time_ns=round(i0 * 1e9 / fs))
         clipped = {name: int(c) for name, c in zip(names, clip_counts, strict=True) if c}
         for name, count in clipped.items():
             w.write_event("overload", stream=STREAM, count=count, message=f"channel {name} clipped on {count} samples")

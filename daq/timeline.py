@@ -277,6 +277,11 @@ class StreamAligner:
     def fixed(self) -> bool:
         return self.applied is not None
 
+    @property
+    def reference_end(self) -> int | None:
+        """One past the newest reference sample received (the data time the aligner has reached), or None."""
+        return self._buf[self.reference].end
+
     # --- input --------------------------------------------------------------------------------
     def feed(self, block: SampleBlock, t_arrival: float | None = None) -> list[SampleBlock]:
         """One block of any stream (in index order within its stream). ``t_arrival``: host monotonic

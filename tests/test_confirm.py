@@ -127,8 +127,11 @@ def test_gvt_confirm_unknown_event_id(log_with_events):
     log, _res = log_with_events
     p = _gvt("confirm", str(log), "--event", "999", "--overwrite")
     assert p.returncode == 2 and "no IR event with id 999" in p.stderr and "Traceback" not in p.stderr
-    q = _gvt("confirm", str(log), "--event", "0", "--out", str(log))  # the session log itself: never replaced
-    assert q.returncode == 2 and "exists; pass --overwrite" in q.stderr and len(q.stderr.splitlines()) == 1
+    before = log.read_bytes()
+    for extra in ([], ["--overwrite"]):  # the session log itself: never replaced, not even with --overwrite
+        q = _gvt("confirm", str(log), "--event", "0", "--out", str(log), *extra)
+        assert q.returncode == 2 and "that is the input file" in q.stderr and len(q.stderr.splitlines()) == 1
+    assert log.read_bytes() == before
 
 
 @pytest.mark.slow

@@ -1,16 +1,15 @@
 """Interoperability: a gvtlink MCAP log is read by the TypeScript MCAP implementation (``@mcap/core`` under node).
 
-The node side (``tests/interop/read_block.mjs``) decompresses the zstd chunks with ``fzstd`` and decodes the
-first sample block with ``protobufjs``, using only the FileDescriptorSet stored in the log — no hand-written
-.proto. Needs ``node`` and ``npm``; the npm packages (pinned in ``tests/interop/package-lock.json``) are
-installed once into ``tests/interop/node_modules``. Skipped when node/npm are missing or the registry is
-unreachable.
+The node side (``tests/interop/read_block.mjs``) decompresses the zstd chunks with ``fzstd`` and decodes every
+sample block with ``protobufjs``, using only the FileDescriptorSet stored in the log — no hand-written .proto —
+and resolves one channel by the Foxglove-style message path ``<topic>.<field>``. Needs ``node`` and ``npm``;
+the npm packages (pinned in ``tests/interop/package-lock.json``) are installed once into
+``tests/interop/node_modules``. Skipped when node/npm are missing or the registry is unreachable.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import subprocess
 from pathlib import Path
@@ -18,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daq.log.proto import SCHEMA_NAME
+from daq.log.proto import block_schema_name, field_names
 from daq.log.writer import ChannelInfo, LogWriter
 from drivers.blocks import SampleBlock
 
@@ -84,37 +83,42 @@ def node_reader() -> list[str]:
 
 
 @pytest.mark.interop
-def test_node_mcap_reads_gvtlink_log(node_reader: list[str], tmp_path: Path) -> None:
+def test_node_mcap_reads_one_channel_by_message_path(node_reader: list[str], tmp_path: Path) -> None:
+    """@mcap/core + protobufjs resolve ``/daq/dev0/samples.<field>`` in every block: one channel's samples,
+    contiguous, equal over the whole log to what was written (a Foxglove-style path: no stride, no nesting)."""
     path = tmp_path / "interop.mcap"
-    names = tuple(f"a{i}" for i in range(N_CHANNELS))
+    names = ("hammer", "acc-3", "1st")  # not all protobuf identifiers: the fields are acc_3 and ch_1st
     chs = [ChannelInfo(n, "acceleration", "m/s^2", 1.02) for n in names]
-    blocks = [_block_data(0), _block_data(1)]
+    blocks = [_block_data(0), _block_data(1), _block_data(2)]
     with LogWriter(path) as w:
         w.add_stream("dev0", chs, SAMPLE_RATE, t0_ns=0)
         for k, d in enumerate(blocks):
             assert w.write_block(SampleBlock("dev0", FIRST_INDEX + k * N_SAMPLES, SAMPLE_RATE, names, d))
 
     topic = "/daq/dev0/samples"
-    res = subprocess.run([*node_reader, str(path), topic], capture_output=True, text=True, timeout=NODE_TIMEOUT)
+    fields = field_names(names)
+    res = subprocess.run([*node_reader, str(path), topic, fields[1]], capture_output=True, text=True, timeout=NODE_TIMEOUT)
     assert res.returncode == 0, f"node reader failed (exit {res.returncode}):\n{res.stderr[-4000:]}"
     lines = res.stdout.strip().splitlines()
     assert len(lines) == 1, res.stdout
     got = json.loads(lines[0])
 
-    assert got["schema"] == SCHEMA_NAME
+    assert got["schema"] == block_schema_name("dev0")
     assert got["schema_encoding"] == "protobuf"
     assert got["encoding"] == "protobuf"
     assert "zstd" in got["chunk_compression"]  # the node side really decompressed zstd chunks
     assert got["messages"] == len(blocks)
+    assert json.loads(got["metadata"]["fields"]) == fields == ["hammer", "acc_3", "ch_1st"]
 
-    first, d0 = got["first"], blocks[0]
+    first = got["first"]
     assert first["stream"] == "dev0"
     assert int(first["first_index"]) == FIRST_INDEX
     assert first["sample_rate"] == SAMPLE_RATE
     assert first["n_channels"] == N_CHANNELS
     assert first["n_samples"] == N_SAMPLES
-    assert first["n_data"] == d0.size
-    # float32 values widened to double are exact, so the first floats must match bit for bit
-    assert first["data"] == [float(x) for x in d0.ravel()[:6]]
-    expected_sum = math.fsum(float(x) for x in d0.ravel())
-    assert got["sum"] == pytest.approx(expected_sum, rel=1e-6)
+    assert first["fields"][-N_CHANNELS:] == fields
+    # each message gives one block of the channel; float32 widened to double is exact: compare bit for bit
+    assert got["series_lengths"] == [N_SAMPLES] * len(blocks)
+    want = np.concatenate([d[:, 1] for d in blocks])
+    assert np.array(got["series"], dtype=np.float64).astype(np.float32).tobytes() == want.tobytes()
+    assert got["series"] == [float(x) for x in want]

@@ -115,7 +115,8 @@ def test_blocks_decode_with_the_schema_stored_in_the_file(tmp_path):
         pool.Add(fd)
     cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
     m = cls.FromString(message.data)
-    got = np.array(m.data, dtype=np.float32).reshape(m.n_samples, m.n_channels)
+    fields = json.loads(channel.metadata["fields"])  # format 2: one packed field per channel (channel-major)
+    got = np.stack([np.array(getattr(m, f), dtype=np.float32) for f in fields], axis=1)
     assert got.tobytes() == data[:256].tobytes() and m.stream == "dev0" and m.sample_rate == 2048.0
     # and our decoder reads what the official encoder writes
     assert decode_block(m.SerializeToString()).data.tobytes() == data[:256].tobytes()
@@ -179,7 +180,7 @@ def test_wrong_schema_channel_is_reported_not_crashed(tmp_path):
     proc = subprocess.run(
         [*gvt_command(), "log", "export", str(p), "--out", str(tmp_path / "x.npz")], capture_output=True, text=True, timeout=60
     )
-    assert proc.returncode == 2 and "bad sample block" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.returncode == 3 and "bad sample block" in proc.stderr and "Traceback" not in proc.stderr  # data lost
 
 
 def test_sigkill_loses_at_most_about_one_second(tmp_path):
@@ -324,7 +325,7 @@ def test_export_npz_and_csv(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     rows = (tmp_path / "x.csv").read_text().splitlines()
-    assert rows[0] == "t_s,index,c0,c5" and len(rows) == len(data) + 1
+    assert rows[0] == "t [s] since 2023-11-14T22:13:20.000000000Z,index,c0 [m/s^2],c5 [m/s^2]" and len(rows) == len(data) + 1
     assert float(rows[5].split(",")[3]) == pytest.approx(float(data[4, 5]), rel=1e-6)
 
 
@@ -463,7 +464,7 @@ def test_replay_of_a_log_with_a_bad_block_replays_the_rest(tmp_path):
     assert stats.samples["dev0"] == 19 * 64 and stats.gaps["dev0"] == [(7 * 64, 8 * 64)] and len(stats.bad_blocks) == 1
     assert len(list(iter(sub))) == 19
     proc = subprocess.run([*gvt_command(), "replay", str(p), "--no-analysis"], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0 and "skipped 1 undecodable sample block" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.returncode == 3 and "skipped 1 undecodable sample block" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def _chunked_log(path: Path, n: int) -> np.ndarray:

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import Progress, err, fail, open_rig, out, rerun_hint
+from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out, rerun_hint
 
 
 def analyze(
@@ -18,12 +18,15 @@ def analyze(
     json_out: Annotated[bool, typer.Option("--json", help="Print JSON (summary, events, warnings).")] = False,
     windows_out: Annotated[bool, typer.Option("--windows", help="With --json: also every window's RQ and modal result.")] = False,
     rrd: Annotated[Path | None, typer.Option("--rrd", help="Also write a rerun recording (.rrd).")] = None,
+    overwrite: OverwriteOpt = False,
 ) -> None:
     """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
     from analysis.operator import AnalysisSettings
     from daq.analyze import AnalyzeError, analyze_log
     from daq.analyze_cmd import print_json, print_report
 
+    if rrd is not None:
+        check_output(rrd, overwrite, "--rrd", inputs=[log])
     r = open_rig(rig) if rig is not None else None
     if window is not None and window <= 0:
         fail("--window must be > 0 s")
@@ -36,11 +39,15 @@ def analyze(
         err.print(f"skipped {len(run.bad_blocks)} undecodable sample block(s), analysed as gaps; first: {run.bad_blocks[0]}",
                   markup=False)  # fmt: skip
     if rrd is not None:
+        from daq.outputs import atomic_output
         from daq.view.build import build_rrd
 
-        summary = build_rrd(log, rrd, rig=r, results=run.results)
+        with atomic_output(rrd) as tmp:
+            summary = build_rrd(log, tmp, rig=r, results=run.results)
         (err if json_out else out).print(f"wrote {rrd} ({summary.blocks} blocks); open it: {rerun_hint()} {rrd}", markup=False)
     if json_out:
         print_json(out, run, full=windows_out)
     else:
         print_report(out, run)
+    if run.bad_blocks:  # the results are of what was readable: say so in the exit code (docs/log-format.md)
+        raise typer.Exit(3)

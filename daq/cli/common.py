@@ -8,6 +8,7 @@ verb module, so anything heavy is imported inside the verb that uses it.
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -40,10 +41,14 @@ def open_rig(rig: str):
     return _open(rig)
 
 
-def check_output(path: Path, overwrite: bool, what: str = "--out") -> None:
-    """A new output file: its directory exists, it is not a directory, and an existing file is replaced
-    only when the user said so (``--overwrite``). Raises :class:`BadInput` (exit 2) with the fix."""
+def check_output(path: Path, overwrite: bool, what: str = "--out", inputs: Sequence[Path] = ()) -> None:
+    """A new output file: its directory exists, it is not a directory, it is none of the verb's ``inputs``
+    (not even with ``--overwrite``), and an existing file is replaced only when the user said so
+    (``--overwrite``). Raises :class:`BadInput` (exit 2) with the fix."""
+    from daq.outputs import refuse_own_input
+
     path = Path(path)
+    refuse_own_input(path, inputs, what)
     if path.is_dir():
         raise BadInput(f"{what} {path}: is a directory; give a file name inside it")
     parent = path.parent if str(path.parent) else Path(".")

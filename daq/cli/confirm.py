@@ -22,14 +22,16 @@ def confirm(
     import json
 
     from daq.confirm_cmd import companion_path, confirm_log, confirmations_table, write_companion
+    from daq.outputs import atomic_output
 
     dest = out_path or companion_path(log)
-    check_output(dest, overwrite)  # before minutes of work, not after
+    check_output(dest, overwrite, inputs=[log])  # before minutes of work, not after
     r = open_rig(rig) if rig is not None else None
     console = err if json_out else out
     with Progress(console) as report:
         run = confirm_log(log, r, event, progress=lambda f: report("confirming", f))
-    dest = write_companion(run, dest)
+    with atomic_output(dest) as tmp:
+        write_companion(run, tmp)
     if json_out:
         slim = [{k: v for k, v in rec.items() if k != "trajectory"} for rec in run.records]
         out.print_json(json.dumps({"log": str(log), "stream": run.stream, "events_from": run.events_from, "out": str(dest),

@@ -16,11 +16,13 @@ log_app = typer.Typer(no_args_is_help=True, help="Inspect, repair and export ses
 def info_cmd(
     file: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
     json_out: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    verify: Annotated[bool, typer.Option("--verify", help="Read and check every chunk (CRC) and sample block.")] = False,
 ) -> None:
-    """Streams, channels, rates, durations, sample counts, gaps, hits, events and file health."""
+    """Streams, channels, rates, durations, sample counts, gaps, hits, events and file health (from the summary;
+    --verify checks every chunk). Exit 0 whatever the health: the report says it."""
     from daq.log.tools import info_json, info_text, log_info
 
-    info = log_info(file)
+    info = log_info(file, verify=verify)
     if json_out:
         out.print(info_json(info), markup=False, soft_wrap=True)
     else:
@@ -36,17 +38,21 @@ def recover_cmd(
     """Rewrite everything readable; exit 0 when nothing was lost, 3 when data was lost."""
     from daq.log.tools import recover
 
-    check_output(dst, overwrite, "DST")
+    check_output(dst, overwrite, "DST", inputs=[src])
     rep = recover(src, dst)
     if rep.data_lost:
-        why = f" ({rep.stopped_because})" if rep.stopped_because else ""
+        reasons = [rep.stopped_because, rep.chunks_bad and f"{rep.chunks_bad} damaged chunk(s) skipped",
+                   rep.missing_by_sequence and f"{rep.missing_by_sequence} messages missing by sequence number"]  # fmt: skip
+        why = f" ({'; '.join(str(x) for x in reasons if x)})" if any(reasons) else ""
         err.print(
             f"gvt: recovered {rep.messages} messages from {rep.chunks_ok} complete chunks into {dst}; data was lost"
             f"{why}: read {rep.bytes_scanned} of {rep.file_size} bytes",
             markup=False,
         )
         raise typer.Exit(3)
-    out.print(f"recovered {rep.messages} messages into {dst}; nothing lost", markup=False)
+    notes = [n for n in (rep.summary_problem and f"the summary was unusable: {rep.summary_problem}",
+                         rep.duplicates and f"{rep.duplicates} duplicated messages kept once") if n]  # fmt: skip
+    out.print(f"recovered {rep.messages} messages into {dst}; nothing lost" + "".join(f"; {n}" for n in notes), markup=False)
 
 
 @log_app.command("export")
@@ -55,19 +61,20 @@ def export_cmd(
     fmt: Annotated[str, typer.Option("--format", help="npz or csv.")] = "npz",
     out_path: Annotated[Path | None, typer.Option("--out", help="Output file (default: FILE with the format's suffix).")] = None,
     channels: Annotated[str | None, typer.Option(help="Comma-separated channel names.")] = None,
-    start: Annotated[float | None, typer.Option(help="Start time, s since the stream's t0.")] = None,
-    end: Annotated[float | None, typer.Option(help="End time, s since the stream's t0.")] = None,
-    stream: Annotated[str | None, typer.Option(help="Only this stream (required for csv with several).")] = None,
+    start: Annotated[float | None, typer.Option(help="Start time, s since the session start.")] = None,
+    end: Annotated[float | None, typer.Option(help="End time, s since the session start.")] = None,
+    stream: Annotated[str | None, typer.Option(help="Only this stream (default: all, merged on one time axis).")] = None,
     overwrite: OverwriteOpt = False,
 ) -> None:
-    """Export samples to npz or csv, optionally by channel and time range."""
-    from daq.log.tools import export
+    """Export samples to npz or csv on the session's timeline (every stream on one time axis, units in the header),
+    optionally by channel and time range."""
+    from daq.log.export import export
 
     if fmt not in ("npz", "csv"):
         fail(f"--format must be npz or csv, got {fmt!r}")
     if start is not None and end is not None and end <= start:
         fail("--end must be after --start")
     target = out_path or file.with_suffix(f".{fmt}")
-    check_output(target, overwrite)
+    check_output(target, overwrite, inputs=[file])
     chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
     out.print(export(file, target, fmt, chans, start, end, stream), markup=False)

@@ -31,7 +31,7 @@ def replay(
 
     companion = companion_path(log)
     if analysis and confirm:
-        check_output(companion, overwrite, "the companion log")
+        check_output(companion, overwrite, "the companion log", inputs=[log])
     r = open_rig(rig) if rig is not None else None
     vtarget = None
     if view or connect:
@@ -52,6 +52,8 @@ def replay(
         close_live_view(out, vtarget, res.view_lane)
     if res.outcome.exit_code:
         fail(res.outcome.message or "replay failed", res.outcome.exit_code)
+    if res.stats.bad_blocks:  # replayed around damage: the skipped ranges were printed; data was lost
+        raise typer.Exit(3)
 
 
 def _drain():
@@ -73,8 +75,11 @@ def _print(log: Path, res, companion: Path) -> None:
 
         out.print(confirmations_table(res.confirmations, f"confirmations (WBEMD + slow flow, {res.stream})"))
         if res.confirmations:
-            dest = write_companion(ConfirmRun(str(log), res.stream, "replay", "replay", res.confirmations), companion)
-            out.print(f"wrote {len(res.confirmations)} confirmation records to {dest}", markup=False)
+            from daq.outputs import atomic_output
+
+            with atomic_output(companion) as tmp:
+                write_companion(ConfirmRun(str(log), res.stream, "replay", "replay", res.confirmations), tmp)
+            out.print(f"wrote {len(res.confirmations)} confirmation records to {companion}", markup=False)
     stats = res.stats
     health = "" if res.complete_log else f" (damaged log: {res.salvaged_messages} messages salvaged)"
     if stats.bad_blocks:

@@ -19,7 +19,10 @@ def report(
     """A static HTML report of a session: plots and tables of hits, verdicts, loss, RQ-FEP, IR events, confirmations."""
     from daq.report import build_report
 
-    check_output(out_path, overwrite)
-    s = build_report(log, out_path, rig=open_rig(rig) if rig is not None else None)
+    check_output(out_path, overwrite, inputs=[log])
+    from daq.outputs import atomic_output
+
+    with atomic_output(out_path) as tmp:
+        s = build_report(log, tmp, rig=open_rig(rig) if rig is not None else None)
     out.print(f"wrote {out_path}: {len(s.figures)} plots, {len(s.tables)} tables (analysis results from {s.results_from})",
               markup=False)  # fmt: skip

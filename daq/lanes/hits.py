@@ -4,6 +4,10 @@ With several devices it reads them through a :class:`~daq.timeline.StreamAligner
 reference device's index) and reports the clock-offset estimates on ``/daq/timeline``. Hits go to
 ``/daq/hits`` as they complete; at the end, channels that failed every hit go to ``/daq/events`` as
 ``suspect_channel`` (named, with why), and a hit gate that fell behind says how much it missed.
+
+Times (docs/log-format.md, "Time base"): hits at their trigger sample, timeline reports at the reference
+sample the aligner had reached, relative to the session's origin; when the aligner fixes a stream's offset
+it is handed to ``offsets`` (the log places that stream on the reference's timeline with it).
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from daq.log import layout
 from daq.timeline import StreamAligner
 from drivers.blocks import SampleBlock
 
-TIMELINE_TOPIC = "/daq/timeline"
+TIMELINE_TOPIC = layout.TIMELINE_TOPIC
 META_TIMELINE = "gvtlink.timeline"
 
 
@@ -29,8 +33,10 @@ class HitGateLane:
     name = "hits"
 
     def __init__(self, fan: FanOut, detector: HitDetector, sink: Sink, *, aligner: StreamAligner | None = None,
-                 maxsize: int = 64, metadata: Callable[[str, dict], None] | None = None) -> None:  # fmt: skip
+                 maxsize: int = 64, metadata: Callable[[str, dict], None] | None = None,
+                 offsets: Callable[[str, int, str], None] | None = None) -> None:  # fmt: skip
         self.detector = detector
+        self.offsets = offsets  # (stream, applied samples, method) once the aligner fixes them
         self.metadata = metadata  # the log's metadata records (the timeline's fixed and final offsets)
         self.aligner = aligner
         self.sink = sink
@@ -79,14 +85,18 @@ class HitGateLane:
     def _timeline(self) -> None:
         assert self.aligner is not None
         ref = self.aligner.reference
+        end = self.aligner.reference_end
+        t_ns = None if end is None else round(end * 1e9 / self.aligner.fs)
         for m in self.aligner.drain_messages():
-            self.sink(TIMELINE_TOPIC, m, None)
+            if m["kind"] == "fixed" and self.offsets is not None and m.get("applied_samples") is not None:
+                self.offsets(m["stream"], int(m["applied_samples"]), str(m.get("method", "")))
+            self.sink(TIMELINE_TOPIC, m, t_ns)
             if m["kind"] == "moved":
                 self.sink(layout.EVENTS_TOPIC, {
                     "kind": "timeline_moved", "stream": m["stream"],
                     "message": f"clock offset of {m['stream']} to {ref} moved by {m['moved_samples']:.1f} samples "
                                f"(limit {m['limit_samples']:.1f}); the merged stream keeps {m['applied_samples']}",
-                }, None)  # fmt: skip
+                }, t_ns)  # fmt: skip
 
     # --- end ------------------------------------------------------------------------------------------
     def finish(self, deadline: float) -> None:

@@ -1,34 +1,108 @@
-"""Read session logs: a fast indexed path to numpy, and a tolerant linear scan for broken files.
+"""Read session logs: a verified indexed path to numpy, and a tolerant linear scan for broken files.
 
-``open_log`` tries the indexed (seeking) reader first; when the footer or summary is missing or broken
-— a recorder that was killed, a copy cut short — it falls back to a linear scan that yields every
-message of every complete chunk and says what it salvaged (``SalvageReport``). Nothing here raises on
-a damaged file except :class:`LogReadError`, whose message is one line for the user.
+Every byte of sample data that leaves this module was checked (docs/log-format.md, "Reading"; the
+record-level checks are in ``daq/log/verify.py``, the metadata seal in ``daq/log/seal.py``):
+
+* the footer's ``summary_crc`` before the summary is trusted (a bad one: the file is read as damaged);
+* each chunk's ``uncompressed_crc`` (mcap's ``iter_messages`` does not check it: a bit flip was served as
+  data), after decompressing against the chunk's *declared* size, capped at :data:`MAX_CHUNK_BYTES` (a
+  zstd frame that expands to gigabytes is damage, not an allocation);
+* each sample block for plausibility (:func:`block_problem`): it decodes, has the stream's channels and
+  rate, finite values, and the ``first_index`` its ``log_time`` says — so a log without chunk CRCs (mcap
+  allows compression "" and CRC 0) does not pass garbage on either;
+* attachments against their record CRC and :data:`MAX_ATTACHMENT_BYTES`.
+
+A chunk or block that fails is *damage*: it is skipped, remembered (:class:`Damage`, with the log times of
+the messages it held, from the chunk's message indexes) and turned into exact sample ranges per stream by
+the readers (``read_stream``'s ``damaged``, ``iter_blocks``). ``open_log`` falls back to a linear scan when
+the footer or summary is missing or broken; nothing here raises on a damaged file except
+:class:`LogReadError` (BadInput, exit 2) and :class:`LogDamagedError` (DataLost, exit 3), one line each.
 """
 
 from __future__ import annotations
 
+import heapq
+import io
 import json
 import os
+import struct
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
-from zstandard import ZstdError
+from mcap.data_stream import ReadDataStream
+from mcap.records import (
+    Attachment,
+    Channel,
+    ChunkIndex,
+    Message,
+    Metadata,
+    Schema,
+)
+from mcap.summary import Summary
 
-from analysis.errors import BadInput
+from analysis.errors import BadInput, DataLost
 from daq.log import layout
-from daq.log.proto import BlockDecodeError, decode_block
+from daq.log.proto import BlockDecodeError, DecodedBlock, decode_block
+from daq.log.seal import unseal
+from daq.log.verify import (  # noqa: F401  (read_summary, chunk_payload, MAX_*: part of this module's API)
+    _EXPECTED_ERRORS,
+    _OP_ATTACHMENT,
+    _OP_CHANNEL,
+    _OP_CHUNK,
+    _OP_MESSAGE,
+    _OP_MESSAGE_INDEX,
+    _OP_METADATA,
+    _OP_SCHEMA,
+    MAGIC,
+    MAX_ATTACHMENT_BYTES,
+    MAX_CHUNK_BYTES,
+    MAX_RECORD_BYTES,
+    MAX_SUMMARY_BYTES,
+    _attachment,
+    _Damaged,
+    _describe,
+    _message_index_times,
+    _reason,
+    _u64,
+    chunk_payload,
+    chunk_records,
+    parse_chunk,
+    read_summary,
+)
+
+#: samples in one block (the drivers use 64..8192)
+MAX_BLOCK_SAMPLES = 1 << 20
+#: a block's first_index may differ from what its log time says by this much (s) before it is absurd: the writer
+#: logs it exactly, but logs assembled otherwise (tests reorder blocks by seconds) are still read
+MAX_INDEX_DRIFT_S = 3600.0
+#: |value| beyond this is not a measurement in SI units (a flipped float32 exponent gives 1e19..1e38)
+MAX_ABS_VALUE = 1e30
 
 
 class LogReadError(BadInput):
     """The file cannot be read as a gvtlink log; ``str()`` is one line for the user."""
+
+
+class LogDamagedError(LogReadError, DataLost):
+    """Part of the log is damaged and the reader was asked not to skip it (one line naming ``gvt log recover``);
+    a LogReadError too, so every caller that handles a bad log handles it, but data was lost: exit 3."""
+
+    exit_code = 3
+
+
+@dataclass
+class Damage:
+    """One damaged chunk (or implausible block): where, why, and the log times of the messages it held per
+    channel id (from its message indexes; None when those are unreadable too)."""
+
+    offset: int
+    reason: str
+    start_ns: int
+    end_ns: int
+    lost: dict[int, list[int]] | None = None
 
 
 @dataclass
@@ -43,12 +117,19 @@ class SalvageReport:
     file_size: int = 0
     stopped_because: str | None = None
     expected_messages: int | None = None  # from the summary, when there is one
+    summary_problem: str | None = None  # why the summary was not used (a cut, a CRC mismatch)
+    duplicates: int = 0  # messages seen twice (a duplicated chunk) and kept once
+    #: messages whose per-channel sequence numbers are missing between the first and last seen (``recover``):
+    #: a chunk cut out of the middle of a file leaves no other trace once the summary no longer matches
+    missing_by_sequence: int = 0
 
     @property
     def data_lost(self) -> bool:
+        if self.chunks_bad or self.missing_by_sequence:
+            return True
         if self.expected_messages is not None:
             return self.messages < self.expected_messages
-        return not self.complete or self.chunks_bad > 0
+        return not self.complete and self.stopped_because is not None
 
 
 @dataclass
@@ -59,6 +140,10 @@ class StreamInfo:
     t0_ns: int
     channels: list[str]
     units: list[str]
+
+    def index_at(self, log_time: int) -> int:
+        """The sample index whose time is ``log_time`` (the inverse of the writer's log_time rule)."""
+        return round((log_time - self.t0_ns) * self.sample_rate / 1e9)
 
 
 @dataclass
@@ -72,6 +157,7 @@ class StreamData:
     block_first_index: np.ndarray
     block_status: np.ndarray
     gaps: list[tuple[int, int]] = field(default_factory=list)  # [start, end) missing sample ranges
+    damaged: list[tuple[int, int, str]] = field(default_factory=list)  # [start, end) skipped as damage, and why
 
     @property
     def t(self) -> np.ndarray:
@@ -79,9 +165,26 @@ class StreamData:
         return self.index / self.info.sample_rate
 
 
-#: what reading a damaged file raises, besides mcap's own errors: a corrupt zstd chunk raises zstandard's
-#: ZstdError from deep inside mcap's chunk decompression (found with a zeroed stretch inside a chunk)
-_EXPECTED_ERRORS = (McapError, ZstdError, EOFError, ValueError, OSError, KeyError, IndexError, MemoryError, OverflowError)
+def block_problem(b: DecodedBlock, info: StreamInfo, log_time: int) -> str | None:
+    """Why a decoded block is not data of ``info`` (None: it is). A chunk CRC guards the bytes; this guards a
+    log without CRCs and a writer's garbage: shape, rate, the first_index its log time says, finite values."""
+    n, c = b.data.shape
+    if c != len(info.channels):
+        return f"{c} channels in a {len(info.channels)}-channel stream"
+    if not 0 < n <= MAX_BLOCK_SAMPLES:
+        return f"{n} samples in a block"
+    if b.sample_rate != info.sample_rate:
+        return f"rate {b.sample_rate:g} Hz in a {info.sample_rate:g} Hz stream"
+    if abs(b.first_index - info.index_at(log_time)) > MAX_INDEX_DRIFT_S * info.sample_rate:
+        return f"first_index {b.first_index} but its log time says {info.index_at(log_time)}"
+    lo, hi = float(b.data.min()), float(b.data.max())  # two passes at memory speed; NaN propagates
+    if lo != lo or hi != hi:
+        return "NaN values"
+    if not (-MAX_ABS_VALUE <= lo and hi <= MAX_ABS_VALUE):  # rare: ±inf is a value (a clipped ADC), 1e38 is not
+        a = np.abs(b.data)
+        if ((a > MAX_ABS_VALUE) & np.isfinite(a)).any():
+            return f"values beyond ±{MAX_ABS_VALUE:g}"
+    return None
 
 
 class LogReader:
@@ -96,24 +199,23 @@ class LogReader:
         if self.file_size == 0:
             raise LogReadError(f"{self.path}: empty file, not an MCAP log")
         with open(self.path, "rb") as f:
-            if f.read(8) != b"\x89MCAP0\r\n":
+            if f.read(8) != MAGIC:
                 raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
-        self.summary = None
-        self._indexed = False
-        try:
-            with open(self.path, "rb") as f:
-                summary = make_reader(f).get_summary()
-            if summary is not None and summary.statistics is not None:
-                self.summary = summary
-                self._indexed = True
-        except _EXPECTED_ERRORS:
-            pass
-        self.report = SalvageReport(complete=self._indexed, file_size=self.file_size)
+            try:
+                self.summary: Summary | None = read_summary(f, self.file_size)
+                problem = None
+            except _EXPECTED_ERRORS as exc:
+                self.summary, problem = None, _describe(exc)
+        self._indexed = self.summary is not None
+        #: damaged chunks and implausible blocks met so far, by file offset (a block: its chunk's, plus its log time)
+        self.damage: dict[tuple[int, int], Damage] = {}
+        self.problems: list[str] = []  # attachments or metadata records that failed their checks
+        self.report = SalvageReport(complete=self._indexed, file_size=self.file_size, summary_problem=problem)
         self._scan_cache: dict[str, Any] | None = None
-        if self._indexed:
+        if self.summary is not None:
             self.report.expected_messages = int(self.summary.statistics.message_count)
             self.report.messages = self.report.expected_messages
-            self.report.chunks_ok = int(self.summary.statistics.chunk_count)
+            self.report.chunks_ok = len(self.summary.chunk_indexes)
             self.report.bytes_scanned = self.file_size
         else:
             self._scan()
@@ -122,32 +224,202 @@ class LogReader:
     def indexed(self) -> bool:
         return self._indexed
 
-    # --- tolerant path -----------------------------------------------------------------------
-    def _records(self, rep: SalvageReport) -> Iterator[Any]:
-        """Every readable record in file order, a chunk's contents flattened in place of the chunk; a chunk
-        that fails its CRC or does not decompress is skipped and counted. Streams: one chunk in memory."""
+    # --- verified indexed path ------------------------------------------------------------------
+    def _chunk(self, f: BinaryIO, ci: ChunkIndex) -> list[Schema | Channel | Message]:
+        """One indexed chunk's records, its header matched against its index, decompressed (capped), CRC-checked."""
+        if ci.chunk_length > MAX_RECORD_BYTES:
+            raise _Damaged(f"chunk of {ci.chunk_length} bytes, over the {MAX_RECORD_BYTES >> 20} MB limit")
+        f.seek(ci.chunk_start_offset)
+        raw = f.read(ci.chunk_length)
+        if len(raw) != ci.chunk_length or raw[0] != _OP_CHUNK or _u64(raw, 1) != ci.chunk_length - 9:
+            raise _Damaged("no chunk record where the index says")
+        chunk = parse_chunk(memoryview(raw)[9:])
+        if (chunk.uncompressed_size, len(chunk.data), chunk.compression) != (
+            ci.uncompressed_size, ci.compressed_size, ci.compression,
+        ):  # fmt: skip
+            raise _Damaged("chunk header disagrees with its index")
+        return chunk_records(chunk_payload(chunk))
+
+    def _iter_indexed(
+        self, cids: set[int] | None, start_ns: int | None, end_ns: int | None, time_order: bool, rep: SalvageReport
+    ) -> Iterator[Message | Damage]:
+        """Verified messages of the channels ``cids`` (None: all) from the chunks the index says hold them, in
+        log-time order (a heap across overlapping chunks, one chunk decompressed at a time) or file order; a
+        chunk that fails is yielded as a :class:`Damage` where it would have been read."""
+        assert self.summary is not None
+        plan, seen = [], set()
+        for ci in self.summary.chunk_indexes:
+            if ci.chunk_start_offset in seen:
+                continue
+            seen.add(ci.chunk_start_offset)
+            if cids is not None and not cids & set(ci.message_index_offsets):
+                continue
+            if (start_ns is not None and ci.message_end_time < start_ns) or (
+                end_ns is not None and ci.message_start_time >= end_ns
+            ):
+                continue
+            plan.append(ci)
+        plan.sort(
+            key=(lambda c: (c.message_start_time, c.chunk_start_offset)) if time_order else (lambda c: c.chunk_start_offset)
+        )
+        heap: list[tuple[int, int, Message]] = []
+        n = 0
         with open(self.path, "rb") as f:
-            reader = StreamReader(f, emit_chunks=True, record_size_limit=max(self.file_size, 1 << 20))
-            it = reader.records
-            while True:
+            for ci in plan:
+                while heap and heap[0][0] < ci.message_start_time:
+                    yield heapq.heappop(heap)[2]
                 try:
-                    rec = next(it)
-                except StopIteration:
-                    break
+                    records = self._chunk(f, ci)
                 except _EXPECTED_ERRORS as exc:
-                    rep.stopped_because = _describe(exc)
+                    rep.chunks_bad += 1
+                    d = Damage(ci.chunk_start_offset, _reason(exc), ci.message_start_time, ci.message_end_time,
+                               _message_index_times(f, ci, self.file_size))  # fmt: skip
+                    self.damage.setdefault((d.offset, -1), d)
+                    yield d
+                    continue
+                rep.chunks_ok += 1
+                for m in records:
+                    if not isinstance(m, Message) or (cids is not None and m.channel_id not in cids):
+                        continue
+                    if (start_ns is not None and m.log_time < start_ns) or (end_ns is not None and m.log_time >= end_ns):
+                        continue
+                    rep.messages += 1
+                    if time_order:
+                        heapq.heappush(heap, (m.log_time, n, m))
+                        n += 1
+                    else:
+                        yield m
+        while heap:
+            yield heapq.heappop(heap)[2]
+
+    # --- tolerant path ---------------------------------------------------------------------------
+    _KNOWN = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x09, 0x0A, 0x0B, 0x0C, 0x0D, 0x0E, 0x0F})
+
+    def _records(self, rep: SalvageReport) -> Iterator[Any]:
+        """Every readable record in file order, a chunk's contents flattened in place of the chunk, reading one
+        record at a time (memory: one chunk). A chunk that fails (CRC, decompression, caps) is yielded as a
+        :class:`Damage` after its message indexes (the log times it held); a record whose header is garbage
+        is skipped by searching for the next chunk that passes its CRC. Messages seen before (a duplicated
+        chunk) are dropped and counted. Sets ``rep.stopped_because`` only when the data section was not read
+        to its end (DataEnd): a cut in the summary loses nothing."""
+        seen: set[tuple[int, int, int, int]] = set()
+        pending: Damage | None = None
+        data_end = False
+        with open(self.path, "rb") as f:
+            pos = 8
+            while True:
+                f.seek(pos)
+                head = f.read(9)
+                if len(head) < 9:
+                    if not data_end:
+                        rep.stopped_because = (
+                            "the file ends inside its data section" if head else "the file ends before its data end"
+                        )
                     break
-                rep.bytes_scanned = f.tell()
-                if isinstance(rec, Chunk):
-                    try:
-                        records = breakup_chunk(rec, validate_crc=True)
-                    except _EXPECTED_ERRORS:
+                op, length = head[0], _u64(head, 1)
+                rep.bytes_scanned = pos
+                if op not in self._KNOWN or length > MAX_RECORD_BYTES or pos + 9 + length > self.file_size:
+                    if pos + 9 + length > self.file_size and op in self._KNOWN and length <= MAX_RECORD_BYTES:
+                        if not data_end:
+                            rep.stopped_because = "the file ends inside a record"
+                        break
+                    nxt = self._resync(f, pos + 1)
+                    if pending is None:
                         rep.chunks_bad += 1
+                        pending = Damage(pos, "unreadable bytes", -1, -1, None)
+                    if nxt is None:
+                        rep.stopped_because = rep.stopped_because or f"unreadable bytes from {pos} on"
+                        break
+                    pos = nxt
+                    continue
+                body = f.read(length)
+                pos += 9 + length
+                if op == _OP_MESSAGE_INDEX and pending is not None:
+                    try:
+                        cid, n = struct.unpack_from("<HI", body, 0)
+                        times = [t for t, _o in struct.iter_unpack("<QQ", body[6 : 6 + n])]
+                        pending.lost = {**(pending.lost or {}), cid: times}
+                    except struct.error:
+                        pass
+                    continue
+                if pending is not None:
+                    self.damage.setdefault((pending.offset, -1), pending)
+                    yield pending
+                    pending = None
+                if op == _OP_CHUNK:
+                    try:
+                        chunk = parse_chunk(body)
+                        records = chunk_records(chunk_payload(chunk))
+                    except _EXPECTED_ERRORS as exc:
+                        rep.chunks_bad += 1
+                        pending = Damage(pos - 9 - length, _reason(exc), -1, -1, None)
                         continue
                     rep.chunks_ok += 1
-                    yield from records
-                else:
-                    yield rec
+                    for r in records:
+                        if isinstance(r, Message):
+                            key = (r.channel_id, r.sequence, r.log_time, hash(r.data))
+                            if key in seen:
+                                rep.duplicates += 1
+                                continue
+                            seen.add(key)
+                        yield r
+                elif op == _OP_MESSAGE and length >= 22:  # an unchunked log: no CRC; block_problem still checks
+                    cid, seq, lt, pt = struct.unpack_from("<HIQQ", body, 0)
+                    yield Message(channel_id=cid, log_time=lt, data=body[22:], publish_time=pt, sequence=seq)
+                elif op == 0x0F:  # DataEnd: the data section is whole up to here
+                    data_end = True
+                elif op in (_OP_METADATA, _OP_ATTACHMENT, _OP_SCHEMA, _OP_CHANNEL):
+                    rec = self._loose_record(op, body)
+                    if rec is not None:
+                        yield rec
+                elif op == 0x02:
+                    break
+            rep.bytes_scanned = min(pos, self.file_size)
+        if pending is not None:
+            self.damage.setdefault((pending.offset, -1), pending)
+            yield pending
+
+    def _loose_record(self, op: int, body: bytes) -> Any:
+        """A schema, channel, metadata or attachment record outside a chunk; None (noted) when it is garbled."""
+        try:
+            if op == _OP_ATTACHMENT:
+                return _attachment(body)
+            s = ReadDataStream(io.BytesIO(body))
+            return {_OP_METADATA: Metadata.read, _OP_SCHEMA: Schema.read, _OP_CHANNEL: Channel.read}[op](s)
+        except (*_EXPECTED_ERRORS, UnicodeDecodeError) as exc:
+            self.problems.append(f"a record of type {op:#x} is unreadable ({_reason(exc)})")
+            return None
+
+    def _resync(self, f: BinaryIO, pos: int) -> int | None:
+        """The offset of the next chunk record at or after ``pos`` that passes its checks (None: none)."""
+        window = 1 << 20
+        while pos < self.file_size:
+            f.seek(pos)
+            buf = f.read(window + 64)
+            at = buf.find(b"\x06")
+            while 0 <= at < window:
+                cand = pos + at
+                if self._chunk_ok_at(f, cand):
+                    return cand
+                at = buf.find(b"\x06", at + 1)
+            pos += window
+        return None
+
+    def _chunk_ok_at(self, f: BinaryIO, cand: int) -> bool:
+        f.seek(cand)
+        head = f.read(9 + 41)
+        if len(head) < 50:
+            return False
+        length = _u64(head, 1)
+        clen = struct.unpack_from("<I", head, 9 + 28)[0]
+        if length > MAX_RECORD_BYTES or cand + 9 + length > self.file_size or clen > 8:
+            return False
+        f.seek(cand + 9)
+        try:
+            chunk_payload(parse_chunk(f.read(length)))
+        except _EXPECTED_ERRORS:
+            return False
+        return True
 
     def _scan(self) -> dict[str, Any]:
         """Linear scan of everything readable; cached. Fills ``self.report``. Keeps schemas, channels,
@@ -161,7 +433,7 @@ class LogReader:
         metadata: list[Metadata] = []
         attachments: list[Attachment] = []
         rep = self.report
-        for r in self._records(rep):  # DataEnd, Footer, indexes: nothing to keep
+        for r in self._records(rep):
             if isinstance(r, Message):
                 counts[r.channel_id] = counts.get(r.channel_id, 0) + 1
             elif isinstance(r, Schema):
@@ -173,8 +445,6 @@ class LogReader:
             elif isinstance(r, Attachment):
                 attachments.append(r)
         rep.messages = sum(counts.values())
-        if rep.stopped_because is None and rep.bytes_scanned < self.file_size - 8:
-            rep.stopped_because = "footer or summary unreadable"
         self._scan_cache = {
             "schemas": schemas,
             "channels": channels,
@@ -187,12 +457,12 @@ class LogReader:
     # --- common API --------------------------------------------------------------------------
     def schemas(self) -> dict[int, Schema]:
         """Schemas by id, from the summary or, in a damaged file, from what the scan salvaged."""
-        if self._indexed:
+        if self.summary is not None:
             return dict(self.summary.schemas)
         return dict(self._scan()["schemas"])
 
     def channels(self) -> list[Channel]:
-        if self._indexed:
+        if self.summary is not None:
             return list(self.summary.channels.values())
         return list(self._scan()["channels"].values())
 
@@ -204,104 +474,198 @@ class LogReader:
                 continue
             md = ch.metadata
             try:
-                out[stream] = StreamInfo(
-                    stream,
-                    ch.topic,
-                    float(md["sample_rate"]),
-                    int(md["t0_ns"]),
-                    json.loads(md["channels"]),
+                info = StreamInfo(
+                    stream, ch.topic, float(md["sample_rate"]), int(md["t0_ns"]), json.loads(md["channels"]),
                     json.loads(md.get("units", "[]")),
-                )
+                )  # fmt: skip
             except (KeyError, ValueError) as exc:
                 raise LogReadError(f"{self.path}: channel {ch.topic} lacks valid stream metadata ({exc})") from None
+            if not (0 < info.sample_rate <= 1e7 and isinstance(info.channels, list) and info.channels):
+                raise LogReadError(f"{self.path}: channel {ch.topic} has implausible stream metadata; run `gvt log recover`")
+            out[stream] = info
         return out
 
-    def iter_messages(
-        self, topics: Sequence[str] | None = None, start_ns: int | None = None, end_ns: int | None = None,
-        time_order: bool = False, salvage: bool = False,
-    ) -> Iterator[tuple[Channel, Message]]:
-        """Messages in file order (log order within a stream), optionally filtered.
-
-        A chunk that fails its CRC or does not decompress in an indexed log ends the whole-log pass with a
-        :class:`LogReadError`, unless ``salvage`` (``gvt log recover``): then it is skipped and ``self.report``
-        says what the pass read (``messages``, ``chunks_bad``, so ``data_lost``). Damaged logs are always read
-        that way.
-
-        ``time_order=True`` yields them by log time instead, and reads the file a chunk at a time: mcap 1.6's
-        file-order iteration decompresses *every* chunk before it yields the first message (its queue
-        puts a chunk's messages behind all the remaining chunk indexes) — the whole log in memory,
-        measured 67 MB for a 54 MB log. Sample blocks are logged at their sample time, so for them time
-        order is sample order.
-        """  # fmt: skip
-        if self._indexed and (topics is not None or time_order):
-            with open(self.path, "rb") as f:
-                r = make_reader(f)
-                try:
-                    for _schema, ch, msg in r.iter_messages(
-                        topics=topics, starting_at=start_ns, ending_before=end_ns, log_time_order=time_order
-                    ):
-                        yield ch, msg
-                except _EXPECTED_ERRORS as exc:
-                    raise LogReadError(f"{self.path}: {_describe(exc)}") from None
-            return
-        # the whole log in file order (gvt log recover), or a damaged log: one linear pass, a chunk at a time
+    def _messages(
+        self, topics: Sequence[str] | None, start_ns: int | None, end_ns: int | None, time_order: bool, rep: SalvageReport
+    ) -> Iterator[tuple[Channel, Message] | Damage]:
         chans = {ch.id: ch for ch in self.channels()}
-        want = set(topics) if topics else None
+        cids = None if topics is None else {cid for cid, ch in chans.items() if ch.topic in set(topics)}
+        if self.summary is not None:
+            source: Iterator[Any] = self._iter_indexed(cids, start_ns, end_ns, time_order, rep)
+        else:
+            source = self._records(rep)
+        for m in source:
+            if isinstance(m, Damage):
+                yield m
+                continue
+            if not isinstance(m, Message):
+                continue
+            ch = chans.get(m.channel_id)
+            if ch is None or (cids is not None and m.channel_id not in cids):
+                continue
+            if (start_ns is not None and m.log_time < start_ns) or (end_ns is not None and m.log_time >= end_ns):
+                continue
+            yield ch, m
+
+    def iter_messages(
+        self,
+        topics: Sequence[str] | None = None,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+        time_order: bool = False,
+        salvage: bool = False,
+    ) -> Iterator[tuple[Channel, Message]]:
+        """Verified messages (every chunk CRC-checked), in file order or, ``time_order``, by log time (a chunk
+        decompressed at a time: mcap's own reader held the whole log for that, and checked no CRC).
+
+        A chunk that fails is skipped and remembered in ``self.damage``; after the good messages the pass then
+        raises :class:`LogDamagedError`, unless ``salvage`` (``gvt log recover``): then the pass's counts go to
+        ``self.report`` (``messages``, ``chunks_bad``, so ``data_lost``)."""  # fmt: skip
         rep = SalvageReport(complete=self._indexed, file_size=self.file_size)
-        read = 0
-        for msg in self._records(rep):
-            if not isinstance(msg, Message):
-                continue
-            read += 1
-            ch = chans.get(msg.channel_id)
-            if ch is None or (want is not None and ch.topic not in want):
-                continue
-            if start_ns is not None and msg.log_time < start_ns:
-                continue
-            if end_ns is not None and msg.log_time >= end_ns:
-                continue
-            yield ch, msg
-        if self._indexed and (rep.stopped_because is not None or rep.chunks_bad):
-            why = rep.stopped_because or f"{rep.chunks_bad} chunk(s) fail their CRC or do not decompress"
-            if not salvage:
-                raise LogReadError(f"{self.path}: {why}; 'gvt log recover {self.path} fixed.mcap' rewrites what is readable")
-            self.report.messages, self.report.chunks_bad, self.report.stopped_because = read, rep.chunks_bad, why
-            self.report.chunks_ok = rep.chunks_ok
+        first: Damage | None = None
+        for item in self._messages(topics, start_ns, end_ns, time_order, rep):
+            if not isinstance(item, Damage):
+                yield item
+            elif first is None:
+                first = item
+        if first is not None and not salvage:
+            where = f" at byte {first.offset}" if first.offset >= 0 else ""
+            raise LogDamagedError(
+                f"{self.path}: {rep.chunks_bad} damaged chunk(s), the first{where}: {first.reason}; "
+                f"'gvt log recover {self.path} fixed.mcap' rewrites what is readable"
+            )
+        if salvage:
+            r = self.report
+            r.messages, r.chunks_ok, r.chunks_bad, r.duplicates = rep.messages, rep.chunks_ok, rep.chunks_bad, rep.duplicates
+            if not self._indexed:
+                r.stopped_because = rep.stopped_because
+                r.messages = self.report.messages if rep.messages == 0 else rep.messages
 
     def message_count(self, topic: str) -> int:
         """Messages on ``topic``: from the summary's statistics (no data read) or from the salvage scan."""
-        if self._indexed:
+        if self.summary is not None:
             counts = self.summary.statistics.channel_message_counts
             return sum(int(counts.get(ch.id, 0)) for ch in self.summary.channels.values() if ch.topic == topic)
         scan = self._scan()
         ids = {cid for cid, ch in scan["channels"].items() if ch.topic == topic}
         return sum(n for cid, n in scan["counts"].items() if cid in ids)
 
+    def _indexed_record(self, offset: int, length: int, op: int) -> bytes:
+        if length > MAX_ATTACHMENT_BYTES + (1 << 16) or offset + length > self.file_size:
+            raise _Damaged(f"a record of {length} bytes, over the {MAX_ATTACHMENT_BYTES >> 20} MB limit")
+        with open(self.path, "rb") as f:
+            f.seek(offset)
+            raw = f.read(length)
+        if len(raw) < 9 or raw[0] != op or _u64(raw, 1) != length - 9:
+            raise _Damaged("no record where the index says")
+        return raw[9:]
+
     def metadata(self) -> dict[str, dict[str, str]]:
-        if self._indexed:
-            with open(self.path, "rb") as f:
-                return {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
-        return {m.name: dict(m.metadata) for m in self._scan()["metadata"]}
+        """Metadata records that pass their seal (``daq/log/seal.py``); the others are named in ``self.problems``."""
+        records = self._scan()["metadata"] if self.summary is None else self._indexed_metadata()
+        out = {}
+        for m in records:
+            body, ok = unseal(m.name, m.metadata)
+            if ok:
+                out[m.name] = body
+            else:
+                self.problems.append(f"metadata record {m.name!r} fails its CRC (left out)")
+        return out
+
+    def _indexed_metadata(self) -> list[Metadata]:
+        assert self.summary is not None
+        out = []
+        for mi in self.summary.metadata_indexes:
+            try:
+                out.append(Metadata.read(ReadDataStream(io.BytesIO(self._indexed_record(mi.offset, mi.length, _OP_METADATA)))))
+            except (*_EXPECTED_ERRORS, UnicodeDecodeError) as exc:
+                self.problems.append(f"metadata record {mi.name!r} is unreadable ({_reason(exc)})")
+        return out
 
     def attachments(self) -> dict[str, tuple[str, bytes]]:
-        if self._indexed:
-            with open(self.path, "rb") as f:
-                return {a.name: (a.media_type, bytes(a.data)) for a in make_reader(f).iter_attachments()}
-        return {a.name: (a.media_type, bytes(a.data)) for a in self._scan()["attachments"]}
+        """Attachments that pass their CRC and the size cap; the others are named in ``self.problems``."""
+        if self.summary is None:
+            return {a.name: (a.media_type, bytes(a.data)) for a in self._scan()["attachments"]}
+        out = {}
+        for ai in self.summary.attachment_indexes:
+            try:
+                a = _attachment(self._indexed_record(ai.offset, ai.length, _OP_ATTACHMENT))
+                out[a.name] = (a.media_type, bytes(a.data))
+            except (*_EXPECTED_ERRORS, UnicodeDecodeError) as exc:
+                self.problems.append(f"attachment {ai.name!r} is unusable ({_reason(exc)})")
+        return out
 
     def json_messages(self, topic: str) -> list[dict[str, Any]]:
+        """The verified JSON records of ``topic`` in log-time order; a damaged chunk's are missing (``self.damage``)."""
         out = []
-        for _ch, msg in self.iter_messages([topic]):
+        rep = SalvageReport(complete=self._indexed, file_size=self.file_size)
+        for item in self._messages([topic], None, None, True, rep):
+            if isinstance(item, Damage):
+                continue
+            msg = item[1]
             try:
-                out.append(json.loads(msg.data))
+                obj = json.loads(msg.data)
+                out.append(obj if isinstance(obj, dict) else {"kind": "undecodable", "raw_bytes": len(msg.data)})
             except ValueError:
                 out.append({"kind": "undecodable", "raw_bytes": len(msg.data)})
         return out
 
+    def stream_records(self) -> dict[str, dict[str, Any]]:
+        """The writer's ``gvtlink.streams`` record (counts, gaps, segments per stream) when the file is complete
+        and the record parses; {} otherwise (older logs, damaged ones)."""
+        if self.summary is None:
+            return {}
+        rec = self.metadata().get(layout.META_STREAMS)
+        out = {}
+        for name, text in (rec or {}).items():
+            try:
+                v = json.loads(text)
+                out[name] = {
+                    k: v[k] for k in ("blocks", "samples", "first_index", "end_index", "gaps", "segments", "status_flags")
+                }
+            except (ValueError, KeyError, TypeError):
+                return {}
+        return out
+
+    def iter_blocks(
+        self, stream: str, start_ns: int | None = None, end_ns: int | None = None
+    ) -> Iterator[tuple[int, DecodedBlock] | Damage]:
+        """``stream``'s verified, plausible blocks as (log_time, block) in log-time order, and a :class:`Damage`
+        where a chunk holding its messages failed or a block is implausible (:func:`block_problem`)."""
+        info = self.streams()[stream]
+        cids = {ch.id for ch in self.channels() if ch.topic == info.topic}
+        rep = SalvageReport(complete=self._indexed, file_size=self.file_size)
+        for item in self._messages([info.topic], start_ns, end_ns, True, rep):
+            if isinstance(item, Damage):
+                if item.lost is None or cids & set(item.lost):
+                    yield item
+                continue
+            _ch, msg = item
+            try:
+                b = decode_block(msg.data)
+                why = block_problem(b, info, msg.log_time)
+            except BlockDecodeError as exc:
+                b, why = None, f"undecodable ({exc})"
+            if why is not None or b is None:
+                d = Damage(-1, f"bad sample block (sequence {msg.sequence}): {why}", msg.log_time, msg.log_time,
+                           {msg.channel_id: [msg.log_time]})  # fmt: skip
+                self.damage.setdefault((-1, msg.log_time), d)
+                yield d
+                continue
+            yield msg.log_time, b
+
     def read_stream(
-        self, stream: str, channels: Sequence[str] | None = None, start: float | None = None, end: float | None = None
+        self,
+        stream: str,
+        channels: Sequence[str] | None = None,
+        start: float | None = None,
+        end: float | None = None,
+        on_damage: str = "refuse",
     ) -> StreamData:
-        """All samples of ``stream`` (optionally some channels, and ``start <= t < end`` seconds)."""
+        """All samples of ``stream`` (optionally some channels, and ``start <= t < end`` seconds). Damage in
+        the range: ``on_damage="refuse"`` raises :class:`LogDamagedError` (exit 3, naming the samples and
+        ``gvt log recover``); ``"skip"`` leaves it out and lists it in ``damaged``. A duplicated block is
+        kept once."""  # fmt: skip
         infos = self.streams()
         if stream not in infos:
             raise LogReadError(f"{self.path}: no stream {stream!r}; streams: {sorted(infos)}")
@@ -316,43 +680,116 @@ class LogReader:
         start_ns = None if start is None else info.t0_ns + int(np.floor(start * 1e9)) - int(1e9 * 65536 / info.sample_rate)
         end_ns = None if end is None else info.t0_ns + int(np.ceil(end * 1e9)) + 1
         parts, firsts, statuses = [], [], []
-        for _ch, msg in self.iter_messages([info.topic], start_ns, end_ns, time_order=True):
-            try:
-                b = decode_block(msg.data)
-            except BlockDecodeError as exc:
-                raise LogReadError(f"{self.path}: bad sample block in {info.topic} (sequence {msg.sequence}): {exc}") from None
-            if b.data.shape[1] != len(info.channels):
-                raise LogReadError(f"{self.path}: block with {b.data.shape[1]} channels in a {len(info.channels)}-channel stream")
+        tracker = DamageRanges(info, {ch.id for ch in self.channels() if ch.topic == info.topic})
+        for item in self.iter_blocks(stream, start_ns, end_ns):
+            if isinstance(item, Damage):
+                tracker.damage(item)
+                continue
+            b = item[1]
+            tracker.block(b.first_index, b.first_index + b.data.shape[0])
             parts.append(b.data[:, sel] if len(sel) != b.data.shape[1] else b.data)
             firsts.append(b.first_index)
             statuses.append(b.status)
-        if not parts:
-            empty = np.zeros((0, len(sel)), np.float32)
-            return StreamData(
-                info, [info.channels[i] for i in sel], np.zeros(0, np.int64), empty, np.zeros(0, np.int64), np.zeros(0, np.uint32)
+        end_hint = self.stream_records().get(stream, {}).get("end_index")
+        lo_i = None if start is None else int(np.ceil(start * info.sample_rate))
+        hi_i = None if end is None else int(np.ceil(end * info.sample_rate))
+        damaged = tracker.finish(end_hint, lo_i, hi_i)
+        if damaged and on_damage == "refuse":
+            a, b, why = damaged[0]
+            more = f" and {len(damaged) - 1} more range(s)" if len(damaged) > 1 else ""
+            raise LogDamagedError(
+                f"{self.path}: samples [{a}, {b}) of stream {stream} "
+                f"(t = {a / info.sample_rate:.3f}–{b / info.sample_rate:.3f} s)"
+                f"{more} are damaged ({why}); `gvt log recover {self.path} FIXED.mcap` keeps the rest, the damage as a gap"
             )
-        order = np.argsort(np.asarray(firsts, dtype=np.int64), kind="stable")
-        parts = [parts[i] for i in order]
-        first = np.asarray(firsts, dtype=np.int64)[order]
-        lengths = np.array([p.shape[0] for p in parts], dtype=np.int64)
-        data = np.concatenate(parts) if len(parts) > 1 else np.array(parts[0])
-        index = np.repeat(first, lengths) + (np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths))
-        ends = first + lengths
-        gaps = [(int(ends[i]), int(first[i + 1])) for i in range(len(first) - 1) if first[i + 1] > ends[i]]
-        if start is not None or end is not None:
-            t = index / info.sample_rate
-            m = np.ones(len(index), bool)
-            if start is not None:
-                m &= t >= start
-            if end is not None:
-                m &= t < end
-            index, data = index[m], data[m]
-        return StreamData(info, [info.channels[i] for i in sel], index, data, first, np.asarray(statuses, np.uint32)[order], gaps)
+        return _assemble(info, [info.channels[i] for i in sel], parts, firsts, statuses, start, end, damaged)
 
 
-def _describe(exc: BaseException) -> str:
-    text = str(exc).splitlines()[0] if str(exc) else ""
-    return f"{type(exc).__name__}: {text}"[:200] if text else type(exc).__name__
+class DamageRanges:
+    """Exact [start, end) sample ranges of one stream lost to damage: a damaged chunk's lost blocks start at the
+    indices their log times say (its message indexes; else its first log time, else the previous block's end)
+    and end where the next block read starts (at the end: the stream's recorded end, or one block on)."""
+
+    def __init__(self, info: StreamInfo, cids: set[int]) -> None:
+        self.info, self.cids = info, cids
+        self.pending: list[tuple[int | None, int | None, str]] = []
+        self.ranges: list[tuple[int, int, str]] = []
+        self.prev_end: int | None = None
+        self.last_n = 0
+
+    def damage(self, d: Damage) -> None:
+        times = [t for c in self.cids for t in (d.lost or {}).get(c, [])]
+        at = " at byte " + str(d.offset) if d.offset >= 0 else ""
+        why = f"{d.reason}{at}"
+        if times:
+            self.pending.append((self.info.index_at(min(times)), self.info.index_at(max(times)), why))
+        else:
+            self.pending.append((None, None, why))
+
+    def _lo(self, a: int | None) -> int | None:
+        if a is None:
+            return self.prev_end
+        return a if self.prev_end is None else max(a, self.prev_end)
+
+    def block(self, first: int, end: int) -> None:
+        still = []
+        for a, last, why in self.pending:
+            lo = self._lo(a)
+            if lo is None or (a is not None and first < a):
+                still.append((a, last, why))
+            elif first > lo:
+                self.ranges.append((lo, first, why))
+        self.pending = still
+        self.prev_end = end if self.prev_end is None else max(self.prev_end, end)
+        self.last_n = end - first
+
+    def finish(self, end_hint: int | None, lo_i: int | None = None, hi_i: int | None = None) -> list[tuple[int, int, str]]:
+        for a, last, why in self.pending:
+            lo = self._lo(a)
+            if lo is None:
+                continue
+            hi = max(end_hint or 0, (last if last is not None else lo) + max(self.last_n, 1))
+            if hi > lo:
+                self.ranges.append((lo, hi, why))
+        self.pending = []
+        out = []
+        for a, b, why in self.ranges:
+            a, b = max(a, lo_i) if lo_i is not None else a, min(b, hi_i) if hi_i is not None else b
+            if b > a:
+                out.append((a, b, why))
+        return out
+
+
+def _assemble(
+    info: StreamInfo, names: list[str], parts: list[np.ndarray], firsts: list[int], statuses: list[int],
+    start: float | None, end: float | None, damaged: list[tuple[int, int, str]],
+) -> StreamData:  # fmt: skip
+    """Blocks in index order as one array (a block overlapping an earlier one — a duplicate — dropped), gaps."""
+    if not parts:
+        empty = np.zeros((0, len(names)), np.float32)
+        return StreamData(info, names, np.zeros(0, np.int64), empty, np.zeros(0, np.int64), np.zeros(0, np.uint32), [], damaged)
+    order = np.argsort(np.asarray(firsts, dtype=np.int64), kind="stable")
+    keep, reach = [], None
+    for i in order:
+        if reach is None or firsts[i] >= reach:
+            keep.append(i)
+            reach = firsts[i] + parts[i].shape[0]
+    parts = [parts[i] for i in keep]
+    first = np.asarray(firsts, dtype=np.int64)[keep]
+    lengths = np.array([p.shape[0] for p in parts], dtype=np.int64)
+    data = np.concatenate(parts) if len(parts) > 1 else np.array(parts[0])
+    index = np.repeat(first, lengths) + (np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths))
+    ends = first + lengths
+    gaps = [(int(ends[i]), int(first[i + 1])) for i in range(len(first) - 1) if first[i + 1] > ends[i]]
+    if start is not None or end is not None:
+        t = index / info.sample_rate
+        m = np.ones(len(index), bool)
+        if start is not None:
+            m &= t >= start
+        if end is not None:
+            m &= t < end
+        index, data = index[m], data[m]
+    return StreamData(info, names, index, data, first, np.asarray(statuses, np.uint32)[keep], gaps, damaged)
 
 
 def open_log(path: str | Path) -> LogReader:

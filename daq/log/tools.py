@@ -1,7 +1,10 @@
 """``gvt log`` tools as library functions: info, recover, export.
 
-``recover`` follows ``mcap recover``'s contract: it rewrites everything readable into a new, fully
-indexed file and reports whether data was lost (exit code 3 in the CLI) or not (0).
+``log_info`` answers from the summary (the writer's ``gvtlink.streams`` record, the indexes) without reading
+sample data, so it takes well under a second for any size; ``verify=True`` (``gvt log info --verify``) reads
+and checks every chunk and block instead and says exactly which samples are damaged. ``recover`` follows
+``mcap recover``'s contract: it rewrites everything readable into a new, fully indexed file and reports
+whether data was lost (exit code 3 in the CLI) or not (0).
 """
 
 from __future__ import annotations
@@ -17,93 +20,171 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from daq.log import layout
-from daq.log.proto import BlockDecodeError, decode_block
-from daq.log.reader import LogReader, LogReadError, SalvageReport
+from daq.log.reader import Damage, DamageRanges, LogReader, LogReadError, SalvageReport, StreamInfo
 from drivers.blocks import BlockStatus
 
 RESTART = int(BlockStatus.RESTART)
 
 
-def log_info(path: str | Path) -> dict[str, Any]:
+def log_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
+    """What the log holds per stream, its events named, and its health. Without ``verify`` a complete log is
+    described from its summary and the writer's closing records (``gvtlink.streams``, ``gvtlink.events``: no chunk
+    is read; bench/bench_log_info.py); an old log without the
+    writer's ``gvtlink.streams`` record, or a damaged one, by decoding its blocks (every chunk CRC-checked)."""
     r = LogReader(path)
+    recs = {} if verify else r.stream_records()
     streams = []
     for name, info in sorted(r.streams().items()):
-        firsts, counts, bad, statuses, restarts = [], [], 0, 0, []
-        for _ch, msg in r.iter_messages([info.topic], time_order=True):
-            try:
-                b = decode_block(msg.data)
-            except BlockDecodeError:
-                bad += 1
-                continue
-            firsts.append(b.first_index)
-            counts.append(b.data.shape[0])
-            statuses |= b.status
-            if b.status & RESTART:
-                restarts.append(b.first_index)
-        order = np.argsort(firsts) if firsts else []
-        f = np.asarray(firsts, np.int64)[order] if firsts else np.zeros(0, np.int64)
-        n = np.asarray(counts, np.int64)[order] if counts else np.zeros(0, np.int64)
-        gaps = [(int(f[i] + n[i]), int(f[i + 1])) for i in range(len(f) - 1) if f[i + 1] > f[i] + n[i]]
-        total = int(n.sum())
-        span = int(f[-1] + n[-1] - f[0]) if len(f) else 0
-        cuts = [int(f[0]), *sorted(restarts)] if len(f) else []
-        ends = [*cuts[1:], int(f[-1] + n[-1])] if len(f) else []
-        segments = [(a, b) for a, b in zip(cuts, ends, strict=True)]
+        s = _from_record(recs[name]) if name in recs else _by_decoding(r, name, info)
+        span = (s["end_index"] - s["first_index"]) if s["blocks"] else 0
+        missing = int(sum(b - a for a, b in s["gaps"]))
         streams.append(
-            {
-                "stream": name,
-                "topic": info.topic,
-                "channels": info.channels,
-                "units": info.units,
-                "sample_rate": info.sample_rate,
-                "blocks": len(f),
-                "samples": total,
-                "duration_s": span / info.sample_rate,
-                "first_index": int(f[0]) if len(f) else None,
-                "end_index": int(f[-1] + n[-1]) if len(f) else None,
-                "gaps": gaps,
-                "missing_samples": int(sum(b - a for a, b in gaps)),
-                # a device restart starts a new segment (BlockStatus.RESTART); the gap before it is estimated
-                "segments": segments,
-                "undecodable_blocks": bad,
-                "status_flags": int(statuses),
-            }
-        )
-    events = r.json_messages(layout.EVENTS_TOPIC)
-    hits = r.json_messages(layout.HITS_TOPIC)
+            {"stream": name, "topic": info.topic, "channels": info.channels, "units": info.units,
+             "sample_rate": info.sample_rate, **s, "duration_s": span / info.sample_rate, "missing_samples": missing}
+        )  # fmt: skip
+    summary_events = _events_record(r) if recs and len(recs) == len(streams) else None
+    if summary_events is not None:  # from the summary: no chunk read at all
+        events, counts = summary_events
+        n_hits = r.message_count(layout.HITS_TOPIC)
+    else:
+        events = r.json_messages(layout.EVENTS_TOPIC)
+        counts = dict(Counter(str(e.get("kind", "?")) for e in events))
+        n_hits = len(r.json_messages(layout.HITS_TOPIC))
     for s in streams:  # losses the writer logged: they may sit at the end, where no gap can show them
         over = [e for e in events if e.get("kind") == "overrun" and e.get("stream") == s["stream"]]
-        s["overrun_samples"] = int(sum(int(e.get("count", 0)) for e in over))
-        s["overrun_ranges"] = [(int(e["start_index"]), int(e["end_index"])) for e in over if "start_index" in e]
+        s["overrun_samples"] = int(sum(int(e.get("count", 0)) for e in over if isinstance(e.get("count", 0), int)))
+        s["overrun_ranges"] = [(e["start_index"], e["end_index"]) for e in over if "start_index" in e and "end_index" in e]
+    meta_names, attachment_names = sorted(r.metadata()), sorted(r.attachments())  # checked: before the health line
     rep = r.report
+    damaged = {s["stream"]: s["damaged"] for s in streams if s.get("damaged")}
+    checked = "verify" if verify else "summary" if r.indexed and len(recs) == len(streams) else "decoded"
     return {
         "file": str(r.path),
         "size_bytes": r.file_size,
-        "health": _health(rep),
+        "health": _health(rep, r, damaged, checked),
+        "checked": checked,
         "complete": rep.complete,
-        "data_lost": rep.data_lost,
+        "data_lost": rep.data_lost or bool(r.damage),
         "salvage": {
             "messages": rep.messages,
             "chunks_ok": rep.chunks_ok,
             "chunks_bad": rep.chunks_bad,
             "bytes_scanned": rep.bytes_scanned,
             "stopped_because": rep.stopped_because,
+            "summary_problem": rep.summary_problem,
+            "duplicates": rep.duplicates,
         },
+        "damage": [{"offset": d.offset, "reason": d.reason} for d in r.damage.values()],
         "streams": streams,
-        "hits": len(hits),
-        "events": dict(Counter(e.get("kind", "?") for e in events)),
+        "hits": n_hits,
+        "events": counts,
+        "named_events": _named_events(events),
         "topics": sorted({ch.topic for ch in r.channels()}),
-        "metadata": sorted(r.metadata()),
-        "attachments": sorted(r.attachments()),
+        "metadata": meta_names,
+        "attachments": attachment_names,
+        "problems": list(dict.fromkeys(r.problems)),
     }
 
 
-def _health(rep: SalvageReport) -> str:
+def _from_record(rec: dict[str, Any]) -> dict[str, Any]:
+    """A stream's entry from the writer's ``gvtlink.streams`` record (no data read)."""
+    return {
+        "blocks": int(rec["blocks"]), "samples": int(rec["samples"]),
+        "first_index": int(rec["first_index"]) if rec["blocks"] else None,
+        "end_index": int(rec["end_index"]) if rec["blocks"] else None,
+        "gaps": [(int(a), int(b)) for a, b in rec["gaps"]], "segments": [(int(a), int(b)) for a, b in rec["segments"]],
+        "undecodable_blocks": 0, "status_flags": int(rec["status_flags"]), "damaged": [],
+    }  # fmt: skip
+
+
+def _by_decoding(r: LogReader, name: str, info: StreamInfo) -> dict[str, Any]:
+    """A stream's entry from its blocks, each chunk CRC-checked and each block checked (``block_problem``);
+    damage is given as exact sample ranges, and left out of the gaps (which are the device's)."""
+    firsts, counts, statuses, restarts, bad = [], [], 0, [], 0
+    tracker = DamageRanges(info, {ch.id for ch in r.channels() if ch.topic == info.topic})
+    for item in r.iter_blocks(name):
+        if isinstance(item, Damage):
+            bad += item.offset < 0
+            tracker.damage(item)
+            continue
+        b = item[1]
+        tracker.block(b.first_index, b.first_index + b.data.shape[0])
+        firsts.append(b.first_index)
+        counts.append(b.data.shape[0])
+        statuses |= b.status
+        if b.status & RESTART:
+            restarts.append(b.first_index)
+    damaged = tracker.finish(None)
+    order = np.argsort(firsts, kind="stable") if firsts else []
+    f = np.asarray(firsts, np.int64)[order] if firsts else np.zeros(0, np.int64)
+    n = np.asarray(counts, np.int64)[order] if counts else np.zeros(0, np.int64)
+    keep = np.ones(len(f), bool)  # a duplicated block is counted once
+    keep[1:] = f[1:] >= np.maximum.accumulate(f + n)[:-1]
+    f, n = f[keep], n[keep]
+    holes = [(int(f[i] + n[i]), int(f[i + 1])) for i in range(len(f) - 1) if f[i + 1] > f[i] + n[i]]
+    gaps = [g for g in holes if not any(a <= g[0] and g[1] <= b for a, b, _w in damaged)]
+    cuts = [int(f[0]), *sorted(restarts)] if len(f) else []
+    ends = [*cuts[1:], int(f[-1] + n[-1])] if len(f) else []
+    return {
+        "blocks": len(f), "samples": int(n.sum()), "first_index": int(f[0]) if len(f) else None,
+        "end_index": int(f[-1] + n[-1]) if len(f) else None, "gaps": gaps,
+        # a device restart starts a new segment (BlockStatus.RESTART); the gap before it is estimated
+        "segments": list(zip(cuts, ends, strict=True)), "undecodable_blocks": bad, "status_flags": int(statuses),
+        "damaged": [(a, b, why) for a, b, why in damaged],
+    }  # fmt: skip
+
+
+def _events_record(r: LogReader) -> tuple[list[dict[str, Any]], dict[str, int]] | None:
+    """The writer's closing ``gvtlink.events`` record (events and counts by kind), or None: an older log, a
+    damaged one, or an event storm the record kept only the counts of."""
+    rec = r.metadata().get(layout.META_EVENTS)
+    if not rec or rec.get("complete") != "1":
+        return None
+    try:
+        events, counts = json.loads(rec["events"]), json.loads(rec["counts"])
+    except (KeyError, ValueError):
+        return None
+    if not isinstance(events, list) or not isinstance(counts, dict):
+        return None
+    return [e for e in events if isinstance(e, dict)], {str(k): int(v) for k, v in counts.items()}
+
+
+def _named_events(events: list[dict[str, Any]]) -> dict[str, list[str]]:
+    """Suspect channels, device restarts and silences, one line each (``gvt log info`` names them)."""
+    out: dict[str, list[str]] = {}
+    for e in events:
+        kind = e.get("kind")
+        if kind == "suspect_channel":
+            out.setdefault("suspect channels", []).append(f"{e.get('channel', '?')}: {e.get('message', '')}".strip())
+        elif kind == "restart":
+            out.setdefault("device restarts", []).append(str(e.get("message") or e))
+        elif kind == "silence":
+            where = f"{e.get('stream', '?')} samples [{e.get('start_index', '?')}, {e.get('end_index', '?')})"
+            out.setdefault("silences", []).append(f"{where}: {e.get('message', '')}".strip())
+    return out
+
+
+def _health(rep: SalvageReport, r: LogReader, damaged: dict[str, list], checked: str) -> str:
+    """One line. It claims no more than was checked: "ok (summary)" has read no chunk."""
+    if r.damage:
+        where = "; ".join(f"{s} samples " + ", ".join(f"[{a}, {b})" for a, b, _w in rs) for s, rs in damaged.items())
+        first = next(iter(r.damage.values()))
+        return (f"damaged: {len(r.damage)} chunk(s) or block(s) fail their checks (first: {first.reason})"
+                + (f"; lost: {where}" if where else "") + " — run `gvt log recover`")  # fmt: skip
+    if r.problems:
+        return f"damaged: {r.problems[0]}" + (f" (and {len(r.problems) - 1} more)" if len(r.problems) > 1 else "") + (
+            "; the samples are intact — `gvt log recover` rewrites the rest" if rep.complete else " — run `gvt log recover`"
+        )
     if rep.complete:
-        return "ok: footer and summary intact"
-    why = f" ({rep.stopped_because})" if rep.stopped_because else ""
+        if checked == "verify":
+            return "ok: every chunk's CRC and every sample block checked (--verify)"
+        if checked == "decoded":
+            return "ok: footer and summary intact; every chunk read was CRC-checked"
+        return "ok (summary; --verify checks every chunk)"
+    why = f" ({rep.stopped_because or rep.summary_problem})" if rep.stopped_because or rep.summary_problem else ""
+    lost = "data section read to its end; " if rep.stopped_because is None else ""
     return (
-        f"damaged{why}: salvaged {rep.messages} messages from {rep.chunks_ok} complete chunks"
+        f"damaged{why}: {lost}salvaged {rep.messages} messages from {rep.chunks_ok} complete chunks"
         + (f", {rep.chunks_bad} corrupt chunks skipped" if rep.chunks_bad else "")
         + f"; read {rep.bytes_scanned} of {rep.file_size} bytes — run `gvt log recover`"
     )
@@ -111,13 +192,16 @@ def _health(rep: SalvageReport) -> str:
 
 def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> SalvageReport:
     """Rewrite every readable record of ``src`` into a new indexed file ``dst`` (``chunk_size``: uncompressed
-    bytes per output chunk). Reads and writes a chunk at a time: memory does not grow with the log."""
+    bytes per output chunk). Every chunk is verified; a damaged one is skipped (``data_lost``), a duplicated
+    message kept once. Reads and writes a chunk at a time: memory does not grow with the log."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise LogReadError(f"{dst}: output must differ from the input")
     r = LogReader(src)
     schemas = r.schemas()
     tmp = dst.with_name(dst.name + ".part")
+    seen: set[tuple[int, int, int, int]] = set()
+    sequences: dict[int, set[int]] = {}  # per channel: the writer numbers each channel's messages 0, 1, 2, ...
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         w.start(profile=layout.PROFILE, library="gvtlink recover")
@@ -125,11 +209,15 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
         channel_ids: dict[int, int] = {}
         for sid, s in schemas.items():
             schema_ids[sid] = w.register_schema(s.name, s.encoding, s.data)
-        for name, data in r.metadata().items():
-            w.add_metadata(name, data)
         for name, (media, data) in r.attachments().items():
             w.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=data)
         for ch, msg in r.iter_messages(salvage=True):
+            key = (ch.id, msg.sequence, msg.log_time, hash(msg.data))
+            if key in seen:  # a chunk the index lists twice: its messages once
+                r.report.duplicates += 1
+                continue
+            seen.add(key)
+            sequences.setdefault(ch.id, set()).add(msg.sequence)
             if ch.id not in channel_ids:
                 channel_ids[ch.id] = w.register_channel(
                     ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), dict(ch.metadata)
@@ -137,6 +225,11 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
             w.add_message(
                 channel_ids[ch.id], log_time=msg.log_time, data=msg.data, publish_time=msg.publish_time, sequence=msg.sequence
             )
+        r.report.missing_by_sequence = sum(max(s) + 1 - len(s) for s in sequences.values())
+        r.report.messages = len(seen)  # what the new file holds
+        for name, data in r.metadata().items():  # after the data: the writer's per-stream record only if it holds
+            if name != layout.META_STREAMS or not (r.report.data_lost or r.report.duplicates):
+                w.add_metadata(name, data)
         w.finish()
     tmp.replace(dst)
     return r.report
@@ -198,14 +291,20 @@ def info_text(info: dict[str, Any]) -> str:
             + (f", {s['undecodable_blocks']} undecodable blocks" if s["undecodable_blocks"] else "")
             + (f", NOT RECORDED (writer overrun): {s['overrun_samples']} samples" if s["overrun_samples"] else "")
         )
+        if s.get("damaged"):
+            lines.append("    DAMAGED: " + "; ".join(f"samples [{a}, {b}): {why}" for a, b, why in s["damaged"]))
         if len(s.get("segments", ())) > 1:
             segs = ", ".join(f"[{a}, {b})" for a, b in s["segments"])
             lines.append(f"    segments (the device restarted; each gap before a segment is estimated): {segs}")
         lines.append(f"    channels: {', '.join(f'{c} [{u}]' for c, u in zip(s['channels'], s['units'], strict=False))}")
     ev = ", ".join(f"{k}: {v}" for k, v in sorted(info["events"].items())) or "none"
     lines.append(f"  hits: {info['hits']}  events: {ev}")
+    for what, items in info.get("named_events", {}).items():
+        lines.append(f"  {what}: " + "; ".join(items[:10]) + (f"; … {len(items) - 10} more" if len(items) > 10 else ""))
     lines.append(f"  topics: {', '.join(info['topics'])}")
     lines.append(f"  metadata: {', '.join(info['metadata']) or 'none'}  attachments: {', '.join(info['attachments']) or 'none'}")
+    for p in info.get("problems", []):
+        lines.append(f"  problem: {p}")
     return "\n".join(lines)
 
 

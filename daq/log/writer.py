@@ -19,6 +19,13 @@ which the kernel drops when a process dies, SIGKILL included). A failure while r
 I/O error, the file deleted or moved) never raises into a producer: the thread stops taking data,
 counts every later block as lost with its range, makes what was written readable, and ``failure``
 holds the one line the session prints before it stops.
+
+One time base (docs/log-format.md, "Time base"): every message's ``log_time`` is the session's origin
+(``origin_ns``: UTC ns of the reference device's sample 0 for a recording, 0 for simulated and other
+deterministic logs) plus a time on the session's timeline. Producers pass times *relative* to the origin
+(or to a stream's own clock, ``clock=``); the writer adds the origin and each stream's offset. A stream
+whose offset is not known yet (a second device before the timeline fixed its clock offset) is held here,
+bounded by ``max_hold_s``, and registered (channel metadata ``t0_ns`` = origin + offset) once it is.
 """
 
 from __future__ import annotations
@@ -39,26 +46,20 @@ from typing import Any
 from mcap.opcode import Opcode
 from mcap.writer import CompressionType, Writer
 
+from analysis import records
 from analysis.errors import BadInput, DataLost, RuntimeFailure
 from daq.log import layout
-from daq.log.proto import SCHEMA_NAME, encode_block, sample_block_descriptor_set
-from drivers.blocks import SampleBlock
+from daq.log.proto import block_schema, encode_block
+from daq.log.seal import seal
+from drivers.blocks import BlockStatus, SampleBlock
 
-EVENT_SCHEMA = {
-    "type": "object",
-    "title": "gvtlink.Event",
-    "properties": {
-        "kind": {"type": "string"},
-        "stream": {"type": "string"},
-        "start_index": {"type": "integer"},
-        "end_index": {"type": "integer"},
-        "count": {"type": "integer"},
-        "message": {"type": "string"},
-    },
-    "required": ["kind"],
-}
-HIT_SCHEMA = {"type": "object", "title": "gvtlink.Hit", "properties": {"index": {"type": "integer"}}}
+EVENT_SCHEMA = records.Event.SCHEMA  # every JSON topic's schema: analysis/records.py (TOPICS)
+HIT_SCHEMA = records.Hit.SCHEMA
 
+
+#: /daq/events kept whole in the closing ``gvtlink.events`` record (a storm beyond it: counts only, and
+#: ``gvt log info`` reads the topic instead)
+MAX_EVENTS_RECORD = 2000
 
 class LogWriterError(RuntimeFailure):
     """The log writer failed while running (disk full, an I/O error, the writer stalled): exit 1.
@@ -127,6 +128,22 @@ class ChannelInfo:
 
 
 _STOP = object()
+
+#: held JSON records (waiting for the origin or a stream's offset) before the writer stops waiting
+MAX_HELD_RECORDS = 100_000
+
+
+def wall_at_sample0(block: SampleBlock) -> int | None:
+    """Host UTC (ns) of ``block``'s stream sample 0, from its arrival time (``extra['t_host']``, monotonic):
+    the wall clock at arrival minus ``end_index / fs``. Late by that block's link latency (< a few ms); None
+    without an arrival time. Why monotonic → wall here: the arrival is noted on the monotonic clock (the
+    clock-offset estimate's input); the conversion is done once, now."""
+    t_host = block.extra.get("t_host")
+    if t_host is None:
+        return None
+    arrival_ns = time.time_ns() - round((time.monotonic() - float(t_host)) * 1e9)
+    return arrival_ns - round(block.end_index * 1e9 / block.sample_rate)
+
 
 #: what a failed write means, said the way a user can act on it
 _IO_WHAT = {
@@ -410,6 +427,8 @@ class LogWriter:
         session_metadata: Mapping[str, str] | None = None,
         control_timeout: float = 10.0,
         overwrite: bool = False,
+        origin_ns: int | None = 0,
+        max_hold_s: float = 5.0,
     ) -> None:
         self.path = Path(path)
         self._overwrite = overwrite
@@ -428,6 +447,20 @@ class LogWriter:
             **dict(session_metadata or {}),
         }
         self.stats = WriterStats()
+        # the time base: origin (None until set_origin) and per-stream offsets (ns after the origin); items
+        # that need one not yet known wait in ``_held`` (the writer thread's), at most ``max_hold_s`` per stream
+        self._time_lock = threading.Lock()
+        self._origin_ns: int | None = None if origin_ns is None else int(origin_ns)
+        self._origin_source = "" if origin_ns is None else "default" if origin_ns == 0 else "given"
+        self._offsets: dict[str, tuple[int, str]] = {}
+        self._time_version = 0  # bumped by set_origin/set_offset: held items are looked at again only then
+        self._released_at = -1
+        self._max_hold_s = float(max_hold_s)
+        self._held: list[tuple] = []
+        self._held_samples: dict[str, int] = {}
+        self._time_noted = False
+        self._data_end_ns: int | None = None  # log time just past the newest sample written (data time reached)
+        self._part_stats: dict[str, dict[str, Any]] = {}  # per stream, this part: the gvtlink.streams record
         #: set once the writer has failed (and finalised what it could); the session stops on it
         self.failed = threading.Event()
         self._failure: _Failure | None = None
@@ -502,14 +535,48 @@ class LogWriter:
         with self._acct_lock:
             return _merge([(s, a, b) for s, rs in self._lost.items() for a, b in rs])
 
-    def add_stream(self, stream: str, channels: Sequence[ChannelInfo], sample_rate: float, t0_ns: int | None = None) -> None:
+    def add_stream(
+        self, stream: str, channels: Sequence[ChannelInfo], sample_rate: float, t0_ns: int | None = None,
+        *, offset_ns: int | None = 0, offset_method: str = "",
+    ) -> None:  # fmt: skip
+        """Register a stream. ``offset_ns``: its sample 0 on the session's timeline (ns after the origin); None
+        when not known yet (``set_offset`` later: its blocks wait here until then). ``t0_ns`` (older callers):
+        the stream's absolute start instead, i.e. ``offset_ns = t0_ns - origin``."""
+        if t0_ns is not None:
+            offset_ns, offset_method = None, offset_method or "t0_ns"
+            with self._time_lock:  # no origin of its own: the first stream's absolute start is the session's
+                if self._origin_source == "default":
+                    self._origin_ns, self._origin_source = int(t0_ns), "first stream's t0_ns"
+                    self._time_version += 1
         spec = {
             "stream": stream,
             "channels": [c.__dict__ for c in channels],
             "sample_rate": float(sample_rate),
-            "t0_ns": int(time.time_ns() if t0_ns is None else t0_ns),
+            "t0_ns": None,  # origin + offset, once both are known (then the channel is registered)
+            "abs_t0_ns": None if t0_ns is None else int(t0_ns),
         }
+        if offset_ns is not None:
+            self.set_offset(stream, offset_ns, offset_method or "given")
         self._control(("stream", spec))
+
+    def set_origin(self, origin_ns: int, source: str = "set") -> None:
+        """The session's start (UTC ns of the reference's sample 0); the first call wins. Never blocks."""
+        with self._time_lock:
+            if self._origin_ns is None:
+                self._origin_ns, self._origin_source = int(origin_ns), source
+                self._time_version += 1
+
+    def set_offset(self, stream: str, offset_ns: int, method: str = "set") -> None:
+        """Where ``stream``'s sample 0 lies on the session's timeline (ns after the origin); the first call
+        wins (a fixed offset never changes: it would tear the stream). Never blocks."""
+        with self._time_lock:
+            if stream not in self._offsets:
+                self._offsets[stream] = (int(offset_ns), method)
+                self._time_version += 1
+
+    @property
+    def origin_ns(self) -> int | None:
+        return self._origin_ns
 
     def write_block(self, block: SampleBlock, wait: bool = False) -> bool:
         """Queue a block; False if it was not taken. Never raises, and never blocks unless ``wait``.
@@ -535,14 +602,21 @@ class LogWriter:
                 self.stats.overrun_samples += block.n_samples
             return False
 
-    def write_event(self, kind: str, **fields: Any) -> None:
-        self._control(("json", layout.EVENTS_TOPIC, {"kind": kind, **fields}))
+    def write_event(self, kind: str, log_time_ns: int | None = None, **fields: Any) -> None:
+        """An event; ``log_time_ns`` relative to the origin, or None: at its ``stream``'s ``start_index`` when
+        it has them, else at the data time reached when it is written."""
+        self._control(("json", layout.EVENTS_TOPIC, {"kind": kind, **fields}, log_time_ns, None))
 
-    def write_hit(self, hit: Mapping[str, Any]) -> None:
-        self._control(("json", layout.HITS_TOPIC, dict(hit)))
+    def write_hit(self, hit: Mapping[str, Any], log_time_ns: int | None = None) -> None:
+        """A hit; ``log_time_ns`` relative to the origin (None: its ``t_s``, else the data time reached)."""
+        if log_time_ns is None and isinstance(hit.get("t_s"), (int, float)):
+            log_time_ns = round(float(hit["t_s"]) * 1e9)
+        self._control(("json", layout.HITS_TOPIC, dict(hit), log_time_ns, None))
 
-    def write_json(self, topic: str, obj: Mapping[str, Any], log_time_ns: int | None = None) -> None:
-        self._control(("json", topic, dict(obj), log_time_ns))
+    def write_json(self, topic: str, obj: Mapping[str, Any], log_time_ns: int | None = None, clock: str | None = None) -> None:
+        """A JSON record at ``log_time_ns`` relative to the origin — on stream ``clock``'s own timeline when
+        given (its offset is added; the record waits for it) — or, None, at the data time reached."""
+        self._control(("json", topic, dict(obj), log_time_ns, clock))
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         self._control(("meta", name, {str(k): str(v) for k, v in data.items()}))
@@ -664,13 +738,16 @@ class LogWriter:
         self._file_started = time.monotonic()
         self._channel_ids: dict[str, int] = {}
         self._seq: dict[int, int] = {}
-        self._block_schema = self._mcap.register_schema(SCHEMA_NAME, "protobuf", sample_block_descriptor_set())
         self._json_schemas: dict[str, int] = {}
-        self._mcap.add_metadata(layout.META_SESSION, self._session_meta)
+        self._add_meta(layout.META_SESSION, self._session_meta)
+        self._part_stats = {}
+        self._part_events: list[dict] = []  # this part's /daq/events, for the gvtlink.events record at close
+        self._part_event_counts: dict[str, int] = {}
         for spec in self._streams.values():
-            self._register_stream(spec)
+            if spec["t0_ns"] is not None:  # a stream still waiting for its offset is registered when it comes
+                self._register_stream(spec)
         for name, data in self._metadata:
-            self._mcap.add_metadata(name, data)
+            self._add_meta(name, data)
         for name, data, media in self._attachments:
             self._attach(name, data, media)
         self._check_sink()
@@ -689,8 +766,12 @@ class LogWriter:
             "channels": json.dumps([c["name"] for c in spec["channels"]]),
             "units": json.dumps([c["unit"] for c in spec["channels"]]),
         }
-        self._channel_ids[topic] = self._mcap.register_channel(topic, "protobuf", self._block_schema, meta)
-        self._mcap.add_metadata(
+        # format 2: one channel-major schema per stream; "fields" maps channels to protobuf field names (D30)
+        name, fds, fields = block_schema(spec["stream"], [c["name"] for c in spec["channels"]])
+        meta.update(layout="channel-major", fields=json.dumps(fields))
+        schema_id = self._mcap.register_schema(name, "protobuf", fds)
+        self._channel_ids[topic] = self._mcap.register_channel(topic, "protobuf", schema_id, meta)
+        self._add_meta(
             layout.META_CALIBRATION.format(stream=spec["stream"]),
             {"sample_rate": repr(spec["sample_rate"]), "t0_ns": str(spec["t0_ns"]), "channels": json.dumps(spec["channels"])},
         )
@@ -698,14 +779,17 @@ class LogWriter:
     def _json_channel(self, topic: str) -> int:
         assert self._mcap is not None
         if topic not in self._channel_ids:
-            schema = (
-                EVENT_SCHEMA if topic == layout.EVENTS_TOPIC else HIT_SCHEMA if topic == layout.HITS_TOPIC else {"type": "object"}
-            )
-            title = schema.get("title", topic)
+            schema = records.schema_for(topic)  # a topic without a record: permissive, still titled
+            title = schema["title"]
             if title not in self._json_schemas:
                 self._json_schemas[title] = self._mcap.register_schema(title, "jsonschema", json.dumps(schema).encode())
             self._channel_ids[topic] = self._mcap.register_channel(topic, "json", self._json_schemas[title])
         return self._channel_ids[topic]
+
+    def _add_meta(self, name: str, data: Mapping[str, str]) -> None:
+        """A metadata record, sealed with its CRC (``daq/log/seal.py``: MCAP gives metadata none)."""
+        assert self._mcap is not None
+        self._mcap.add_metadata(name, seal(name, data))
 
     def _attach(self, name: str, data: bytes, media: str) -> None:
         assert self._mcap is not None
@@ -720,43 +804,215 @@ class LogWriter:
         self.stats.messages_written += 1
 
     def _handle(self, item: tuple) -> None:
+        """One queued item: written now when its time is known, else held (module docstring)."""
         kind = item[0]
-        if kind == "block":
-            b: SampleBlock = item[1]
-            spec = self._streams.get(b.stream)
-            if spec is None:
-                raise LogWriterError(f"block for unregistered stream {b.stream!r}; call add_stream first")
-            t0 = spec["t0_ns"]
-            log_time = t0 + round(b.first_index * 1e9 / b.sample_rate)
-            raw = encode_block(b.stream, b.first_index, b.sample_rate, b.data, int(b.status), t0)
-            self._rates[b.stream] = b.sample_rate
-            self._open_blocks.append((b.stream, b.first_index, b.end_index))  # before add_message: it may close the chunk
-            ranges = self._part_ranges.setdefault(b.stream, [])  # [first, end, blocks], contiguous runs
-            if ranges and ranges[-1][1] == b.first_index:
-                ranges[-1][1] = b.end_index
-                ranges[-1][2] += 1
-            else:
-                ranges.append([b.first_index, b.end_index, 1])
-            self._message(self._channel_ids[layout.samples_topic(b.stream)], log_time, raw)
-            self.stats.blocks_written += 1
-            self.stats.samples_written += b.n_samples
-        elif kind == "json":
-            topic, obj = item[1], item[2]
-            log_time = item[3] if len(item) > 3 and item[3] is not None else time.time_ns()
-            self._message(self._json_channel(topic), log_time, json.dumps(obj, separators=(",", ":")).encode())
+        if kind == "json" and len(item) < 5:
+            item = (*item, None, None)[:5]  # (json, topic, obj[, log_time[, clock]])
+        if kind in ("block", "json"):
+            if self._held:
+                self._release()
+            if not self._ready(item):
+                self._hold(item)
+                return
+            self._write_timed(item)
         elif kind == "stream":
             spec = item[1]
             self._streams[spec["stream"]] = spec
             self._rates[spec["stream"]] = spec["sample_rate"]
-            assert self._mcap is not None
-            self._register_stream(spec)
+            self._register_ready()
         elif kind == "meta":
             self._metadata.append((item[1], item[2]))
             assert self._mcap is not None
-            self._mcap.add_metadata(item[1], item[2])
+            self._add_meta(item[1], item[2])
         elif kind == "attach":
             self._attachments.append((item[1], item[2], item[3]))
             self._attach(item[1], item[2], item[3])
+
+    # --- the time base (writer thread) ---------------------------------------------------------------
+    def _offset(self, stream: str) -> int | None:
+        """The stream's offset (ns after the origin), once origin and offset are known."""
+        with self._time_lock:
+            origin = self._origin_ns
+            off = self._offsets.get(stream)
+        if origin is None:
+            return None
+        if off is None:
+            spec = self._streams.get(stream)
+            if spec is None or spec["abs_t0_ns"] is None:
+                return None
+            self.set_offset(stream, spec["abs_t0_ns"] - origin, "t0_ns")
+            return spec["abs_t0_ns"] - origin
+        return off[0]
+
+    def _event_clock(self, obj: Mapping[str, Any]) -> tuple[str, int] | None:
+        """(stream, index) an event is about, when it names a registered stream and a start index."""
+        s, i = obj.get("stream"), obj.get("start_index")
+        if isinstance(s, str) and s in self._streams and isinstance(i, int) and not isinstance(i, bool):
+            return s, i
+        return None
+
+    def _ready(self, item: tuple) -> bool:
+        if self._origin_ns is None:
+            return False
+        if item[0] == "block":
+            return self._offset(item[1].stream) is not None
+        topic, obj, log_time, clock = item[1], item[2], item[3], item[4]
+        if clock is not None:
+            return clock not in self._streams or self._offset(clock) is not None
+        if log_time is None and topic == layout.EVENTS_TOPIC and (ev := self._event_clock(obj)) is not None:
+            return self._offset(ev[0]) is not None
+        return True
+
+    def _hold(self, item: tuple) -> None:
+        self._held.append(item)
+        if item[0] == "block":
+            b = item[1]
+            self._held_samples[b.stream] = self._held_samples.get(b.stream, 0) + b.n_samples
+        self._check_hold()
+
+    def _check_hold(self) -> None:
+        """Bounded: a stream held longer than ``max_hold_s`` (or too many held records) stops the waiting."""
+        over = [s for s, n in self._held_samples.items() if n > self._max_hold_s * self._rates.get(s, 1.0)]
+        if over or len(self._held) > MAX_HELD_RECORDS:
+            self._release(force=over if over else True)
+
+    def _release(self, force: list[str] | bool = False) -> None:
+        """Write the held items whose time is now known (in arrival order). ``force`` (True: all; a list: those
+        streams): stop waiting — the origin from the first held block, an offset from its first block's arrival."""
+        if force:
+            self._fallback_times(None if force is True else force)
+        elif self._time_version == self._released_at:
+            return  # nothing new is known: every held item still waits (keeps a long hold O(n), not O(n²))
+        self._released_at = self._time_version
+        self._register_ready()
+        held, self._held = self._held, []
+        for item in held:
+            if self._ready(item):
+                if item[0] == "block":
+                    self._held_samples[item[1].stream] -= item[1].n_samples
+                self._write_timed(item)
+            else:
+                self._held.append(item)
+
+    def _fallback_times(self, streams: list[str] | None) -> None:
+        """What the session did not say in time: the origin (the first held block's sample 0 on the host clock,
+        else the writer's start) and the offsets of ``streams`` (None: all pending) from their first block."""
+        first: dict[str, SampleBlock] = {}
+        for it in self._held:
+            if it[0] == "block":
+                first.setdefault(it[1].stream, it[1])
+        if self._origin_ns is None:
+            guess = next((w for b in first.values() if (w := wall_at_sample0(b)) is not None), None)
+            self.set_origin(guess if guess is not None else int(self._session_meta["created_unix_ns"]),
+                            "first-block-fallback" if guess is not None else "writer-start-fallback")  # fmt: skip
+        origin = self._origin_ns
+        assert origin is not None
+        for s in streams if streams is not None else list(self._streams):
+            if self._offset(s) is not None:
+                continue
+            b = first.get(s)
+            w = wall_at_sample0(b) if b is not None else None
+            fs = self._rates.get(s, 1.0)
+            off = 0 if w is None else round(round((w - origin) * fs / 1e9) * 1e9 / fs)  # whole samples
+            self.set_offset(s, off, "first-arrival-fallback" if w is not None else "unknown-fallback")
+
+    def _register_ready(self) -> None:
+        """Register every stream whose origin and offset are known (channel metadata ``t0_ns``)."""
+        self._note_origin()
+        for name, spec in self._streams.items():
+            if spec["t0_ns"] is None and (off := self._offset(name)) is not None:
+                assert self._origin_ns is not None
+                spec["t0_ns"] = self._origin_ns + off
+                self._register_stream(spec)
+
+    def _note_origin(self) -> None:
+        """The ``gvtlink.time`` record, once the origin is known (repeated in rotated parts)."""
+        if self._time_noted or self._origin_ns is None:
+            return
+        self._time_noted = True
+        rec = {"origin_unix_ns": str(self._origin_ns), "origin_source": self._origin_source}
+        self._metadata.append((layout.META_TIME, rec))
+        assert self._mcap is not None
+        self._add_meta(layout.META_TIME, rec)
+
+    def _json_time(self, topic: str, obj: Mapping[str, Any], log_time: int | None, clock: str | None) -> int:
+        """Absolute log time of a JSON record (see ``write_json``/``write_event``); never before 0."""
+        origin = self._origin_ns
+        assert origin is not None
+        if clock is not None and log_time is not None:
+            return max(0, origin + (self._offset(clock) or 0) + int(log_time))
+        if log_time is not None:
+            return max(0, origin + int(log_time))
+        if topic == layout.EVENTS_TOPIC and (ev := self._event_clock(obj)) is not None:
+            s, i = ev
+            return max(0, origin + (self._offset(s) or 0) + round(i * 1e9 / self._rates.get(s, 1.0)))
+        return max(origin, self._data_end_ns or origin)
+
+    def _write_timed(self, item: tuple) -> None:
+        if item[0] == "json":
+            topic, obj = item[1], item[2]
+            log_time = self._json_time(topic, obj, item[3], item[4])
+            self._message(self._json_channel(topic), log_time, json.dumps(obj, separators=(",", ":")).encode())
+            if topic == layout.EVENTS_TOPIC:
+                self._note_event(obj)
+            return
+        b: SampleBlock = item[1]
+        spec = self._streams.get(b.stream)
+        if spec is None:
+            raise LogWriterError(f"block for unregistered stream {b.stream!r}; call add_stream first")
+        if spec["t0_ns"] is None:
+            self._register_ready()
+        t0 = spec["t0_ns"]
+        log_time = t0 + round(b.first_index * 1e9 / b.sample_rate)
+        raw = encode_block(b.stream, b.first_index, b.sample_rate, b.data, int(b.status), t0)
+        self._rates[b.stream] = b.sample_rate
+        self._open_blocks.append((b.stream, b.first_index, b.end_index))  # before add_message: it may close the chunk
+        ranges = self._part_ranges.setdefault(b.stream, [])  # [first, end, blocks], contiguous runs
+        if ranges and ranges[-1][1] == b.first_index:
+            ranges[-1][1] = b.end_index
+            ranges[-1][2] += 1
+        else:
+            ranges.append([b.first_index, b.end_index, 1])
+        self._count_block(b)
+        self._message(self._channel_ids[layout.samples_topic(b.stream)], log_time, raw)
+        end_ns = t0 + round(b.end_index * 1e9 / b.sample_rate)
+        self._data_end_ns = end_ns if self._data_end_ns is None else max(self._data_end_ns, end_ns)
+        self.stats.blocks_written += 1
+        self.stats.samples_written += b.n_samples
+
+    def _count_block(self, b: SampleBlock) -> None:
+        """This part's ``gvtlink.streams`` record: counts, gaps, segments (a RESTART block starts one), flags."""
+        st = self._part_stats.get(b.stream)
+        if st is None:
+            self._part_stats[b.stream] = {
+                "blocks": 1, "samples": b.n_samples, "first_index": b.first_index, "end_index": b.end_index, "gaps": [],
+                "segments": [[b.first_index, b.end_index]], "status_flags": int(b.status),
+            }  # fmt: skip
+            return
+        if b.first_index > st["end_index"]:
+            st["gaps"].append([st["end_index"], b.first_index])
+        if b.status & BlockStatus.RESTART:
+            st["segments"][-1][1] = b.first_index  # a segment runs to the next one's start (as gvt log info had it)
+            st["segments"].append([b.first_index, b.end_index])
+        else:
+            st["segments"][-1][1] = max(st["segments"][-1][1], b.end_index)
+        st["blocks"] += 1
+        st["samples"] += b.n_samples
+        st["first_index"] = min(st["first_index"], b.first_index)
+        st["end_index"] = max(st["end_index"], b.end_index)
+        st["status_flags"] |= int(b.status)
+
+    def _streams_record(self) -> dict[str, str]:
+        """``gvtlink.streams``: one key per stream, a JSON summary of what this file holds of it."""
+        out = {}
+        for name, spec in self._streams.items():
+            st = self._part_stats.get(name) or {
+                "blocks": 0, "samples": 0, "first_index": 0, "end_index": 0, "gaps": [], "segments": [], "status_flags": 0,
+            }  # fmt: skip
+            off = self._offsets.get(name, (0, ""))
+            rec = {**st, "t0_ns": spec["t0_ns"], "offset_ns": off[0], "offset_method": off[1]}
+            out[name] = json.dumps(rec, separators=(",", ":"))
+        return out
 
     def _emit_overruns(self) -> None:
         with self._overrun_lock:
@@ -770,7 +1026,17 @@ class LogWriter:
                 "count": end - start,
                 "message": "log writer queue full: these samples were not recorded",
             }
-            self._message(self._json_channel(layout.EVENTS_TOPIC), time.time_ns(), json.dumps(obj).encode())
+            t = self._json_time(layout.EVENTS_TOPIC, obj, None, None) if self._offset(stream) is not None else None
+            t = t if t is not None else max(self._origin_ns or 0, self._data_end_ns or 0)
+            self._message(self._json_channel(layout.EVENTS_TOPIC), t, json.dumps(obj).encode())
+            self._note_event(obj)
+
+    def _note_event(self, obj: Mapping[str, Any]) -> None:
+        """Count an event written to this part (and keep it, up to MAX_EVENTS_RECORD) for ``gvtlink.events``."""
+        kind = str(obj.get("kind", "?"))
+        self._part_event_counts[kind] = self._part_event_counts.get(kind, 0) + 1
+        if len(self._part_events) <= MAX_EVENTS_RECORD:
+            self._part_events.append(dict(obj))
 
     def _check_sink(self) -> None:
         assert self._sink is not None
@@ -809,9 +1075,18 @@ class LogWriter:
         self._commit()
         self.stats.flushes += 1
 
-    def _finish_file(self) -> None:
+    def _finish_file(self, last: bool = False) -> None:
         assert self._mcap is not None and self._sink is not None
+        if last and (self._held or self._origin_ns is None):
+            self._release(force=True)  # the session did not say in time: stop waiting (module docstring)
         self._emit_overruns()
+        self._register_ready()
+        self._add_meta(layout.META_STREAMS, self._streams_record())
+        complete = len(self._part_events) <= MAX_EVENTS_RECORD
+        self._add_meta(layout.META_EVENTS, {  # gvt log info answers from this without reading a chunk
+            "counts": json.dumps(self._part_event_counts), "complete": "1" if complete else "0",
+            "events": json.dumps(self._part_events if complete else [], default=str),
+        })  # fmt: skip
         self._finish_started = True  # a failure from here on must not finish it again
         self._mcap.finish()
         self._sink.sync(self._fsync)
@@ -836,7 +1111,9 @@ class LogWriter:
                     break
                 if item is not None:
                     self._handle(item)
-                if self._overruns:
+                elif self._held:
+                    self._release()
+                if self._overruns and self._origin_ns is not None:
                     self._emit_overruns()
                 self._check_sink()
                 now = time.monotonic()
@@ -849,7 +1126,7 @@ class LogWriter:
                         self._start_file(self._rotated_path())
             if not self.failed.is_set():
                 self._check_output()
-                self._finish_file()
+                self._finish_file(last=True)
         except _Stop as stop:
             self._set_failure(stop.failure)
         except LogOutputError as exc:  # the next rotated part could not be opened
@@ -859,6 +1136,7 @@ class LogWriter:
         except BaseException as exc:  # a bug or a bad item: reported as the failure, never a thread traceback
             self._set_failure(_Failure("error", f"the log writer failed: {_describe(exc)}", self._current_file()))
         if self._failure is not None:
+            self._lose_held()
             try:
                 self._finalise_after_failure()
             except BaseException as exc:  # never leave producers without a line
@@ -879,6 +1157,17 @@ class LogWriter:
         if self._sink is not None:
             self._sink.close()  # releases the lock; held until close() even after a failure
             self._sink = None
+
+    def _lose_held(self) -> None:
+        """After a failure: held blocks were never written (counted lost, with their ranges), held records dropped."""
+        held, self._held = self._held, []
+        for it in held:
+            if it[0] == "block":
+                b = it[1]
+                self._lose(b.stream, b.first_index, b.end_index, b.sample_rate, written=False)
+            else:
+                with self._acct_lock:
+                    self.stats.dropped_after_failure += 1
 
     def _set_failure(self, failure: _Failure, now: bool = False) -> None:
         """The first failure wins. ``now``: set ``failed`` at once (a producer saw the writer stall; the thread
@@ -915,7 +1204,8 @@ class LogWriter:
                 self._finish_started = True
                 self._emit_overruns()
                 note = {"kind": "writer_failure", "message": f.what}
-                self._message(self._json_channel(layout.EVENTS_TOPIC), time.time_ns(), json.dumps(note).encode())
+                t = max(self._origin_ns or 0, self._data_end_ns or 0)  # the data time reached, never the wall clock
+                self._message(self._json_channel(layout.EVENTS_TOPIC), t, json.dumps(note).encode())
                 self._mcap.finish()
             ok = sink.retry(self._fsync)
             if ok:

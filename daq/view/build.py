@@ -12,13 +12,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from daq.log import layout
 from daq.log.reader import LogReader
 from daq.replay import iter_log_blocks
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
 
-RESULT_TOPICS = ("/analysis/rq", "/analysis/modal", "/analysis/events", "/analysis/rq_spikes", "/analysis/warnings",
-                 "/analysis/confirmations")  # fmt: skip
+RESULT_TOPICS = layout.RESULT_TOPICS
 
 
 @dataclass
@@ -30,9 +30,9 @@ class BuildSummary:
 
 
 def _time_of(topic: str, obj: dict) -> float:
-    if topic == "/daq/hits":
+    if topic == layout.HITS_TOPIC:
         return float(obj.get("t_s", 0.0)) + 0.5  # the record is complete half a second after the hit at most
-    if topic == "/analysis/confirmations":
+    if topic == layout.CONFIRMATIONS_TOPIC:
         ev = obj.get("event") or {}
         return float(obj.get("end_s") or ev.get("end_s") or 0.0)
     for k in ("t_end_s", "end_s", "t_s"):
@@ -45,10 +45,10 @@ def log_results(reader: LogReader, rig=None, results: dict[str, list[dict]] | No
     """The log's ``/analysis/*`` results, or a fresh batch analysis when the log has none."""
     if results is not None:  # computed now; confirmations only ever come from the log (or the confirmation lane)
         out = dict(results)
-        out.setdefault("/analysis/confirmations", reader.json_messages("/analysis/confirmations"))
+        out.setdefault(layout.CONFIRMATIONS_TOPIC, reader.json_messages(layout.CONFIRMATIONS_TOPIC))
         return out, "analyze"
     got = {t: reader.json_messages(t) for t in RESULT_TOPICS}
-    if got["/analysis/rq"] or got["/analysis/modal"]:
+    if got[layout.RQ_TOPIC] or got[layout.MODAL_TOPIC]:
         return got, "log"
     from daq.analyze import AnalyzeError, analyze_log
 
@@ -57,7 +57,7 @@ def log_results(reader: LogReader, rig=None, results: dict[str, list[dict]] | No
     except AnalyzeError:
         return got, "none"
     out = dict(run.results)
-    out["/analysis/confirmations"] = got["/analysis/confirmations"]
+    out[layout.CONFIRMATIONS_TOPIC] = got[layout.CONFIRMATIONS_TOPIC]
     return out, "analyze"
 
 
@@ -79,8 +79,8 @@ def build_rrd(
     setup = ViewSetup.from_rig(rig, streams, fs, wavelet_channel) if rig is not None else ViewSetup(streams, fs)
     res, source = log_results(reader, rig, results)
     items: list[tuple[float, int, str, dict]] = []
-    for topic in ("/daq/hits", "/daq/events", *RESULT_TOPICS):
-        objs = reader.json_messages(topic) if topic.startswith("/daq/") else res.get(topic, [])
+    for topic in (layout.HITS_TOPIC, layout.EVENTS_TOPIC, *RESULT_TOPICS):
+        objs = reader.json_messages(topic) if topic.startswith(layout.DAQ_PREFIX) else res.get(topic, [])
         items += [(_time_of(topic, o), len(items) + i, topic, o) for i, o in enumerate(objs)]
     items.sort(key=lambda x: x[:2])
     rec = R.new_recording()
@@ -102,7 +102,7 @@ def build_rrd(
         _batched(view, items[k:])
         if bad:
             R.log_text(rec, R.LOG_DAQ, view.t_now, f"{len(bad)} undecodable sample block(s) skipped; first: {bad[0]}", "WARN")
-        if not res.get("/analysis/confirmations"):
+        if not res.get(layout.CONFIRMATIONS_TOPIC):
             R.log_text(rec, R.LOG_ANALYSIS, view.t_now, "confirmations: none in this log", "INFO")
         view.finish()
         summary.counts = dict(view.counts)
@@ -117,5 +117,5 @@ def _batched(view: ViewLogger, items: list[tuple[float, int, str, dict]]) -> Non
     by: dict[str, list[dict]] = {}
     for _t, _i, topic, obj in items:
         by.setdefault(topic, []).append(obj)
-    for topic in ("/analysis/modal", *[t for t in by if t != "/analysis/modal"]):  # energies before the RQ-FEP pairs
+    for topic in (layout.MODAL_TOPIC, *[t for t in by if t != layout.MODAL_TOPIC]):  # energies before the RQ-FEP pairs
         view.results(topic, by.get(topic, []))

@@ -39,6 +39,7 @@ import rerun as rr
 from analysis.errors import RuntimeFailure
 from daq.children import pdeathsig
 from daq.fanout import END, FanOut, Subscription
+from daq.log import layout
 from daq.view import recording as R
 from daq.view.logger import ViewLogger, ViewSetup
 from drivers.blocks import SampleBlock, coalesce
@@ -227,7 +228,7 @@ class ViewLane:
         self.join(min(2.0, max(0.0, deadline - time.monotonic())))
         ev = self.overrun_event()
         if ev is not None and self.report_sink is not None:
-            self.report_sink("/daq/events", ev, None)
+            self.report_sink(layout.EVENTS_TOPIC, ev, None)
 
     def join(self, drain_s: float = 2.0) -> None:
         """Call after the fan-out closed and every result producer finished. The view gets ``drain_s`` to
@@ -364,7 +365,7 @@ class ViewLane:
             except queue.Empty:
                 break
             by.setdefault(topic, []).append(obj)
-        for topic in sorted(by, key=lambda t: t != "/analysis/modal"):  # energies first: the RQ-FEP pairs with them
+        for topic in sorted(by, key=lambda t: t != layout.MODAL_TOPIC):  # energies first: the RQ-FEP pairs with them
             self.view.results(topic, by[topic])
 
     def _report_drops(self, final: bool = False) -> None:

@@ -18,6 +18,7 @@ import scipy.signal
 
 from analysis.pod import pod
 from analysis.wavelet import morlet_cwt
+from daq.log import layout
 from daq.view import recording as R
 from drivers.blocks import SampleBlock
 
@@ -203,33 +204,33 @@ class ViewLogger:
         if not objs:
             return
         self._count(topic, len(objs))
-        if topic == "/analysis/rq":
+        if topic == layout.RQ_TOPIC:
             R.log_rq(self.rec, objs)
             R.log_rqfep(self.rec, *R.rqfep_points(objs, np.fromiter(self._modal_t, float), np.fromiter(self._modal_e, float)))
-        elif topic == "/analysis/modal":
+        elif topic == layout.MODAL_TOPIC:
             R.log_modal(self.rec, objs)
             self._modal_t.extend(float(o["t_end_s"]) for o in objs)
             self._modal_e.extend(np.nansum(np.array([o["modal_energy_J"] for o in objs], float), axis=1).tolist())
-        elif topic == "/analysis/events":
+        elif topic == layout.IR_EVENTS_TOPIC:
             for ev in objs:
                 self._ir_event(ev)
-        elif topic == "/analysis/rq_spikes":
+        elif topic == layout.RQ_SPIKES_TOPIC:
             for sp in objs:
                 text = f"window-robust RQ spike {sp['start_s']:.3f}–{sp['end_s']:.3f} s (agreement {sp.get('agreement', 0):.2f})"
                 R.log_text(self.rec, R.LOG_ANALYSIS, sp["start_s"], text, "INFO")
-        elif topic == "/analysis/warnings":
+        elif topic == layout.WARNINGS_TOPIC:
             for w in objs:
                 R.log_text(
                     self.rec, R.LOG_ANALYSIS, self.t_now, f"analysis warning ({w.get('kind')}): {w.get('message')}", "WARN"
                 )
-        elif topic == "/analysis/confirmations":
+        elif topic == layout.CONFIRMATIONS_TOPIC:
             for c in objs:
                 self._confirmation(c)
-        elif topic == "/daq/hits":
+        elif topic == layout.HITS_TOPIC:
             for h in objs:
                 R.log_hit(self.rec, h)
                 self._wavelet(h)
-        elif topic == "/daq/events":
+        elif topic == layout.EVENTS_TOPIC:
             for e in objs:
                 self.daq_event(e)
 

@@ -1,18 +1,21 @@
-// Read a gvtlink MCAP log with @mcap/core (not the Python `mcap` package) and decode the first
-// sample block of TOPIC with protobufjs, using only the FileDescriptorSet stored in the file.
+// Read a gvtlink MCAP log with @mcap/core (not the Python `mcap` package) and decode the sample blocks
+// of TOPIC with protobufjs, using only the FileDescriptorSet stored in the file.
 //
-// usage: node read_block.mjs FILE.mcap TOPIC
+// usage: node read_block.mjs FILE.mcap TOPIC [FIELD]
+// With FIELD, resolves the Foxglove-style message path TOPIC.FIELD (no index, no slice, no filter) in
+// every message and concatenates the arrays: one channel's samples over the whole log ("series").
 // prints one JSON line: {"schema", "encoding", "schema_encoding", "chunk_compression", "messages",
-//                        "first": {stream, first_index, sample_rate, n_channels, n_samples, data[0:6]}, "sum"}
+//                        "first": {stream, first_index, sample_rate, n_channels, n_samples, fields},
+//                        "series": [...] (with FIELD), "series_lengths": [...], "metadata": {...}}
 import { open } from "node:fs/promises";
 import { McapIndexedReader } from "@mcap/core";
 import { decompress as zstdDecompress } from "fzstd";
 import protobuf from "protobufjs";
 import "protobufjs/ext/descriptor/index.js"; // adds Root.fromDescriptor
 
-const [file, topic] = process.argv.slice(2);
+const [file, topic, field] = process.argv.slice(2);
 if (!file || !topic) {
-  process.stderr.write("usage: node read_block.mjs FILE.mcap TOPIC\n");
+  process.stderr.write("usage: node read_block.mjs FILE.mcap TOPIC [FIELD]\n");
   process.exit(2);
 }
 
@@ -50,14 +53,22 @@ try {
   const Type = root.lookupType(schema.name);
   const compressions = [...new Set(reader.chunkIndexes.map((c) => c.compression))];
 
+  if (field !== undefined && !Type.fields[field]) throw new Error(`${schema.name} has no field ${field}`);
+  if (field !== undefined && !Type.fields[field].repeated) throw new Error(`${topic}.${field} is not an array`);
+
   let count = 0;
   let first = null;
-  let sum = 0;
+  const series = [];
+  const seriesLengths = [];
   for await (const msg of reader.readMessages({ topics: [topic], validateCrcs: true })) {
     count += 1;
+    const obj = Type.toObject(Type.decode(msg.data), { longs: String, defaults: true, arrays: true });
+    if (field !== undefined) {
+      const values = obj[field]; // the message path TOPIC.FIELD: one plain array per message
+      for (const x of values) series.push(x);
+      seriesLengths.push(values.length);
+    }
     if (first === null) {
-      const obj = Type.toObject(Type.decode(msg.data), { longs: String, defaults: true, arrays: true });
-      for (const x of obj.data) sum += x;
       const asInt = (v) => (Number.isSafeInteger(Number(v)) ? Number(v) : String(v));
       first = {
         stream: obj.stream,
@@ -65,8 +76,7 @@ try {
         sample_rate: obj.sample_rate,
         n_channels: obj.n_channels,
         n_samples: obj.n_samples,
-        n_data: obj.data.length,
-        data: obj.data.slice(0, 6),
+        fields: Type.fieldsArray.map((f) => f.name),
       };
     }
   }
@@ -78,7 +88,9 @@ try {
       chunk_compression: compressions,
       messages: count,
       first,
-      sum,
+      series,
+      series_lengths: seriesLengths,
+      metadata: Object.fromEntries(channel.metadata),
     }) + "\n",
   );
 } finally {

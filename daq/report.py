@@ -35,6 +35,7 @@ class ReportSummary:
     figures: list[str] = field(default_factory=list)
     tables: list[str] = field(default_factory=list)
     results_from: str = "log"
+    rig_note: str | None = None  # why the log's attached rig was not used (the report is drawn without it)
 
 
 def _png(fig) -> str:
@@ -82,13 +83,14 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
 
     reader = LogReader(log)
     info = log_info(log)
+    rig_note = None
     if rig is None:
         try:
             rig = rig_from_log(reader)
-        except AnalyzeError:
-            rig = None
+        except AnalyzeError as exc:
+            rig, rig_note = None, str(exc)
     res, source = log_results(reader, rig)
-    summary = ReportSummary(Path(out), results_from=source)
+    summary = ReportSummary(Path(out), results_from=source, rig_note=rig_note)
     hits = reader.json_messages(layout.HITS_TOPIC)
     streams = reader.streams()
     fs = next(iter(streams.values())).sample_rate if streams else 1.0

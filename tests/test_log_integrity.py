@@ -200,6 +200,9 @@ def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
     assert plain["named_events"]["suspect channels"] == ["c2: channel c2 clipped"] and plain["events"] == {"suspect_channel": 1}
     info = log_info(p, verify=True)
     s = info["streams"][0]
+    v = subprocess.run([*gvt_command(), "log", "info", "--verify", str(p)], capture_output=True, text=True, timeout=60)
+    assert v.returncode == 3 and "DAMAGED: samples" in v.stdout
+    assert subprocess.run([*gvt_command(), "log", "info", "--verify", str(src)], capture_output=True, timeout=60).returncode == 0
     assert info["health"].startswith("damaged") and len(s["damaged"]) == 1
     a, b, _why = s["damaged"][0]
     d = LogReader(p).read_stream("dev0", on_damage="skip")
@@ -240,8 +243,11 @@ def test_decompression_bombs_stay_bounded(clean, tmp_path):
     bomb = tmp_path / "bomb.mcap"
     bomb.write_bytes(first + bytes([6]) + struct.pack("<Q", len(body)) + body)
     for p in (declared, bomb):
-        for verb in (["log", "info", "--verify", str(p)], ["log", "recover", str(p), str(tmp_path / "r.mcap"), "--overwrite"],
-                     ["log", "export", str(p), "--out", str(tmp_path / "x.npz"), "--overwrite"]):  # fmt: skip
+        for verb in (["log", "info", "--verify", str(p)], ["log", "info", str(p)],
+                     ["log", "recover", str(p), str(tmp_path / "r.mcap"), "--overwrite"],
+                     ["log", "export", str(p), "--out", str(tmp_path / "x.npz"), "--overwrite"],
+                     ["replay", str(p), "--no-analysis"], ["analyze", str(p)],
+                     ["report", str(p), "--out", str(tmp_path / "r.html"), "--overwrite"]):  # fmt: skip
             kb, secs, proc = _rss_run([*gvt_command(), *verb])
             assert kb < 500 * 1024 and secs < 10, (verb, kb, secs)
             assert "Traceback" not in proc.stderr, proc.stderr
@@ -259,9 +265,11 @@ def test_hostile_rig_attachment_is_refused_before_allocating(tmp_path):
         w.add_stream("dev0", chans, 2048.0, t0_ns=0)
         w.add_attachment("rig/hostile.toml", hostile.encode(), "application/toml")
         w.write_block(SampleBlock("dev0", 0, 2048.0, ("c0",), np.zeros((256, 1), np.float32)), wait=True)
-    kb, secs, proc = _rss_run([*gvt_command(), "analyze", str(p)])
-    assert kb < 500 * 1024 and secs < 10 and "Traceback" not in proc.stderr
-    assert "elements" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    for verb in (["analyze", str(p)], ["confirm", str(p), "--out", str(tmp_path / "c.mcap")],
+                 ["report", str(p), "--out", str(tmp_path / "r.html")], ["replay", str(p)]):  # fmt: skip
+        kb, secs, proc = _rss_run([*gvt_command(), *verb])
+        assert kb < 500 * 1024 and secs < 10 and "Traceback" not in proc.stderr, (verb, kb, secs, proc.stderr)
+        assert "elements" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, (verb, proc.stderr)
 
 
 def _chunk_spans(raw: bytes) -> list[tuple[int, int]]:

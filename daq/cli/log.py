@@ -19,7 +19,8 @@ def info_cmd(
     verify: Annotated[bool, typer.Option("--verify", help="Read and check every chunk (CRC) and sample block.")] = False,
 ) -> None:
     """Streams, channels, rates, durations, sample counts, gaps, hits, events and file health (from the summary;
-    --verify checks every chunk). Exit 0 whatever the health: the report says it."""
+    --verify checks every chunk). Exit 0 whatever the health (the report says it), except that --verify exits 3
+    when it found damage, so a script can check a log: `gvt log info --verify LOG || gvt log recover LOG FIXED`."""
     from daq.log.tools import info_json, info_text, log_info
 
     info = log_info(file, verify=verify)
@@ -27,6 +28,8 @@ def info_cmd(
         out.print(info_json(info), markup=False, soft_wrap=True)
     else:
         out.print(info_text(info), markup=False)
+    if verify and str(info["health"]).startswith("damaged"):
+        raise typer.Exit(3)
 
 
 @log_app.command("recover")

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, check_output, open_rig, out
+from daq.cli.common import OverwriteOpt, check_output, note, open_rig, out
 
 
 def report(
@@ -17,12 +17,14 @@ def report(
     overwrite: OverwriteOpt = False,
 ) -> None:
     """A static HTML report of a session: plots and tables of hits, verdicts, loss, RQ-FEP, IR events, confirmations."""
+    from daq.outputs import atomic_output
     from daq.report import build_report
 
     check_output(out_path, overwrite, inputs=[log])
-    from daq.outputs import atomic_output
 
     with atomic_output(out_path) as tmp:
         s = build_report(log, tmp, rig=open_rig(rig) if rig is not None else None)
     out.print(f"wrote {out_path}: {len(s.figures)} plots, {len(s.tables)} tables (analysis results from {s.results_from})",
               markup=False)  # fmt: skip
+    if s.rig_note and "carries no rig attachment" not in s.rig_note:
+        note(f"drawn without the log's rig: {s.rig_note}")

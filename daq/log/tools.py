@@ -114,7 +114,8 @@ def _by_decoding(r: LogReader, name: str, info: StreamInfo) -> dict[str, Any]:
         statuses |= b.status
         if b.status & RESTART:
             restarts.append(b.first_index)
-    damaged = tracker.finish(None)
+    # damage at the end reaches the stream's end, which the writer's sealed closing record says (when it is there)
+    damaged = tracker.finish(r.stream_records().get(name, {}).get("end_index"))
     order = np.argsort(firsts, kind="stable") if firsts else []
     f = np.asarray(firsts, np.int64)[order] if firsts else np.zeros(0, np.int64)
     n = np.asarray(counts, np.int64)[order] if counts else np.zeros(0, np.int64)

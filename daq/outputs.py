@@ -3,7 +3,7 @@
 A derived file (an export, a report, a companion log, a recovered log, a simulated log) is written to a
 temporary file beside its target and renamed over it only when complete (``os.replace`` is atomic on one file
 system): an interrupted verb leaves the user's previous file — or nothing — under the name, never half a file.
-The temporary name starts with a dot and ends in ``.part`` so it is easy to spot and never mistaken for a log.
+The temporary name starts with a dot and has ``.part`` before the target's suffix, so it is easy to spot.
 The live recording (``gvt record``) is the exception, by design: it writes in place under its lock so that a
 crash leaves the log where the user looks for it (docs/log-format.md, "Writer guarantees").
 """
@@ -34,9 +34,11 @@ def refuse_own_input(out: str | Path, inputs: Sequence[str | Path], what: str = 
 
 
 def part_path(target: str | Path) -> Path:
-    """The temporary file for ``target``: same directory (same file system, so the rename is atomic)."""
+    """The temporary file for ``target``: same directory (same file system, so the rename is atomic), and the
+    same suffix, because writers pick the format by it (matplotlib's ``savefig``; ``np.savez`` appends
+    ``.npz`` to a name without it)."""
     t = Path(target)
-    return t.with_name(f".{t.name}.{os.getpid()}.part")
+    return t.with_name(f".{t.stem}.{os.getpid()}.part{t.suffix}")
 
 
 @contextlib.contextmanager

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from analysis.model.loader import ConfigFieldError, at_least, at_most, at_most_items, check_limit
 
@@ -149,20 +149,71 @@ class DampingSpec(_Strict):
 
 
 Quantity = Literal["acceleration", "velocity", "displacement", "force"]
+#: A UFF node number (datasets 15/55/58/82 write I10; 0 is "pen up" in a trace line): analysis/model/geometry.py.
+NodeId = Annotated[int, Field(ge=1, le=2_147_483_647)]
+#: Test geometry nodes: a measured structure has tens to hundreds of points; 10000 keeps a file's UFF 15 small.
+MAX_GEOMETRY_NODES = 10_000
+
+
+def _sensitivity_from_text(data: object, quantity_default: str) -> object:
+    """``sensitivity = "100 mV/g"`` (with ``gain = "1 mV/pC"`` for a charge sensor) -> ``sensitivity_mv_per_unit``,
+    converted by pint (analysis/model/channels.py); the unit must be of the channel's quantity. Both given: they
+    must agree (a sensor array's expansion passes both)."""
+    if not isinstance(data, dict) or data.get("sensitivity") is None:
+        if isinstance(data, dict) and data.get("gain") is not None:
+            raise ValueError("gain: applies to a 'sensitivity' written with its unit (e.g. sensitivity = \"10 pC/N\")")
+        return data
+    from analysis.model.channels import parse_sensitivity
+
+    text = data["sensitivity"]
+    if not isinstance(text, str):
+        raise ValueError(f'sensitivity: write the value with its unit as text, e.g. "100 mV/g" (got {text!r})')
+    try:
+        v_per_si, quantity = parse_sensitivity(text, data.get("gain"))
+    except ValueError as exc:
+        raise ValueError(f"sensitivity: {exc}") from None
+    want = data.get("quantity", quantity_default)
+    if quantity != want:
+        raise ValueError(f"sensitivity: {text!r} is a sensitivity to {quantity}, but this channel measures {want}")
+    mv = 1e3 * v_per_si
+    given = data.get("sensitivity_mv_per_unit")
+    if given is not None and not (isinstance(given, int | float) and abs(given - mv) <= 1e-9 * mv):
+        raise ValueError(f"sensitivity: {text!r} is {mv:.6g} mV per SI unit but sensitivity_mv_per_unit = {given!r}; give one")
+    return {**data, "sensitivity_mv_per_unit": mv}
+
+
+def _check_direction(v: str | None) -> str | None:
+    if v is not None:
+        from analysis.model.channels import parse_direction
+
+        parse_direction(v)  # ValueError: "'+W' is not a direction; use one of +X, -X, ..."
+    return v
+
+
+Direction = Annotated[str | None, AfterValidator(_check_direction)]
 
 
 class SensorProps(_Strict):
     quantity: Quantity = "acceleration"
     sensitivity_mv_per_unit: Positive = Field(description="mV per SI unit of the quantity")
+    sensitivity: str | None = Field(default=None, description='as on the calibration sheet, e.g. "100 mV/g" (pint)')
+    gain: str | None = Field(default=None, description='charge amplifier gain for a pC/... sensitivity, e.g. "1 mV/pC"')
+    direction: Direction = Field(default=None, description="+X .. -Z; default +Z on a beam, +X on a lumped chain")
     range: Positive | None = Field(default=None, description="± measurement range, SI units; None = unlimited")
     noise_rms: NonNegative = Field(default=0.0, description="noise floor, SI units rms")
     model: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _sensitivity_text(cls, data: object) -> object:
+        return _sensitivity_from_text(data, "acceleration")
 
 
 class SensorSpec(SensorProps):
     name: Annotated[str, Field(min_length=1)]
     x: float | None = None
     dof: str | None = None
+    node: NodeId | None = Field(default=None, description="test-geometry node id (UFF node number)")
 
     @model_validator(mode="after")
     def _one_location(self) -> SensorSpec:
@@ -191,12 +242,21 @@ class SensorArraySpec(SensorProps):
 
 class HammerSpec(Located):
     sensitivity_mv_per_unit: Positive = Field(description="mV/N")
+    sensitivity: str | None = Field(default=None, description='as on the calibration sheet, e.g. "2.25 mV/N", "11.2 mV/lbf"')
+    gain: str | None = Field(default=None, description='charge amplifier gain for a pC/N sensitivity, e.g. "1 mV/pC"')
+    direction: Direction = Field(default=None, description="+X .. -Z; default as the sensors")
+    node: NodeId | None = Field(default=None, description="test-geometry node id of the driving point")
     range: Force | None = Field(default=None, description="± force range, N")
     noise_rms: NonNegative = 0.0
     model: str | None = None
     pulse: Literal["half_sine"] = "half_sine"
     pulse_duration: Positive = Field(description="s")
     peak_force: Force = Field(description="N, nominal strong hit (demo, simulate default)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _sensitivity_text(cls, data: object) -> object:
+        return _sensitivity_from_text(data, "force")
 
 
 class DaqSpec(_Strict):
@@ -216,6 +276,36 @@ class SimulationSpec(_Strict):
     seed: Annotated[int, Field(ge=0)] = 0  # numpy's generators take a non-negative seed
 
 
+class GeometryNode(_Strict):
+    id: NodeId
+    x: float = Field(description="m")
+    y: float = Field(default=0.0, description="m")
+    z: float = Field(default=0.0, description="m")
+
+
+class GeometrySpec(_Strict):
+    """The test geometry (analysis/model/geometry.py): nodes and trace lines, for a structure the FE model does
+    not draw (a beam model of a frame); every sensor and the hammer then name their ``node``."""
+
+    nodes: Annotated[
+        list[GeometryNode], Field(min_length=1), at_most_items(MAX_GEOMETRY_NODES, "nodes", "a test has far fewer points")
+    ]
+    lines: Annotated[list[tuple[NodeId, NodeId]], at_most_items(4 * MAX_GEOMETRY_NODES, "lines", "four per node")] = []
+
+    @model_validator(mode="after")
+    def _consistent(self) -> GeometrySpec:
+        import numpy as np
+
+        from analysis.model.geometry import geometry_problem
+
+        ids = np.array([n.id for n in self.nodes], dtype=np.int64)
+        xyz = np.array([[n.x, n.y, n.z] for n in self.nodes], dtype=float)
+        problem = geometry_problem(ids, xyz, np.array(self.lines, dtype=np.int64).reshape(-1, 2))
+        if problem:
+            raise ValueError(problem)
+        return self
+
+
 class RigConfig(_Strict):
     name: Annotated[str, Field(min_length=1)]
     description: str = ""
@@ -230,6 +320,7 @@ class RigConfig(_Strict):
     hammer: HammerSpec
     daq: DaqSpec
     simulation: SimulationSpec = SimulationSpec()
+    geometry: GeometrySpec | None = None
 
     @property
     def all_sensors(self) -> list[SensorSpec]:
@@ -256,6 +347,22 @@ class RigConfig(_Strict):
                     f"{what} at x = {item.x:g} m snaps to node {node}, a constrained DOF of the {end} support; "
                     f"move it at least {0.5 * le:g} m away",
                 )
+
+    def _check_nodes(self) -> None:
+        """With a ``[geometry]`` table the hammer and every sensor name a node of it (there is no position to
+        derive one from)."""
+        if self.geometry is None:
+            return
+        ids = {n.id for n in self.geometry.nodes}
+        if self.sensor_arrays:
+            raise ConfigFieldError("sensor_arrays", "a rig with [geometry] lists its sensors one by one, each with its node")
+        where = [("hammer.node", "the hammer", self.hammer.node)]
+        where += [(f"sensors[{i}].node", s.name, s.node) for i, s in enumerate(self.sensors)]
+        for path, what, node in where:
+            if node is None:
+                raise ConfigFieldError(path, f"{what} needs a node of [geometry] (ids {min(ids)}..{max(ids)})")
+            if node not in ids:
+                raise ConfigFieldError(path, f"node {node} is not among the [geometry] nodes; add it there or correct the id")
 
     def check(self) -> None:
         """Cross-field checks, each raising a :class:`ConfigFieldError` at the offending path."""
@@ -300,6 +407,7 @@ class RigConfig(_Strict):
                     v = getattr(sp, end)
                     if v is not None and v not in names:
                         raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
+        self._check_nodes()
         seen: set[str] = set()
         for sensor in self.all_sensors:
             if sensor.name in seen:

@@ -1,0 +1,291 @@
+"""The channel table: what each measured channel is, where it sits and how it converts volts to SI units.
+
+Each channel has a name, a quantity (acceleration, velocity, displacement, force), a node id with its 3-D
+coordinates (m), a direction (+X .. -Z, stored as the UFF direction code +-1..3 of dataset 58, record 6, field 7)
+and a sensitivity in SI units (V per m/s^2, V/(m/s), V/m or V/N). Sensitivities are written as on a calibration
+sheet ("100 mV/g", "1.02 mV/(m/s^2)", "2.25 mV/N", "11.2 mV/lbf", a charge sensor's "10 pC/N" with its
+amplifier's gain "1 mV/pC") and converted by pint (https://pint.readthedocs.io), so a unit mistake is an error,
+never a silent factor of 9.81 or 1000. In a sensitivity ``g`` is standard gravity (9.80665 m/s^2, ISO 80000-3),
+as on every accelerometer calibration sheet, not the gram pint reads it as.
+
+A table comes from the rig (its sensors' ``node``, ``direction``, ``sensitivity`` fields and its geometry) or from
+a CSV file ``name,node,x,y,z,direction,sensitivity,unit`` (optional columns ``gain`` and ``quantity``); a bad row
+is one line: file:line: what is wrong and how to fix it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from analysis.errors import BadInput
+
+if TYPE_CHECKING:
+    from analysis.model.rig import Rig
+
+SI_UNITS = {"acceleration": "m/s^2", "velocity": "m/s", "displacement": "m", "force": "N"}
+#: UFF direction codes (dataset 58 record 6 fields 7 and 10; dataset 55 puts +-1..3 in r1..r3).
+DIRECTIONS = {"+X": 1, "-X": -1, "+Y": 2, "-Y": -2, "+Z": 3, "-Z": -3}
+DIRECTION_HELP = "use one of +X, -X, +Y, -Y, +Z, -Z"
+CSV_COLUMNS = ("name", "node", "x", "y", "z", "direction", "sensitivity", "unit")
+#: A channel table holds at most the rig's channel limit (analysis/model/config.py MAX_CHANNELS); its file is small.
+MAX_CSV_BYTES = 1 << 20
+MAX_CSV_ROWS = 256
+
+_NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
+_BARE_G = re.compile(r"(?<![A-Za-z_0-9])g(?![A-Za-z_0-9])")
+
+
+class ChannelTableError(BadInput):
+    """A channel table (CSV) that cannot be used; ``str`` is one line: file:line: what, how to fix (exit 2)."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One channel: ``sensitivity`` is V per SI unit of ``quantity`` (None when not known), ``direction`` a UFF code."""
+
+    name: str
+    quantity: str
+    node: int
+    xyz: tuple[float, float, float]
+    direction: int
+    sensitivity: float | None = None
+
+    @property
+    def unit(self) -> str:
+        return SI_UNITS[self.quantity]
+
+    @property
+    def direction_label(self) -> str:
+        return direction_label(self.direction)
+
+    @property
+    def sensitivity_mv_per_unit(self) -> float | None:
+        """mV per SI unit, as the rig files write it."""
+        return None if self.sensitivity is None else 1e3 * self.sensitivity
+
+
+def parse_direction(text: str) -> int:
+    """``"+Z"``, ``"z"``, ``"-x"``, ``"−Y"`` (a typographic minus) -> the UFF code (+3, +3, -1, -2); ValueError else."""
+    t = str(text).strip().upper().replace("\u2212", "-").replace(" ", "")
+    if len(t) == 2 and t[1] in "+-" and t[0] in "XYZ":  # "Z+" written the other way round
+        t = t[1] + t[0]
+    if len(t) == 1:
+        t = "+" + t
+    if t not in DIRECTIONS:
+        raise ValueError(f"{text!r} is not a direction; {DIRECTION_HELP}")
+    return DIRECTIONS[t]
+
+
+def direction_label(code: int) -> str:
+    """The UFF code +-1..3 as ``"+X"`` .. ``"-Z"``."""
+    for label, c in DIRECTIONS.items():
+        if c == code:
+            return label
+    raise ValueError(f"direction code {code} is not a translation (+-1, +-2, +-3)")
+
+
+@lru_cache(maxsize=1)
+def _units():
+    """One pint registry for the process (building it reads pint's definition file: ~0.1 s)."""
+    import pint
+
+    return pint.UnitRegistry()
+
+
+def _unit_text(unit: str) -> str:
+    """A calibration sheet's unit in pint's syntax: a bare ``g`` is standard gravity (g_n), not the gram."""
+    return _BARE_G.sub("g_n", unit.replace("\u00b5", "u").replace("\u03bc", "u").replace("\u2212", "-"))
+
+
+def split_value(text: str) -> tuple[float, str]:
+    """``"100 mV/g"`` -> (100.0, "mV/g"); ValueError when it does not start with a number."""
+    m = _NUMBER.match(str(text))
+    if not m:
+        raise ValueError(f'{text!r} does not start with a number; write it as e.g. "100 mV/g"')
+    return float(m.group(1)), m.group(2)
+
+
+def _quantity(value: float, unit: str):
+    """A pint quantity; ValueError (one line) for a unit pint cannot parse (its parser raises many kinds)."""
+    try:
+        return _units().Quantity(float(value), _unit_text(unit))
+    except Exception as exc:  # pint's UndefinedUnitError, tokenize's TokenError, SyntaxError, ...
+        raise ValueError(
+            f"unit {unit!r} is not understood ({type(exc).__name__}); write e.g. mV/g, mV/(m/s^2), mV/N, pC/N"
+        ) from None
+
+
+def sensitivity_si(value: float, unit: str, gain: str | None = None) -> tuple[float, str]:
+    """Convert a sensitivity to (V per SI unit, quantity). ``unit`` is electrical per mechanical: mV/g, V/(m/s^2),
+    mV/(m/s), mV/mm, mV/N, mV/lbf ...; a charge sensitivity (pC/N, pC/g) needs ``gain``, the charge amplifier's
+    output per charge ("1 mV/pC"). ValueError with the reason and the fix."""
+    q = _quantity(value, unit)
+    if any(q.is_compatible_with(f"C/({si})") for si in SI_UNITS.values()):
+        if not gain:
+            raise ValueError(f'{value:g} {unit} is a charge sensitivity; give the charge amplifier\'s gain (e.g. "1 mV/pC")')
+        g = _quantity(*split_value(gain))
+        if not g.is_compatible_with("V/C"):
+            raise ValueError(f'gain {gain!r} is not volts per charge; write it as e.g. "1 mV/pC"')
+        q = q * g
+    elif gain:
+        raise ValueError(f"a gain ({gain!r}) applies to a charge sensitivity (pC/N, pC/g), not to {unit!r}")
+    for quantity, si in SI_UNITS.items():
+        if q.is_compatible_with(f"V/({si})"):
+            v = float(q.to(f"V/({si})").magnitude)
+            if not v > 0:
+                raise ValueError(f"sensitivity {value:g} {unit} must be positive")
+            return v, quantity
+    raise ValueError(
+        f"{unit!r} is not volts (or charge) per acceleration, velocity, displacement or force; "
+        "write e.g. mV/g, mV/(m/s^2), mV/(m/s), mV/mm, mV/N, pC/N"
+    )
+
+
+def parse_sensitivity(text: str, gain: str | None = None) -> tuple[float, str]:
+    """``"100 mV/g"`` -> (V per SI unit, quantity); see :func:`sensitivity_si`."""
+    value, unit = split_value(text)
+    if not unit:
+        raise ValueError(f'{text!r} has no unit; write it as e.g. "100 mV/g"')
+    return sensitivity_si(value, unit, gain)
+
+
+# --- CSV --------------------------------------------------------------------------------------------------------
+def _number(row: dict[str, str], key: str, what: str) -> float:
+    text = (row.get(key) or "").strip()
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"column {key!r}: {text!r} is not a number ({what})") from None
+
+
+def _row_channel(row: dict[str, str]) -> Channel:
+    """One CSV row as a :class:`Channel`; ValueError naming the column and the fix."""
+    name = (row.get("name") or "").strip()
+    if not name:
+        raise ValueError("column 'name' is empty; name the channel as the log does (e.g. a01)")
+    node_text = (row.get("node") or "").strip()
+    if not node_text.isdigit() or int(node_text) < 1:
+        raise ValueError(f"column 'node': {node_text!r} is not a node id (a whole number >= 1)")
+    x, y, z = (_number(row, axis, "m") for axis in ("x", "y", "z"))
+    try:
+        direction = parse_direction(row.get("direction") or "")
+    except ValueError as exc:
+        raise ValueError(f"column 'direction': {exc}") from None
+    value = _number(row, "sensitivity", "e.g. 100 with unit mV/g")
+    unit = (row.get("unit") or "").strip()
+    if not unit:
+        raise ValueError("column 'unit' is empty; write e.g. mV/g, mV/(m/s^2), mV/N, pC/N")
+    try:
+        sens, quantity = sensitivity_si(value, unit, (row.get("gain") or "").strip() or None)
+    except ValueError as exc:
+        raise ValueError(f"column 'unit': {exc}") from None
+    declared = (row.get("quantity") or "").strip()
+    if declared and declared != quantity:
+        raise ValueError(f"column 'quantity' says {declared!r} but the unit {unit!r} is of {quantity}; correct one of them")
+    return Channel(name, quantity, int(node_text), (x, y, z), direction, sens)
+
+
+def parse_channel_csv(text: str, where: str = "<csv>") -> tuple[Channel, ...]:
+    """A channel table from CSV text (header row first); :class:`ChannelTableError` ``where:line: ...``."""
+    reader = csv.DictReader(io.StringIO(text))
+    header = [h.strip() for h in (reader.fieldnames or [])]
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise ChannelTableError(
+            f"{where}:1: header lacks column(s) {missing}; the header is {','.join(CSV_COLUMNS)} (optional: gain, quantity)"
+        )
+    reader.fieldnames = header
+    out: list[Channel] = []
+    seen: dict[str, int] = {}
+    for row in reader:
+        line = reader.line_num
+        if not any((v or "").strip() for k, v in row.items() if k is not None):
+            continue
+        if len(out) >= MAX_CSV_ROWS:
+            raise ChannelTableError(f"{where}:{line}: more than {MAX_CSV_ROWS} channels (the rig limit)")
+        if row.get(None):
+            raise ChannelTableError(
+                f"{where}:{line}: {len(header) + len(row[None])} fields for {len(header)} columns; "
+                "quote a unit that holds a comma"
+            )
+        try:
+            ch = _row_channel(row)
+        except ValueError as exc:
+            raise ChannelTableError(f"{where}:{line}: {exc}") from None
+        if ch.name in seen:
+            raise ChannelTableError(f"{where}:{line}: channel {ch.name!r} is already on line {seen[ch.name]}; name each once")
+        seen[ch.name] = line
+        out.append(ch)
+    if not out:
+        raise ChannelTableError(f"{where}: no channels (a header and one row per channel)")
+    return tuple(out)
+
+
+def read_channel_csv(path: str | Path) -> tuple[Channel, ...]:
+    """Read a channel table file (UTF-8, at most 1 MB); :class:`ChannelTableError` on any problem."""
+    p = Path(path)
+    try:
+        if p.stat().st_size > MAX_CSV_BYTES:
+            raise ChannelTableError(f"{p}: {p.stat().st_size} bytes, over the 1 MB a channel table may have")
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise ChannelTableError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise ChannelTableError(f"{p}: not UTF-8 text; save the table as UTF-8 CSV") from None
+    return parse_channel_csv(text, str(p))
+
+
+# --- from a rig ------------------------------------------------------------------------------------------------
+def rig_channels(rig: Rig) -> tuple[Channel, ...]:
+    """The hammer then every sensor of ``rig`` as channels: node (the rig's, or numbered along the structure),
+    coordinates from the rig's geometry, direction (given; else +Z on a beam, whose model deflection ``w`` is
+    transverse, and +X on a lumped chain) and the sensitivity the rig states (mV per SI unit -> V per SI unit)."""
+    from analysis.model.config import BeamSpec
+    from analysis.model.geometry import rig_geometry, rig_nodes
+
+    geometry, nodes = rig_geometry(rig), rig_nodes(rig)
+    default = "+Z" if isinstance(rig.config.structure, BeamSpec) else "+X"
+    given = {s.name: s.direction for s in rig.config.all_sensors}
+    given["hammer"] = rig.config.hammer.direction
+    out = []
+    for ch in (rig.hammer, *rig.sensors):
+        node = nodes[ch.name]
+        out.append(
+            Channel(
+                ch.name,
+                ch.quantity,
+                node,
+                geometry.coordinates(node),
+                parse_direction(given[ch.name] or default),
+                1e-3 * ch.props.sensitivity_mv_per_unit,
+            )
+        )
+    return tuple(out)
+
+
+def by_name(channels: tuple[Channel, ...] | list[Channel]) -> dict[str, Channel]:
+    return {c.name: c for c in channels}
+
+
+__all__ = [
+    "CSV_COLUMNS",
+    "DIRECTIONS",
+    "SI_UNITS",
+    "Channel",
+    "ChannelTableError",
+    "by_name",
+    "direction_label",
+    "parse_channel_csv",
+    "parse_direction",
+    "parse_sensitivity",
+    "read_channel_csv",
+    "rig_channels",
+    "sensitivity_si",
+    "split_value",
+]

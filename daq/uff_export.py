@@ -1,0 +1,164 @@
+"""``gvt export LOG --format uff``: what a session log holds, as one UFF file (datasets in ``daq/uff.py``).
+
+Written, in this order: units (164, SI), the test geometry (15) and its trace lines (82), FRFs and coherence (58,
+function types 4 and 6) from ``--frf FRF.npz`` (``analysis.frf.FRFSet.to_npz``) and mode shapes (55) from
+``--modes MODES.json`` when given, then the time history of every channel of every accepted hit (58, type 1).
+The FRFs come first because sdypy-EMA's ``Model.read_uff`` takes the FRF form (receptance, mobility,
+accelerance) from the ordinate type of the file's *first* dataset 58, whatever its function type.
+The channel table (node, direction, quantity of each channel) is the log's attached rig's
+(``analysis.model.channels.rig_channels``) or a CSV given with ``--channels``; a log channel the table does not
+name is left out and said so. A hit record is ``start_index .. end_index`` of its ``/daq/hits`` record, or for
+logs whose hits carry only the trigger (simulated ones) 10 ms before it to the rig's record length after it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from analysis.errors import BadInput
+from analysis.model.channels import Channel, by_name, read_channel_csv, rig_channels
+from analysis.model.geometry import Geometry, make_geometry, rig_geometry
+from analysis.records import HITS_TOPIC
+from daq import uff
+from daq.log.reader import LogReader
+
+PRE_TRIGGER_S = 0.01  # daq/hits.py TriggerSettings.pre_trigger: what the hit gate keeps before the edge
+
+
+def channel_geometry(channels: tuple[Channel, ...]) -> Geometry:
+    """Nodes of a CSV channel table (its coordinates; the first row of a node wins), without lines."""
+    nodes: dict[int, tuple[float, float, float]] = {}
+    for c in channels:
+        nodes.setdefault(c.node, c.xyz)
+    return make_geometry((n, *xyz) for n, xyz in sorted(nodes.items()))
+
+
+def hit_windows(reader: LogReader, fs: float, record_s: float, n_samples: int) -> list[tuple[int, int, int]]:
+    """(hit, start, end) sample ranges of the accepted hits (``/daq/hits``, verdict ``accepted``): the record the hit
+    gate logged, else 10 ms before the trigger to ``record_s`` after it or the next hit's pre-trigger, whichever is first."""
+    hits = [h for h in reader.json_messages(HITS_TOPIC) if "index" in h]
+    edges = sorted(int(h["index"]) for h in hits)
+    out = []
+    for h in hits:
+        if h.get("verdict") != "accepted":
+            continue
+        start = int(h.get("start_index", int(h["index"]) - round(PRE_TRIGGER_S * fs)))
+        later = [e for e in edges if e > int(h["index"])]  # a record without an end stops before the next hit's pre-trigger
+        default_end = min([int(h["index"]) + round(record_s * fs)] + [e - round(PRE_TRIGGER_S * fs) for e in later[:1]])
+        end = int(h.get("end_index", default_end))
+        out.append((int(h.get("hit", len(out))), max(0, start), min(n_samples, end)))
+    return out
+
+
+def load_frf_npz(path: Path) -> Any:
+    """What ``FRFSet.to_npz`` wrote, as a namespace with its fields (read here so export does not need analysis.frf)."""
+    from types import SimpleNamespace
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            return SimpleNamespace(freq=z["freq"], H=z["H"], coherence=z["coherence"], n_averages=z["n_averages"], **meta)
+    except (OSError, KeyError, ValueError) as exc:
+        raise BadInput(f"--frf {path}: not an FRF file written by FRFSet.to_npz ({exc})") from None
+
+
+def load_modes_json(path: Path) -> dict[str, Any]:
+    """``{"freq_hz": [...], "zeta": [...], "outputs": [names], "shapes_re": [[n_out x n_modes]], "shapes_im": ...}``
+    (``shapes_im`` absent: real normal modes)."""
+    try:
+        d = json.loads(Path(path).read_text())
+        shapes = np.asarray(d["shapes_re"], dtype=float)
+        if "shapes_im" in d:
+            shapes = shapes + 1j * np.asarray(d["shapes_im"], dtype=float)
+        return {"freq_hz": [float(x) for x in d["freq_hz"]], "zeta": [float(x) for x in d["zeta"]],
+                "outputs": [str(x) for x in d["outputs"]], "shapes": shapes}  # fmt: skip
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BadInput(f"--modes {path}: not a modes file (freq_hz, zeta, outputs, shapes_re[, shapes_im]): {exc}") from None
+
+
+def _hit_sets(reader: LogReader, stream: str, table: dict[str, Channel], record_s: float, binary: bool):
+    """Datasets 58 of every accepted hit of ``stream``, and the names of the log channels left out."""
+    info = reader.streams()[stream]
+    names = [c for c in info.channels if c in table]
+    skipped = [c for c in info.channels if c not in table]
+    for c, unit in zip(info.channels, info.units, strict=True):
+        if c in table and unit and unit != table[c].unit:
+            raise BadInput(f"{reader.path}: channel {c} is recorded in {unit!r} but the channel table says {table[c].unit!r}")
+    ref = table["hammer"] if "hammer" in table else next((table[c] for c in names if table[c].quantity == "force"), None)
+    if ref is None:
+        raise BadInput(f"{reader.path}: no force channel in the channel table; the hits need their reference DOF")
+    n_total = int(reader.stream_records().get(stream, {}).get("end_index") or 2**62)
+    sets, hits, fid = [], [], 1
+    for hit, a, b in hit_windows(reader, info.sample_rate, record_s, n_total):
+        sd = reader.read_stream(stream, names, start=(a - 0.5) / info.sample_rate, end=(b - 0.5) / info.sample_rate)
+        keep = (sd.index >= a) & (sd.index < b)
+        if int(keep.sum()) != b - a:
+            raise BadInput(
+                f"{reader.path}: hit {hit} needs samples [{a}, {b}) of {stream}; the log has {int(keep.sum())} of them"
+            )
+        chans = [table[c] for c in names]
+        sets += uff.time_sets(sd.data[keep], info.sample_rate, chans, ref, t0=a / info.sample_rate, hit=hit, binary=binary,
+                              first_id=fid)  # fmt: skip
+        fid += len(chans)
+        hits.append(hit)
+    return sets, hits, skipped
+
+
+def _force_stream(reader: LogReader, table: dict[str, Channel]) -> str:
+    streams = reader.streams()
+    for name, info in streams.items():
+        if any(c in table and table[c].quantity == "force" for c in info.channels):
+            return name
+    raise BadInput(f"{reader.path}: no stream carries a force channel of the channel table; streams: {sorted(streams)}")
+
+
+def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: Path | None = None,
+               modes: Path | None = None, binary: bool = False) -> str:  # fmt: skip
+    """Write ``out`` (the caller made it a temporary path) and return the one-line summary."""
+    from daq.analyze import rig_from_log
+
+    reader = LogReader(log)
+    try:
+        rig = rig_from_log(reader)
+    except BadInput:
+        if channels_csv is None:
+            raise
+        rig = None  # the CSV gives the channels; hits then need their own start/end (or 2 s records)
+    if channels_csv is not None:
+        table = read_channel_csv(channels_csv)
+        geometry = channel_geometry(table)
+    else:
+        assert rig is not None
+        table, geometry = rig_channels(rig), rig_geometry(rig)
+    chans = by_name(table)
+    record_s = rig.config.daq.record_length if rig is not None else 2.0
+    stream = _force_stream(reader, chans)
+    hit_sets, hits, skipped = _hit_sets(reader, stream, chans, record_s, binary)
+    sets = [uff.units_set(), *uff.geometry_sets(geometry), *uff.trace_line_sets(geometry)]
+    parts = [
+        f"{geometry.ids.size} nodes",
+        f"{len(geometry.lines)} lines",
+        f"{len(hits)} accepted hit(s) x {len(hit_sets) // max(1, len(hits))} channels",
+    ]
+    if frf is not None:
+        f = load_frf_npz(frf)
+        sets += uff.frfset_sets(f, chans, binary=binary)
+        parts.append(f"{f.H.shape[0]}x{f.H.shape[1]} {f.kind} FRFs + coherence, {f.freq.size} lines")
+    if modes is not None:
+        m = load_modes_json(modes)
+        missing = [n for n in m["outputs"] if n not in chans]
+        if missing:
+            raise BadInput(f"--modes {modes}: outputs {missing} are not in the channel table")
+        sets += uff.mode_shape_sets(m["freq_hz"], m["zeta"], m["shapes"], [chans[n] for n in m["outputs"]])
+        parts.append(f"{len(m['freq_hz'])} mode shapes")
+    sets += hit_sets  # after the FRFs: sdypy-EMA's read_uff takes the FRF form from the file's first dataset 58
+    uff.write_uff(out, sets)
+    left = f"; left out (not in the channel table): {', '.join(skipped)}" if skipped else ""
+    return f"{len(sets)} UFF datasets: {', '.join(parts)}{left}"
+
+
+__all__ = ["channel_geometry", "export_uff", "hit_windows", "load_frf_npz", "load_modes_json"]

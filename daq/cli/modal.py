@@ -1,0 +1,76 @@
+"""``gvt modal``: modal parameters (pLSCF + LSFD) of a session or an FRF file, against the rig's FE modes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out
+
+
+def modal(
+    source: Annotated[Path, typer.Argument(help="Session log (.mcap), or FRFs written by `gvt frf --out` (.npz).")],
+    rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
+    band: Annotated[tuple[float, float], typer.Option(help="Band to identify in, Hz: LOW HIGH.")] = (2.0, 1000.0),
+    poles: Annotated[
+        Path | None, typer.Option("--poles", help="Pick these poles ([[poles]] freq_hz, tol) instead of the automatic rule.")
+    ] = None,
+    max_order: Annotated[int, typer.Option(min=2, max=200, help="Highest model order of the stabilisation.")] = 60,
+    png: Annotated[Path | None, typer.Option("--png", help="Write the stabilisation chart to this PNG.")] = None,
+    modes_out: Annotated[
+        Path | None, typer.Option("--modes-out", help="Write the modes (JSON; gvt export --modes reads it).")
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    overwrite: OverwriteOpt = False,
+) -> None:
+    """Stabilisation chart, poles, mode shapes, MPC/MPD and MAC against the rig's FE modes (docs/modal-id.md)."""
+    import json
+
+    from analysis.modal_id import load_targets
+    from daq.modal_cmd import load_frf_source, modal_from_frf, rows_summary, table_text, write_modes
+    from daq.outputs import atomic_output
+
+    for p, what in ((png, "--png"), (modes_out, "--modes-out")):
+        if p is not None:
+            check_output(p, overwrite, what, inputs=[source])
+    targets = load_targets(poles) if poles is not None else None
+    r = open_rig(rig) if rig is not None else None
+    refused: list[dict] = []
+    if source.suffix == ".npz":
+        frf = load_frf_source(source)
+    else:
+        from daq.analyze import rig_from_log
+        from daq.frf_cmd import frf_from_log
+        from daq.log.reader import LogReader
+
+        r = r if r is not None else rig_from_log(LogReader(source))
+        with Progress(err if json_out else out) as report:
+            fr = frf_from_log(source, r, band_hz=band[1], progress=lambda f: report("hits", f))
+        refused = [h for h in fr.hits if h["verdict"] != "accepted"]
+        if fr.frf is None:
+            fail(f"{source}: no accepted hit to build FRFs from ({len(refused)} refused; `gvt frf {source}` says why)")
+        frf = fr.frf
+    run = modal_from_frf(frf, r, band[0], band[1], targets, max_order, source=str(source))
+    run.refused_hits = refused
+    if modes_out is not None:
+        with atomic_output(modes_out) as tmp:
+            write_modes(run, tmp)
+    if png is not None:
+        from analysis.modal_plot import stabilisation_png
+
+        with atomic_output(png) as tmp:
+            stabilisation_png(run.result.table, tmp, frf.freq, frf.H, run.result.selected)
+    if json_out:
+        out.print_json(json.dumps(rows_summary(run), default=float))
+        return
+    out.print(f"{source}: {len(run.rows)} modes in {band[0]:g}-{band[1]:g} Hz from {len(frf.outputs)} responses x "
+              f"{len(frf.references)} reference(s); window damping removed ({run.result.sigma_added:.3f} 1/s)",
+              markup=False)  # fmt: skip
+    out.print(table_text(run), markup=False)
+    for h in refused:
+        out.print(f"hit {h['hit']} refused: {h['reason']}", markup=False)
+    for p in (png, modes_out):
+        if p is not None:
+            out.print(f"wrote {p}", markup=False)

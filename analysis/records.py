@@ -33,6 +33,7 @@ IR_EVENTS_TOPIC = ANALYSIS_PREFIX + "events"
 RQ_SPIKES_TOPIC = ANALYSIS_PREFIX + "rq_spikes"
 WARNINGS_TOPIC = ANALYSIS_PREFIX + "warnings"
 CONFIRMATIONS_TOPIC = ANALYSIS_PREFIX + "confirmations"
+FRF_TOPIC = ANALYSIS_PREFIX + "frf"
 SIM_ENERGY_TOPIC = SIM_PREFIX + "energy"
 SIM_HITS_TOPIC = SIM_PREFIX + "hits"
 
@@ -345,6 +346,59 @@ class Confirmation(Record):
         "trajectory"))  # fmt: skip
 
 
+@dataclass(frozen=True, eq=True)
+class FRFUpdate(Record):
+    """The live FRF lane's verdict on one hit (``/analysis/frf``), and the averaged FRFs' peaks after it.
+
+    Small on purpose (a few dozen numbers a hit): the FRF arrays are ``gvt frf``'s job, recomputed from the
+    log; this is what the engineer watches between hits. ``peaks_hz``: the largest peaks of the mode
+    indicator ``sum |H|`` (:meth:`analysis.frf.FRFSet.peaks`, as ``gvt frf``); per peak the driving point's
+    |H| and coherence, and the lowest coherence over all responses."""
+
+    TOPIC = FRF_TOPIC
+    TUPLES = frozenset({"peaks_hz", "dp_mag", "dp_coherence", "min_coherence"})
+    hit: int
+    index: int
+    t_s: float
+    reference: str
+    verdict: str  # accepted | refused
+    reason: str
+    averages: int
+    refused: int
+    peaks_hz: tuple[float, ...] = ()
+    driving_point: str | None = None
+    dp_mag: tuple[float, ...] = ()
+    dp_coherence: tuple[float, ...] = ()
+    min_coherence: tuple[float, ...] = ()
+    units: str = "m/s^2/N"
+    record_s: float = 0.0
+    tau_s: float | None = None
+    band_hz: float = 0.0
+    checks: dict[str, Any] | None = None
+    elapsed_s: float = 0.0
+    SCHEMA = _schema("gvtlink.FRFUpdate", "The live FRF lane's verdict on one hit and the averaged FRFs' peaks", {
+        "hit": ("integer", "hit number in /daq/hits"),
+        "index": ("integer", "trigger sample index of the hit (stream samples)"),
+        "t_s": ("number", "trigger time on the stream clock, s"),
+        "reference": ("string", "reference (force) channel"),
+        "verdict": ({"enum": ["accepted", "refused"]}, "whether the hit joined the average"),
+        "reason": ("string", "'ok', or why it was refused (hit gate, record incomplete, hammer checks)"),
+        "averages": ("integer", "hits averaged so far for this reference"),
+        "refused": ("integer", "hits refused so far"),
+        "peaks_hz": (NUM_ARRAY, "peaks of the mode indicator sum|H| over the responses, ascending, Hz"),
+        "driving_point": (OPT_STR, "response at the reference's DOF, or null"),
+        "dp_mag": (NUM_ARRAY, "|H| of the driving point at each peak, units"),
+        "dp_coherence": (NUM_ARRAY, "coherence of the driving point at each peak, 1"),
+        "min_coherence": (NUM_ARRAY, "lowest coherence over all responses at each peak, 1"),
+        "units": ("string", "unit of |H| (accelerance m/s^2/N)"),
+        "record_s": ("number", "record length, s"),
+        "tau_s": (OPT_NUM, "exponential window decay constant, s (null: none)"),
+        "band_hz": ("number", "band of interest, Hz"),
+        "checks": ({"type": ["object", "null"]}, "the hammer checks (analysis/hammer.py HammerCheck), or null"),
+        "elapsed_s": ("number", "the lane's computing time for this hit, s"),
+    }, ("hit", "index", "t_s", "reference", "verdict", "reason", "averages", "refused"))  # fmt: skip
+
+
 # --- acquisition ---------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=True)
 class Hit(Record):
@@ -476,7 +530,7 @@ ANY_SCHEMA: dict[str, Any] = {"$schema": SCHEMA_DIALECT, "title": ANY_TITLE, "ty
 
 #: every JSON topic gvtlink writes: its record class and the schema stored with it in the log
 RECORDS: tuple[type[Record], ...] = (RQWindow, ModalWindow, IREventRecord, RQSpike, AnalysisWarning, Confirmation, Hit,
-                                     Event, TimelineMessage, SimEnergy)  # fmt: skip
+                                     Event, TimelineMessage, SimEnergy, FRFUpdate)  # fmt: skip
 TOPICS: dict[str, tuple[type[Record], dict[str, Any]]] = {cls.TOPIC: (cls, cls.SCHEMA) for cls in RECORDS}
 TOPICS[SIM_HITS_TOPIC] = (Hit, Hit.SCHEMA)
 

@@ -14,7 +14,7 @@ def plain_line(st: dict) -> str:
         f"{st['seconds']:6.1f} s  {st['samples']} samples  {st['rate']:.0f} S/s  hits {st['hits']} ({v})  "
         f"lost {st['lost']}  crc {st.get('crc_errors', 0)}  reconnects {st.get('reconnects', 0)}  "
         f"file {st.get('file_bytes', 0) / 1e6:.1f} MB"
-    )
+    ) + (f"  frf {st['frf']['averages']} avg" if st.get("frf") else "")
 
 
 def status_table(title: str, st: dict, width: int | None = None) -> FitTable:
@@ -35,6 +35,8 @@ def status_table(title: str, st: dict, width: int | None = None) -> FitTable:
         f"hits {st['hits']} ({v}) · lost samples {st['lost']} · CRC/frame errors {st.get('crc_errors', 0)} · "
         f"reconnects {st.get('reconnects', 0)} · writer overruns {st.get('writer_overruns', 0)}"
     )
+    if st.get("frf"):
+        t.caption += f" · FRF averages {st['frf']['averages']} ({st['frf']['refused']} refused)"
     return t
 
 

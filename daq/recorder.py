@@ -15,8 +15,9 @@ worker process; the log lane owns the writer thread and the file lock. The stop 
 
 1. sources stop reading and close their links (no block can enter after this);
 2. the fan-out closes (every subscriber gets END);
-3. lanes finish in the order given (hit gate, analysis, confirmation, view): each one's last results may
-   feed the next (the analysis' last IR events reach the confirmation lane before it drains);
+3. lanes finish in the order given (hit gate, live FRFs, analysis, confirmation, view): each one's last
+   results may feed the next (the gate's last hits reach the FRF lane, the analysis' last IR events the
+   confirmation lane before it drains);
 4. the log lane finalises the file.
 
 A session ends only for a reason it states (:class:`Outcome`): the duration reached in data time, a
@@ -38,7 +39,8 @@ from daq.log import layout
 from daq.sources import Source
 
 #: seconds a lane may take to finish after the source ended, by lane name (the confirmation lane has its own)
-FINISH_S = {"hits": 30.0, "analysis": 60.0, "view": 12.0, "confirm": 3600.0}  # a replay's confirmations have no deadline
+#: (a replay's confirmations have no deadline)
+FINISH_S = {"hits": 30.0, "frf": 30.0, "analysis": 60.0, "view": 12.0, "confirm": 3600.0}
 
 
 @dataclass

@@ -113,11 +113,13 @@ class ReplayResult:
     view_lane: Any = None
     complete_log: bool = True
     salvaged_messages: int = 0
+    frf: list[dict] | None = None  # the live FRF lane's records (None: no lane: --no-frf, or no hammer and sensors)
 
 
 def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: bool = True, confirm: bool = True,
                view: Any = None, note: Callable[[str], None] | None = None, stop: threading.Event | None = None,
-               drain_progress: Callable[[int, int], None] | None = None) -> ReplayResult:  # fmt: skip
+               drain_progress: Callable[[int, int], None] | None = None, frf: bool = True,
+               frf_line: Callable[[str], None] | None = None) -> ReplayResult:  # fmt: skip
     """Replay ``log``: the same recorder and lanes as a live session (module docstring). ``rig``: a Rig, or None
     for the one attached to the log; ``note``: where a one-line note goes when the log cannot be analysed."""
     fan = FanOut()
@@ -138,6 +140,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
         for topic in recorded_topics(analysis and confirm):  # recorded results: shown as they are
             for obj in rep.reader.json_messages(topic):
                 vlane.offer(topic, obj)
+    flane = _frf(fan, the_rig, streams, fs, results, vlane, frf_line, rep) if frf and the_rig is not None else None
     alane = _analysis(fan, the_rig, why_no_rig, streams, fs, results, note) if analysis else None
     clane = None
     if alane is not None and confirm:
@@ -146,7 +149,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
         clane = start_confirm_lane(fan, alane, results.emit, log_path=str(log))
         results.route(clane, [layout.IR_EVENTS_TOPIC])
     draining = DrainingConfirmLane(clane, drain_progress) if clane is not None else None
-    lanes += [lane for lane in (alane, draining, vlane, counter) if lane is not None]
+    lanes += [lane for lane in (flane, alane, draining, vlane, counter) if lane is not None]
     source = ReplaySource(rep)
     outcome = Recorder(fan=fan, results=results, sources=[source], lanes=lanes, stop=stop).run()
     return ReplayResult(
@@ -156,6 +159,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
         analysis_dropped_samples=alane.sub.dropped_samples if alane is not None else 0,
         confirmations=list(clane.results) if clane is not None else None, view_lane=vlane,
         complete_log=rep.reader.report.complete, salvaged_messages=rep.reader.report.messages,
+        frf=[r.to_json() for r in flane.records] if flane is not None else None,
     )  # fmt: skip
 
 
@@ -169,6 +173,19 @@ def _rig(rep: Replayer, rig: Any) -> tuple[Any, str]:
         return rig_from_log(rep.reader), ""
     except AnalyzeError as exc:
         return None, str(exc)
+
+
+def _frf(fan: FanOut, rig: Any, streams: dict, fs: float, results: Results, vlane: Any, say: Callable[[str], None] | None,
+         rep: Replayer):  # fmt: skip
+    """The live FRF lane on the log's own hits (all offered now: the lane waits for each record's samples)."""
+    from daq.lanes.frf import start_frf_lane
+
+    lane = start_frf_lane(fan, rig, streams, fs, results.emit, say=say, view=vlane.offer if vlane is not None else None,
+                          maxsize=4096)  # fmt: skip
+    if lane is not None:
+        for obj in rep.reader.json_messages(layout.HITS_TOPIC):
+            lane.offer(layout.HITS_TOPIC, obj)
+    return lane
 
 
 def _analysis(fan: FanOut, rig: Any, why_no_rig: str, streams: dict, fs: float, results: Results,

@@ -6,7 +6,8 @@ What this module decides, and nothing else (the recorder runs it, docs/session.m
   (a mistake is one line naming ``device.config.<field>``, exit 2), its simulated server started if the
   session asks for one (:mod:`daq.sim_devices`), its streams and channels (CAN: from the DBC);
 * the lanes, in their stop order: hit gate (through the timeline aligner with several devices),
-  near-live analysis, confirmation, view; the log lane owns the file;
+  live FRFs (when the rig has a hammer and sensors; ``frf=False``: ``--no-frf``), near-live analysis,
+  confirmation, view; the log lane owns the file;
 * the session's end: ``duration`` is data time; a device that delivers less ends it ``end_grace_s``
   (wall clock) after the duration with a ``duration_not_reached`` event and exit 3; silence longer than
   ``silence_s`` is an event, never an end.
@@ -72,6 +73,7 @@ class SessionResult:
     estimated_lost_samples: int = 0  # the part of lost_samples estimated from the host clock (restart gaps)
     simulated_faults: dict[str, Any] = field(default_factory=dict)  # a simulated session's injected faults (the oracle)
     rejected_blocks: int = 0  # implausible blocks the drivers refused
+    frf: list[dict] = field(default_factory=list)  # the live FRF lane's /analysis/frf records, one per hit
 
 
 @dataclass
@@ -85,6 +87,8 @@ class SessionOptions:
     wait_confirmations: bool = True  # False: --no-wait
     drain_progress: Callable[[int, int], None] | None = None  # confirmations done / total after the data ends
     analysis_frame_s: float | None = None  # the analysis lane's frame wait (None: its default; 0: block by block)
+    frf: bool = True  # the live FRF lane (False: --no-frf)
+    frf_line: Callable[[str], None] | None = None  # where its one line per hit goes (the terminal)
 
 
 def run_session(cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None,
@@ -163,10 +167,13 @@ class Session:
         self.results.log = self.log.sink
         self.sources = self._sources()
         self.hits = self._hit_gate()
+        self.frf = self._frf_lane()
         self.analysis = self._analysis_lane()
         self.confirm = self._confirm_lane()
         self.view = self._view_lane()
-        lanes: list[Lane] = [lane for lane in (self.hits, self.analysis, self.confirm, self.view) if lane is not None]
+        if self.frf is not None and self.view is not None:
+            self.frf.view = self.view.offer  # the curves: in-process only, never logged
+        lanes: list[Lane] = [lane for lane in (self.hits, self.frf, self.analysis, self.confirm, self.view) if lane is not None]
         self.recorder = Recorder(
             fan=self.fan, results=self.results, sources=self.sources, lanes=lanes, log=self.log, stop=self.stop,
             duration_s=cfg.duration, end_grace_s=cfg.end_grace_s, start_servers=harness.go,
@@ -257,6 +264,20 @@ class Session:
         return HitGateLane(self.fan, detector, self.results.emit, aligner=aligner, maxsize=maxsize,
                            metadata=self.log.add_metadata, offsets=self.log.set_offset).start()  # fmt: skip
 
+    def _frf_lane(self):
+        """Live FRFs of the accepted hits (daq/lanes/frf.py), after the hit gate: its last hits come first."""
+        if not self.opts.frf:
+            return None
+        from daq.lanes.frf import start_frf_lane
+
+        ref = self.result.reference
+        streams = {ref: self.streams[ref]} if ref in self.streams else self.streams  # the hits' index is the reference's
+        lane = start_frf_lane(self.fan, self.rig, streams, self.fs, self.results.emit, say=self.opts.frf_line,
+                              maxsize=max(64, self._queue_blocks(self.cfg.queue_seconds)))  # fmt: skip
+        if lane is not None:
+            self.results.route(lane, [layout.HITS_TOPIC])
+        return lane
+
     def _analysis_lane(self):
         spec = self.cfg.analysis
         if not spec.enabled:
@@ -328,6 +349,8 @@ class Session:
             "reconnects": sum(s.reconnects for s in stats), "writer_overruns": self.log.stats.overrun_samples,
             "file_bytes": Path(current).stat().st_size if current and Path(current).exists() else 0,
             "silent": {s.name: s.silent_for for s in self.sources if s.silent_for > 2.0},
+            "frf": None if self.frf is None else {"averages": self.frf.acc.count, "refused": sum(
+                r.verdict == "refused" for r in list(self.frf.records))},
         }  # fmt: skip
 
     def _result(self, outcome: Outcome) -> SessionResult:
@@ -364,6 +387,8 @@ class Session:
             res.analysis_latencies_s = list(self.analysis.op.stats.latencies_s)
         if self.confirm is not None:
             res.confirmations = list(self.confirm.lane.results)
+        if self.frf is not None:
+            res.frf = [r.to_json() for r in self.frf.records]
         if self.view is not None:
             res.view_dropped_samples = self.view.sub.dropped_samples
         res.writer_overrun_samples = self.log.stats.overrun_samples

@@ -351,6 +351,20 @@ def hits_table(hits: Sequence[Any], title: str, *, width: int | None = None) -> 
     return t
 
 
+def frf_line(rec: Any) -> str:
+    """One line per hit of the live FRF lane (``/analysis/frf``): the verdict, the averages of the reference,
+    and the driving point's peaks with their coherence (or the lowest coherence over the responses), or
+    the reason a hit was refused. Plain text: printed with ``markup=False``."""
+    head = f"FRF hit {rec['hit']} at {rec['t_s']:.3f} s: "
+    avg = f"{rec['averages']} averages at {rec['reference']} ({rec['refused']} refused)"
+    if rec["verdict"] != "accepted":
+        return f"{head}refused ({rec['reason']}); {avg}"
+    coh = rec.get("dp_coherence") or rec.get("min_coherence") or ()
+    where = f"driving point {rec['driving_point']}" if rec.get("dp_coherence") else "peaks"
+    peaks = ", ".join(f"{f:.1f} Hz ({c:.3f})" for f, c in zip(rec.get("peaks_hz", ()), coh, strict=False)) or DASH
+    return f"{head}{avg}; {where}: {peaks}"
+
+
 # --- the confirmation drain after the data ends -----------------------------------------------------------------
 
 

@@ -20,6 +20,7 @@ def record(
     no_wait: Annotated[
         bool, typer.Option("--no-wait", help="Do not wait for the background confirmations after the data ends.")
     ] = False,
+    frf: Annotated[bool, typer.Option("--frf/--no-frf", help="Live FRFs of the accepted hits, one line per hit.")] = True,
 ) -> None:
     """Record a session: device → MCAP log, with the hammer trigger and hit quality gate.
 
@@ -51,7 +52,8 @@ def record(
         drain = _drain_reporter()
         with LiveStatus(out, cfg.name) as live:
             res = run_session(cfg, r, target, stop=stop, status=live.update, view=vtarget, overwrite=overwrite,
-                              wait_confirmations=not no_wait, drain_progress=drain)  # fmt: skip
+                              wait_confirmations=not no_wait, drain_progress=drain, frf=frf,
+                              frf_line=lambda s: out.print(s, markup=False))  # fmt: skip
     finally:
         restore()
     _print_results(cfg, res, target)

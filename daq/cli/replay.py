@@ -18,6 +18,7 @@ def replay(
     view: Annotated[bool, typer.Option("--view", help="Serve the rerun web viewer on 127.0.0.1 and show the replay.")] = False,
     connect: Annotated[str | None, typer.Option("--connect", help="Show it in a running rerun viewer (gRPC url).")] = None,
     confirm: Annotated[bool, typer.Option(help="Confirm the IR events (WBEMD + slow flow) in the background.")] = True,
+    frf: Annotated[bool, typer.Option(help="Live FRFs of the log's accepted hits, one line per hit.")] = True,
     overwrite: OverwriteOpt = False,
 ) -> None:
     """Feed a log through the live fan-out (block boundaries and sample indices kept), with the near-live analysis.
@@ -42,7 +43,8 @@ def replay(
     old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         res = run_replay(log, speed=speed or None, rig=r, analysis=analysis, confirm=confirm,
-                         view=vtarget, note=note, stop=stop, drain_progress=_drain())  # fmt: skip
+                         view=vtarget, note=note, stop=stop, drain_progress=_drain(), frf=frf,
+                         frf_line=lambda s: out.print(s, markup=False))  # fmt: skip
     finally:
         signal.signal(signal.SIGTERM, old)
     _print(log, res, companion)

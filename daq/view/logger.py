@@ -17,7 +17,9 @@ import rerun as rr
 import scipy.signal
 
 from analysis.pod import pod
+from analysis.records import FRF_TOPIC
 from analysis.wavelet import morlet_cwt
+from daq.lanes.frf import FRF_CURVES
 from daq.log import layout
 from daq.view import recording as R
 from drivers.blocks import SampleBlock
@@ -233,6 +235,18 @@ class ViewLogger:
         elif topic == layout.EVENTS_TOPIC:
             for e in objs:
                 self.daq_event(e)
+        elif topic == FRF_TOPIC:  # the live FRF lane's verdicts: one text line each (the curves come on FRF_CURVES)
+            from daq.terminal import frf_line
+
+            for u in objs:
+                level = "INFO" if u["verdict"] == "accepted" else "WARN"
+                R.log_text(self.rec, R.LOG_ANALYSIS, float(u["t_s"]), frf_line(u), level)
+        elif topic == FRF_CURVES:
+            from daq.view.frf import FRF, log_frf
+
+            for c in objs:
+                log_frf(self.rec, c)
+                self._count(FRF)
 
     def daq_event(self, e: dict) -> None:
         fs = self.s.sample_rate

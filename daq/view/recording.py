@@ -96,6 +96,14 @@ def blueprint() -> rrb.Blueprint:
             rrb.Spatial2DView(origin=SLOWFLOW, name="slow-flow phase (x: 100/rad φ, y: −φ̇)", time_ranges=everything),
             name="wavelet and slow flow",
         ),
+        rrb.Vertical(  # live FRFs (daq/view/frf.py): x Hz, y down
+            rrb.Horizontal(rrb.Spatial2DView(origin="/frf/magnitude", name="|H| (y: -10/dB)"),
+                           rrb.Spatial2DView(origin="/frf/phase", name="phase (y: -deg)")),
+            rrb.Horizontal(rrb.Spatial2DView(origin="/frf/coherence", name="coherence (y: -1000 x)"),
+                           rrb.Spatial2DView(origin="/frf/hammer", name="hammer spectrum (y: -10/dB re DC)")),
+            rrb.TimeSeriesView(origin="/frf/averages", name="averages"),
+            name="live FRFs",
+        ),
     )
     return rrb.Blueprint(
         rrb.Vertical(tabs, rrb.TextLogView(origin="/log", name="events"), row_shares=[4, 1]), collapse_panels=True

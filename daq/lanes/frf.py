@@ -1,0 +1,334 @@
+"""The live FRF lane: after each hit, the hammer checks, the averaged FRFs and their peaks (issue 20, item 3).
+
+The hit gate (:mod:`daq.lanes.hits`) sends its hits on ``/daq/hits`` through the Results router; this lane
+gets them by :meth:`FRFLane.offer` (a bounded queue: a hit that does not fit is dropped and counted) and
+the samples by its own fan-out subscription, of which it keeps a bounded ring of the hammer's stream
+(two records, the pre-trigger and one second: the gate reports a hit a record after its trigger). When a
+hit's record ``[index - pre, index - pre + n)`` is in the ring, it is judged exactly as ``gvt frf`` judges
+it (daq/frf_cmd.py: the gate's verdict, a complete record, :func:`analysis.hammer.check_hit`) and an
+accepted hit is added to an :class:`~analysis.frf.FRFAccumulator` (one FFT of the record, whatever the
+number of hits so far). Per hit it publishes a small :class:`~analysis.records.FRFUpdate` on
+``/analysis/frf`` (averages, peaks, coherence at the peaks: never the FRF arrays), one terminal line
+(``say``) and, for the live view, the curves of the driving point and one chosen response (``view``).
+
+Record and window are ``gvt frf``'s (:mod:`daq.frf_cmd`): ``n`` = the rig's record length, the exponential
+window's ``tau`` from the rig's lowest mode (:func:`analysis.frf.choose_tau`), the band 1000 Hz. One
+difference, because a live lane cannot know later hits: ``gvt frf`` shortens every record to the smallest
+spacing between hits, while this lane refuses a hit whose record holds the next hit it knows of. With
+hits at least a record apart both average the same records and give the same FRFs (tests/test_frf_lane.py).
+
+Rules of the recording path (daq/lanes/__init__.py): ``offer`` never blocks, the subscription is bounded
+(the fan-out drops this lane's blocks and counts them; a hit whose record lost samples is refused with
+that reason), and an exception in the lane is one ``frf_error`` event, never the end of a recording.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from analysis.frf import FRFAccumulator, FRFSet, choose_tau
+from analysis.hammer import check_hit, force_spectrum, level_db
+from analysis.records import FRF_TOPIC, FRFUpdate
+from daq.fanout import END, FanOut, Subscription
+from daq.frf_cmd import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
+from daq.lanes import Sink
+from daq.log import layout
+from drivers.blocks import SampleBlock
+
+#: the view's topic for the curves of one update (in-process only: never written to a log)
+FRF_CURVES = "frf/curves"
+N_PEAKS = 6  # peaks in each update, as gvt frf's table
+
+
+@dataclass(frozen=True)
+class FRFPlan:
+    """What the lane computes, fixed at the start: the stream, its columns, record, window and band."""
+
+    stream: str
+    channels: tuple[str, ...]  # the stream's channels, in its order
+    reference: str  # the force channel
+    outputs: tuple[str, ...]  # responses, in the stream's order (as gvt frf)
+    quantities: tuple[str, ...]  # acceleration | velocity | displacement per output
+    fs: float
+    n: int  # record samples
+    pre: int  # pre-trigger samples
+    tau: float | None
+    band_hz: float
+    full_scale: float  # the hammer channel's full scale, N
+    driving_point: str | None  # the output at the reference's DOF
+    shown: str  # the other response drawn in the view
+
+    @property
+    def columns(self) -> list[int]:
+        """Stream columns of the reference, then the outputs."""
+        return [self.channels.index(c) for c in (self.reference, *self.outputs)]
+
+
+def frf_plan(rig, streams: dict[str, tuple[str, ...]], fs: float, band_hz: float = 1000.0, end_level: float = 1e-3,
+             shown: str | None = None) -> FRFPlan | None:  # fmt: skip
+    """The plan for ``rig`` on the session's ``streams``; None when the rig has no hammer or sensors, or no
+    stream carries the hammer and a sensor (the lane is then off)."""
+    hammer, sensors = getattr(rig, "hammer", None), tuple(getattr(rig, "sensors", ()) or ())
+    if hammer is None or not sensors:
+        return None
+    quantity = {s.name: s.quantity for s in sensors if s.quantity != "force"}
+    stream = next((n for n in sorted(streams) if hammer.name in streams[n] and any(c in quantity for c in streams[n])), None)
+    if stream is None:
+        return None
+    chans = tuple(streams[stream])
+    outs = tuple(c for c in chans if c in quantity and c != hammer.name)
+    n = round(rig.config.daq.record_length * fs)
+    dp = next((s.name for s in sensors if s.dof == hammer.dof and s.name in outs), None)
+    pick = shown if shown in outs else outs[-1]
+    tau = choose_tau(lowest_decay_rate(rig), n / fs, end_level)
+    return FRFPlan(stream=stream, channels=chans, reference=hammer.name, outputs=outs,
+                   quantities=tuple(quantity[c] for c in outs), fs=float(fs), n=n, pre=round(PRE_TRIGGER_S * fs), tau=tau,
+                   band_hz=float(band_hz), full_scale=force_full_scale(rig), driving_point=dp, shown=pick)  # fmt: skip
+
+
+class SampleRing:
+    """The last ``capacity`` samples of one stream (contiguous: a gap restarts it), for cutting hit records.
+
+    A linear buffer twice the capacity, compacted when full: appending is one copy, a record is a view."""
+
+    def __init__(self, capacity: int, n_channels: int) -> None:
+        self.capacity = int(capacity)
+        self.buf = np.zeros((2 * self.capacity, n_channels), dtype=np.float32)
+        self.start = 0  # absolute index of buf[self.lo]
+        self.lo = 0
+        self.hi = 0
+
+    @property
+    def end(self) -> int:
+        return self.start + self.hi - self.lo
+
+    def append(self, first_index: int, rows: np.ndarray) -> None:
+        m = rows.shape[0]
+        if first_index != self.end or m > self.capacity:  # a gap (or a first block): start again at this block
+            rows = rows[-self.capacity :]
+            first_index += m - rows.shape[0]
+            self.start, self.lo, self.hi = first_index, 0, 0
+            m = rows.shape[0]
+        if self.hi + m > self.buf.shape[0]:  # compact: keep the last capacity - m rows
+            keep = max(0, min(self.hi - self.lo, self.capacity - m))
+            self.buf[:keep] = self.buf[self.hi - keep : self.hi]
+            self.start += self.hi - self.lo - keep
+            self.lo, self.hi = 0, keep
+        self.buf[self.hi : self.hi + m] = rows
+        self.hi += m
+        if self.hi - self.lo > self.capacity:
+            drop = self.hi - self.lo - self.capacity
+            self.lo += drop
+            self.start += drop
+
+    def span(self, lo: int, hi: int) -> np.ndarray | None:
+        """Rows ``[lo, hi)`` (absolute indices), or None unless all of them are held."""
+        if lo < self.start or hi > self.end:
+            return None
+        a = self.lo + lo - self.start
+        return self.buf[a : a + hi - lo]
+
+
+def peak_summary(frf: FRFSet, driving_point: str | None, n_peaks: int = N_PEAKS) -> dict:
+    """Peaks of the mode indicator (as ``gvt frf``'s table) with the driving point's |H| and coherence there and
+    the lowest coherence over all responses."""
+    pk = frf.peaks(n_peaks)
+    o = frf.outputs.index(driving_point) if driving_point in frf.outputs else None
+    coh = frf.coherence[:, 0, :]
+    return {
+        "peaks_hz": tuple(float(f) for f in frf.freq[pk]),
+        "dp_mag": tuple(float(abs(frf.H[o, 0, k])) for k in pk) if o is not None else (),
+        "dp_coherence": tuple(float(coh[o, k]) for k in pk) if o is not None else (),
+        "min_coherence": tuple(float(coh[:, k].min()) for k in pk),
+    }  # fmt: skip
+
+
+def view_curves(frf: FRFSet, plan: FRFPlan, force: np.ndarray, t_s: float) -> dict:
+    """What the view draws after an accepted hit: magnitude, phase and coherence of the driving point and the
+    shown response, the hit's hammer spectrum (dB re. DC, up to twice the band) and the averages."""
+    chans = [c for c in dict.fromkeys([plan.driving_point, plan.shown]) if c is not None]
+    ff, mag = force_spectrum(force, plan.fs)
+    k = int(np.searchsorted(ff, 2.0 * plan.band_hz))
+    curves = {}
+    for c in chans:
+        o = frf.outputs.index(c)
+        h = frf.H[o, 0]
+        curves[c] = {"mag": np.abs(h), "phase_deg": np.degrees(np.angle(h)), "coherence": frf.coherence[o, 0]}
+    return {"t_s": t_s, "averages": int(frf.n_averages[0]), "freq": frf.freq, "units": frf.units, "curves": curves,
+            "driving_point": plan.driving_point, "force_freq": ff[:k], "force_db": level_db(mag)[:k],
+            "band_hz": plan.band_hz}  # fmt: skip
+
+
+def warm_up(plan: FRFPlan) -> float:
+    """One throwaway hit through every step (checks, accumulator, FRF, peaks, curves) *now*, before a device
+    streams; returns the seconds it took. Why: the first hit in a fresh process cost 553 ms against 2-13 ms
+    for the next ones (scipy.fft, scipy.signal.find_peaks and their plans loaded on first use; measured on
+    the 15-channel 16384 Hz replay of tests/test_frf_lane.py) — ten times the budget, on the first hit."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0)
+    force = np.zeros(plan.n)
+    force[plan.pre : plan.pre + 8] = np.hanning(8)
+    acc = FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
+                         f_max=plan.band_hz, quantities=list(plan.quantities))  # fmt: skip
+    check_hit(force, plan.fs, plan.band_hz, plan.full_scale)
+    acc.add(force, 1e-3 * rng.standard_normal((plan.n, len(plan.outputs))))
+    view_curves(frf := acc.frf(), plan, force, 0.0)
+    peak_summary(frf, plan.driving_point)
+    return time.perf_counter() - t0
+
+
+class FRFLane:
+    """Hits in (:meth:`offer`), records from the ring, one :class:`FRFUpdate` per hit out; on its own thread."""
+
+    name = "frf"
+
+    def __init__(self, fan: FanOut, plan: FRFPlan, sink: Sink, *, say: Callable[[str], None] | None = None,
+                 view: Callable[[str, dict], None] | None = None, maxsize: int = 256, hit_queue: int = 1024) -> None:  # fmt: skip
+        self.plan = plan
+        self.sink, self.say, self.view = sink, say, view
+        self.sub: Subscription = fan.subscribe("frf", maxsize=maxsize)
+        self.hits: queue.Queue = queue.Queue(maxsize=max(1, hit_queue))
+        self.dropped_hits = 0
+        self.ring = SampleRing(2 * plan.n + plan.pre + round(plan.fs), len(plan.channels))
+        self.acc = FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
+                                  f_max=plan.band_hz, quantities=list(plan.quantities), end_level=1e-3)  # fmt: skip
+        self.records: list[FRFUpdate] = []
+        self.costs_s: list[float] = []  # computing time per hit
+        self.error: str | None = None
+        self._pending: list[dict] = []
+        self._cols = plan.columns
+        self._hits_done = threading.Event()
+        self._thread = threading.Thread(target=self._main, name="frf", daemon=True)
+        warm_up(plan)
+
+    def start(self) -> FRFLane:
+        self._thread.start()
+        return self
+
+    def offer(self, topic: str, obj: dict) -> None:
+        if topic != layout.HITS_TOPIC:
+            return
+        try:
+            self.hits.put_nowait(dict(obj))
+        except queue.Full:
+            self.dropped_hits += 1
+
+    # --- thread -------------------------------------------------------------------------------------------
+    def _main(self) -> None:
+        ended = False
+        try:
+            while True:
+                if not ended:
+                    try:
+                        item = self.sub.get(timeout=0.05)
+                    except queue.Empty:
+                        item = None
+                    if item is END:
+                        ended = True
+                    elif item is not None and item.stream == self.plan.stream:
+                        self._block(item)
+                done = ended and self._hits_done.is_set()
+                self._take_hits()
+                self._process(final=done and self.hits.empty())
+                if done and self.hits.empty():
+                    return
+                if ended:
+                    self._hits_done.wait(0.05)
+        except Exception as exc:  # said in the log; the recording goes on without live FRFs
+            self.error = f"{type(exc).__name__}: {exc}"
+            self.sink(layout.EVENTS_TOPIC, {"kind": "frf_error", "message": f"live FRFs stopped: {self.error}"}, None)
+            while not ended and self.sub.get() is not END:
+                pass
+
+    def _block(self, blk: SampleBlock) -> None:
+        self.ring.append(blk.first_index, blk.data)
+
+    def _take_hits(self) -> None:
+        while True:
+            try:
+                self._pending.append(self.hits.get_nowait())
+            except queue.Empty:
+                break
+        self._pending.sort(key=lambda h: int(h["index"]))
+
+    def _process(self, final: bool) -> None:
+        """Judge the pending hits in index order, as far as their records are in (all of them when ``final``)."""
+        p = self.plan
+        while self._pending:
+            hit = self._pending[0]
+            i0 = int(hit["index"]) - p.pre
+            if hit.get("verdict") == "accepted" and i0 + p.n > self.ring.end and not final and i0 >= self.ring.start:
+                return  # the record is still arriving
+            self._pending.pop(0)
+            self._judge(hit, i0)
+
+    def _judge(self, hit: dict, i0: int) -> None:
+        t0 = time.perf_counter()
+        p = self.plan
+        rec = self.ring.span(i0, i0 + p.n)
+        nxt = next((int(h["index"]) for h in self._pending if i0 < int(h["index"]) - p.pre < i0 + p.n), None)
+        checks, why, force = None, None, None
+        if hit.get("verdict") != "accepted":
+            why = f"hit gate: {hit.get('reason') or hit.get('verdict')}"
+        elif rec is None:
+            why = (f"record incomplete: samples {i0}..{i0 + p.n} not all held (end of data, a gap, or the lane fell "
+                   f"behind; held {self.ring.start}..{self.ring.end})")  # fmt: skip
+        elif nxt is not None:
+            why = f"record holds the next hit ({(nxt - i0 - p.pre) / p.fs:.3f} s after this one; gvt frf shortens the records)"
+        else:
+            data = rec[:, self._cols].astype(float)
+            chk = check_hit(data[:, 0], p.fs, p.band_hz, p.full_scale)
+            checks = chk.as_dict()
+            if chk.verdict == "accepted":
+                force = data[:, 0]
+                self.acc.add(force, data[:, 1:])
+            else:
+                why = chk.reason
+        self._publish(hit, why, checks, force, t0)
+
+    def _publish(self, hit: dict, why: str | None, checks: dict | None, force: np.ndarray | None, t0: float) -> None:
+        p = self.plan
+        frf = self.acc.frf() if self.acc.count else None
+        peaks = peak_summary(frf, p.driving_point) if frf is not None else {}
+        refused = sum(r.verdict == "refused" for r in self.records) + (why is not None)
+        t_s = float(hit.get("t_s", int(hit["index"]) / p.fs))
+        curves = view_curves(frf, p, force, t_s) if frf is not None and force is not None and self.view is not None else None
+        elapsed = time.perf_counter() - t0
+        rec = FRFUpdate(hit=int(hit.get("hit", -1)), index=int(hit["index"]), t_s=t_s, reference=p.reference,
+                        verdict="refused" if why else "accepted", reason=why or "ok", averages=self.acc.count, refused=refused,
+                        driving_point=p.driving_point, record_s=p.n / p.fs, tau_s=p.tau, band_hz=p.band_hz, checks=checks,
+                        elapsed_s=elapsed, **peaks)  # fmt: skip
+        self.costs_s.append(elapsed)
+        self.records.append(rec)
+        self.sink(FRF_TOPIC, rec, round(t_s * 1e9))
+        if self.say is not None:
+            from daq.terminal import frf_line
+
+            self.say(frf_line(rec))
+        if curves is not None and self.view is not None:
+            self.view(FRF_CURVES, curves)
+
+    # --- end ----------------------------------------------------------------------------------------------
+    def finish(self, deadline: float) -> None:
+        """After the hit gate finished (its last hits are offered): judge what is left, then say what was lost."""
+        self._hits_done.set()
+        self._thread.join(max(0.0, deadline - time.monotonic()))
+        if self.sub.dropped_blocks or self.dropped_hits:
+            self.sink(layout.EVENTS_TOPIC, {
+                "kind": "frf_overrun", "count": self.sub.dropped_samples,
+                "message": f"live FRFs fell behind: {self.sub.dropped_blocks} blocks ({self.sub.dropped_samples} samples) "
+                           f"and {self.dropped_hits} hits not seen; hits whose record lost samples were refused",
+            }, None)  # fmt: skip
+
+
+def start_frf_lane(fan: FanOut, rig, streams: dict[str, tuple[str, ...]], fs: float, sink: Sink, **kw) -> FRFLane | None:
+    """The lane for ``rig`` on ``streams`` (started), or None when the rig has no hammer and sensors on one stream.
+    ``kw``: ``say``, ``view``, ``maxsize`` of :class:`FRFLane`."""
+    plan = frf_plan(rig, streams, fs)
+    return None if plan is None else FRFLane(fan, plan, sink, **kw).start()

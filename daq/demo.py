@@ -1,6 +1,7 @@
 """``gvt demo``: what exists so far, run honestly on the experimental beam rig.
 
-Builds the rig, prints its modes in both energy limits, simulates a strong and a weak hammer hit
+Builds the rig, prints its modes in both energy limits, the FRF peaks and identified modes of a few weak
+(linear) hits against the FE modes, simulates a strong and a weak hammer hit
 through the sensor/DAQ model, and prints how NNM1's frequency moves with energy (ground truth from the
 simulator's modal coordinates). Sessions over real transports and MCAP logs arrive with later issues.
 """
@@ -43,6 +44,7 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None, session_
         console.print(f"  compiled the simulator kernels in {compile_s:.1f} s (numba; cached for later runs)")
     strong = rig.config.hammer.peak_force
     hits = {"strong": strong, "weak": strong * WEAK_FRACTION}
+    linear = run_demo_linear(console, rig, hits["weak"])
     centres = np.array([0.05, 0.25, 0.5, 1.0, 1.5, 1.95]) * dur / 2.0
     table = Table(title=escape(f"NNM1 frequency [Hz] after the hit (ground truth, {dur:g} s records)"))
     table.add_column(escape("t [s]"), justify="right")
@@ -70,7 +72,62 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None, session_
         f"relaxes towards it as energy dissipates; the weak hit stays linear ({freqs['weak'][0]:.2f} Hz)."
     )
     session = run_demo_session(console, rig, session_out, overwrite) if rig.name == "beam_ch4_exp" else None
-    return {"freqs": {k: v.tolist() for k, v in freqs.items()}, "energies": energies, "session": session}
+    return {"freqs": {k: v.tolist() for k, v in freqs.items()}, "energies": energies, "session": session, "linear": linear}
+
+
+LINEAR_HITS = 3  # averages: enough for a coherence that means something, few enough to keep the demo's time
+LINEAR_SPACING_S = 3.0  # s between the weak hits: the FRF record is the rig's record length or this, the shorter
+
+
+def run_demo_linear(console: Console, rig: Rig, force: float) -> dict:
+    """FRFs and modes of a few weak (linear) hits, before the nonlinear part of the demo: the test an impact
+    hammer exists for (issue 20), with ``gvt frf`` / ``gvt modal``'s code on a simulated log (deleted after).
+
+    Weak: at ``WEAK_FRACTION`` of the nominal force the cubic spring hardly acts (the weak hit's NNM1 stays at
+    the linear frequency, printed below), so the rig's linear FE modes are the right oracle."""
+    import tempfile
+    from pathlib import Path
+
+    from analysis.errors import BadInput
+    from daq.frf_cmd import frf_from_log, peak_rows
+    from daq.modal_cmd import driving_points, modal_from_frf, table_text
+    from daq.sim_session import SessionPlan, simulate_session
+
+    t0 = time.perf_counter()
+    plan = SessionPlan(forces=(force,) * LINEAR_HITS, pre_trigger=0.1, spacing=LINEAR_SPACING_S, tail=LINEAR_SPACING_S,
+                       block_size=1024)  # fmt: skip
+    try:
+        with tempfile.TemporaryDirectory(prefix="gvt_demo_") as tmp:
+            log = Path(tmp) / "linear.mcap"
+            simulate_session(rig, log, plan)
+            run = frf_from_log(log, rig)
+            if run.frf is None:
+                raise BadInput(f"no weak hit was accepted: {'; '.join(h['reason'] for h in run.hits)}")
+            modal = modal_from_frf(run.frf, rig, 2.0, min(run.band_hz, float(run.frf.freq[-1])), source="demo")
+    except BadInput as exc:
+        console.print(f"  FRFs of weak hits: not available on this rig ({exc})", markup=False)
+        return {}
+    f = run.frf
+    dp = driving_points(rig, f).get(f.references[0], f.outputs[0])
+    console.print(
+        f"\n[bold]Linear (weak) hits first[/bold]: {LINEAR_HITS} hits of {force:g} N, {f.kind} {escape(f.quantity)} "
+        f"averaged over {int(f.n_averages[0])}, record {run.record_s:g} s (Δf {1 / run.record_s:g} Hz), "
+        f"exponential window τ {run.tau_s or 0:.3f} s (its damping removed below)"
+    )
+    table = Table(title=escape(f"FRF peaks at the driving point {dp} (reference {f.references[0]}) [{f.units}]"))
+    for c in ("f [Hz]", "|H|", "phase [°]", "coherence", "lowest coherence, all responses"):
+        table.add_column(escape(c), justify="right")
+    rows = [r for r in peak_rows(f) if r["response"] == dp]
+    for r in rows:
+        k = int(abs(f.freq - r["freq_hz"]).argmin())
+        table.add_row(f"{r['freq_hz']:.2f}", f"{r['mag']:.4g}", f"{r['phase_deg']:.1f}", f"{r['coherence']:.4f}",
+                      f"{f.coherence[:, 0, k].min():.4f}")  # fmt: skip
+    console.print(table)
+    console.print("  modes identified (pLSCF + LSFD) against the rig's FE modes:", markup=False)
+    console.print(table_text(modal), markup=False)
+    console.print(f"  FRFs and modes of the weak hits in {time.perf_counter() - t0:.1f} s; the same from any log: "
+                  "gvt frf LOG, gvt modal LOG, gvt report LOG", markup=False)  # fmt: skip
+    return {"averages": int(f.n_averages[0]), "peaks_hz": [r["freq_hz"] for r in rows], "modes": modal.rows}
 
 
 def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap", overwrite: bool = False) -> dict:

@@ -7,7 +7,9 @@ spikes, warnings), confirmations of the background lane (``/analysis/confirmatio
 plots: hammer force with hits, driving-point response, RQ per NNM against time with IR events, modal
 energies, the RQ-FEP (RQ frequency against windowed modal energy, seed Ch. 4), a Morlet wavelet
 spectrum of a hit record (eq. 3.2, amplitude normalisation), POM shapes of IR events and slow-flow phase
-trajectories of confirmations.
+trajectories of confirmations; and the FRF section (``daq/report_frf.py``): FRF magnitude and phase, coherence,
+hammer spectra with their −10 dB points, averages, refused hits and the modes against the FE modes. Each figure
+is drawn once (:func:`_png`).
 
 Results come from the log's ``/analysis/*`` topics, or from a batch run of the same kernels when the
 session did not run the analysis (:func:`daq.view.build.log_results`).
@@ -36,13 +38,29 @@ class ReportSummary:
     tables: list[str] = field(default_factory=list)
     results_from: str = "log"
     rig_note: str | None = None  # why the log's attached rig was not used (the report is drawn without it)
+    frf_absent: str | None = None  # why the report has no FRFs (no rig, no hits, no accepted hit); None: it has them
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+def _png(fig, dpi: float = 90.0) -> str:
+    """The figure as a PNG data URI, drawn exactly once.
+
+    Why not ``fig.savefig``: with ``bbox_inches="tight"`` (what this used) or with any layout engine,
+    ``FigureCanvasBase.print_figure`` draws the whole figure once to measure it and then again to write
+    it, so every report figure was drawn twice (counted in tests/test_report.py). Here the constrained
+    layout engine runs inside the single ``Figure.draw`` (where it runs on screen too: matplotlib's
+    "Constrained layout guide") and the Agg buffer is encoded as the PNG ``savefig`` would write
+    (``backend_agg.print_png`` does the same ``imsave`` of ``buffer_rgba``)."""
+    import matplotlib.image as mimage
     import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+    if fig.get_layout_engine() is None:
+        fig.set_layout_engine("constrained")
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    buf = io.BytesIO()
+    mimage.imsave(buf, canvas.buffer_rgba(), format="png", dpi=dpi)
     plt.close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
 
@@ -70,8 +88,13 @@ def _envelope(t: np.ndarray, y: np.ndarray, n: int = 2000) -> tuple[np.ndarray, 
     return t[:m].reshape(-1, b)[:, 0], yy.min(axis=1), yy.max(axis=1)
 
 
-def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
-    """Write the report for ``log`` to ``out`` (.html); ``rig`` defaults to the one attached to the log."""
+def build_report(
+    log: str | Path, out: str | Path, rig=None, frf_channel: str | None = None, band_hz: float = 1000.0
+) -> ReportSummary:
+    """Write the report for ``log`` to ``out`` (.html); ``rig`` defaults to the one attached to the log.
+
+    ``frf_channel``: the response drawn beside the driving point in the FRF figures (default: the last);
+    ``band_hz``: the band of interest of the FRFs and the hammer check (``gvt frf --band``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -238,6 +261,12 @@ def build_report(log: str | Path, out: str | Path, rig=None) -> ReportSummary:
     ev_rows = [[k, v] for k, v in sorted(info["events"].items())]
     parts.append(_table("driver and session events by kind", ["kind", "count"], ev_rows, "no events (no gaps, CRC errors)"))
     parts.append(_table("hits and verdicts", HIT_COLS, [_hit_row(h) for h in hits]))
+    from daq.report_frf import frf_section
+
+    sec = frf_section(log, rig, _table, channel=frf_channel, band_hz=band_hz, rig_note=rig_note)
+    parts += sec.tables
+    figs += [(name, _png(fig)) for name, fig in sec.figures]
+    summary.frf_absent = sec.absent
     parts.append(_table(f"internal-resonance events (near-live analysis, results from {source})", IR_COLS,
                         [_ir_row(k, e) for k, e in enumerate(ir)]))  # fmt: skip
     spikes = [[_f(s["start_s"]), _f(s["end_s"]), _f(s.get("agreement"), ".2f")] for s in res.get(layout.RQ_SPIKES_TOPIC, [])]

@@ -27,6 +27,7 @@ SAMPLES_TOPIC = DAQ_PREFIX + "{stream}/samples"
 HITS_TOPIC = DAQ_PREFIX + "hits"
 EVENTS_TOPIC = DAQ_PREFIX + "events"
 TIMELINE_TOPIC = DAQ_PREFIX + "timeline"
+PLAN_TOPIC = DAQ_PREFIX + "plan"
 RQ_TOPIC = ANALYSIS_PREFIX + "rq"
 MODAL_TOPIC = ANALYSIS_PREFIX + "modal"
 IR_EVENTS_TOPIC = ANALYSIS_PREFIX + "events"
@@ -524,13 +525,55 @@ class SimEnergy(Record):
         "input_work_J"))  # fmt: skip
 
 
+@dataclass(frozen=True, eq=True)
+class PlanRecord(Record):
+    """The roving-hammer plan and the operator's progress through it (``/daq/plan``; daq/roving.py).
+
+    ``event``: ``plan`` once at the start (``points``: every hit point with its node, direction, model DOF and
+    averages), ``progress`` after each hit the FRF lane judged (the point it counted for and what to hit next),
+    ``complete`` when the last point has its averages, ``end`` at the session's end (``missing``: points short
+    of their averages). The points' node and direction are the references of the FRF matrix (attachment
+    ``frf/matrix.npz``) when it is exported (``gvt export --format uff --frf``)."""
+
+    TOPIC = PLAN_TOPIC
+    OMIT_NONE = frozenset({"points", "hit", "verdict", "missing"})
+    TUPLES = frozenset({"points", "missing"})
+    event: str
+    point: str | None
+    done: int
+    required: int
+    next_point: str | None
+    message: str
+    points: tuple[dict[str, Any], ...] | None = None
+    hit: int | None = None
+    verdict: str | None = None
+    missing: tuple[str, ...] | None = None
+    POINT: ClassVar[dict[str, Any]] = {"type": "object", "required": ["name", "node", "direction", "dof", "averages"],
+                                       "properties": {"name": {"type": "string"}, "node": {"type": "integer"},
+                                                      "direction": {"type": "string"}, "dof": {"type": "string"},
+                                                      "sensor": {"type": ["string", "null"]},
+                                                      "averages": {"type": "integer"}}}  # fmt: skip
+    SCHEMA = _schema("gvtlink.PlanRecord", "A roving-hammer plan and the progress through it", {
+        "event": ({"enum": ["plan", "progress", "complete", "end"]}, "what happened"),
+        "point": (OPT_STR, "the hit point concerned (progress: the one the hit counted for), or null"),
+        "done": ("integer", "accepted averages of that point"),
+        "required": ("integer", "averages that point needs"),
+        "next_point": (OPT_STR, "the point to hit next, or null when the plan is complete"),
+        "message": ("string", "the operator's prompt, one line"),
+        "points": ({"type": "array", "items": POINT}, "plan only: every hit point (node: UFF node id, direction +X..-Z)"),
+        "hit": ("integer", "progress only: hit number in /daq/hits"),
+        "verdict": ({"enum": ["accepted", "refused"]}, "progress only: the FRF lane's verdict on the hit"),
+        "missing": ({"type": "array", "items": {"type": "string"}}, "end only: points short of their averages"),
+    }, ("event", "point", "done", "required", "next_point", "message"))  # fmt: skip
+
+
 # --- the table -----------------------------------------------------------------------------------------
 ANY_SCHEMA: dict[str, Any] = {"$schema": SCHEMA_DIALECT, "title": ANY_TITLE, "type": "object",
                               "description": "a JSON record of a topic gvtlink has no typed record for"}  # fmt: skip
 
 #: every JSON topic gvtlink writes: its record class and the schema stored with it in the log
 RECORDS: tuple[type[Record], ...] = (RQWindow, ModalWindow, IREventRecord, RQSpike, AnalysisWarning, Confirmation, Hit,
-                                     Event, TimelineMessage, SimEnergy, FRFUpdate)  # fmt: skip
+                                     Event, TimelineMessage, SimEnergy, FRFUpdate, PlanRecord)  # fmt: skip
 TOPICS: dict[str, tuple[type[Record], dict[str, Any]]] = {cls.TOPIC: (cls, cls.SCHEMA) for cls in RECORDS}
 TOPICS[SIM_HITS_TOPIC] = (Hit, Hit.SCHEMA)
 

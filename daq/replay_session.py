@@ -114,6 +114,7 @@ class ReplayResult:
     complete_log: bool = True
     salvaged_messages: int = 0
     frf: list[dict] | None = None  # the live FRF lane's records (None: no lane: --no-frf, or no hammer and sensors)
+    frf_cpu_s: list[float] = field(default_factory=list)  # the FRF lane thread's CPU time per hit (its cost, whatever the load)
 
 
 def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: bool = True, confirm: bool = True,
@@ -160,6 +161,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
         confirmations=list(clane.results) if clane is not None else None, view_lane=vlane,
         complete_log=rep.reader.report.complete, salvaged_messages=rep.reader.report.messages,
         frf=[r.to_json() for r in flane.records] if flane is not None else None,
+        frf_cpu_s=list(flane.cpu_costs_s) if flane is not None else [],
     )  # fmt: skip
 
 

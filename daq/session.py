@@ -184,7 +184,13 @@ class Session:
         out: dict[str, Driver] = {}
         for i, d in enumerate(self.cfg.device_list):
             prefix = f"devices[{i}]" if self.cfg.multi else "device"
-            conf = driver_config(d, prefix, self.cfg.source, self.harness.overrides.get(d.name, {}), self.rig, self.cfg.duration)
+            over = self.harness.overrides.get(d.name, {})
+            if d.driver == "sim" and self.cfg.plan is not None:  # the in-process device hits where the plan says
+                from daq.roving import scheduled_dofs
+
+                dofs = scheduled_dofs(self.cfg.plan, self.rig, list(d.config.get("forces", [800.0])))
+                over = {**over, "hit_dofs": [self.rig.structure.dofs[i].name for i in dofs]}
+            conf = driver_config(d, prefix, self.cfg.source, over, self.rig, self.cfg.duration)
             out[d.name] = available_drivers()[d.driver](conf)
         return out
 
@@ -272,7 +278,13 @@ class Session:
 
         ref = self.result.reference
         streams = {ref: self.streams[ref]} if ref in self.streams else self.streams  # the hits' index is the reference's
+        points = None
+        if self.cfg.plan is not None:
+            from daq.roving import resolve_plan
+
+            points = resolve_plan(self.cfg.plan, self.rig)
         lane = start_frf_lane(self.fan, self.rig, streams, self.fs, self.results.emit, say=self.opts.frf_line,
+                              points=points, attach=self.log.add_attachment,
                               maxsize=max(64, self._queue_blocks(self.cfg.queue_seconds)))  # fmt: skip
         if lane is not None:
             self.results.route(lane, [layout.HITS_TOPIC])

@@ -103,7 +103,13 @@ def start_simulation(cfg: SessionConfig, rig: Rig) -> SimHarness:
             forces.append(0.6 * f)
     delay = max(d.simulate.start_delay for d in specs if d.simulate is not None)
     duration = (cfg.duration or 0) + 1.0 + delay
-    device = SimulatedDevice(rig, HitSchedule(tuple(times), tuple(forces)), duration=duration, seed=sim.seed)
+    dofs = None
+    if cfg.plan is not None:  # a roving hammer: each hit where the plan says (double taps repeat at their point)
+        from daq.roving import scheduled_dofs
+
+        per_hit = scheduled_dofs(cfg.plan, rig, list(sim.forces), list(sim.double_hits))
+        dofs = tuple(d for k, d in enumerate(per_hit) for _ in range(2 if k in sim.double_hits else 1))
+    device = SimulatedDevice(rig, HitSchedule(tuple(times), tuple(forces), dofs), duration=duration, seed=sim.seed)
     harness.device = device
     try:
         for i, d in enumerate(specs):

@@ -22,7 +22,7 @@ import numpy as np
 from analysis.errors import BadInput
 from analysis.model.channels import Channel, by_name, read_channel_csv, rig_channels
 from analysis.model.geometry import Geometry, make_geometry, rig_geometry
-from analysis.records import HITS_TOPIC
+from analysis.records import HITS_TOPIC, PLAN_TOPIC
 from daq import uff
 from daq.log.reader import LogReader
 
@@ -116,6 +116,14 @@ def _force_stream(reader: LogReader, table: dict[str, Channel]) -> str:
     raise BadInput(f"{reader.path}: no stream carries a force channel of the channel table; streams: {sorted(streams)}")
 
 
+def _plan_references(reader: LogReader, chans: dict[str, Channel]) -> dict[str, Channel]:
+    """A roving-hammer log's hit points (its ``/daq/plan`` record) as channels: the FRF matrix's references."""
+    from daq.roving import plan_channels
+
+    plans = [p for p in reader.json_messages(PLAN_TOPIC) if p.get("event") == "plan"]
+    return plan_channels(plans[0]["points"], chans["hammer"]) if plans and "hammer" in chans else {}
+
+
 def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: Path | None = None,
                modes: Path | None = None, binary: bool = False) -> str:  # fmt: skip
     """Write ``out`` (the caller made it a temporary path) and return the one-line summary."""
@@ -135,6 +143,7 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
         assert rig is not None
         table, geometry = rig_channels(rig), rig_geometry(rig)
     chans = by_name(table)
+    chans.update(_plan_references(reader, chans))
     record_s = rig.config.daq.record_length if rig is not None else 2.0
     stream = _force_stream(reader, chans)
     hit_sets, hits, skipped = _hit_sets(reader, stream, chans, record_s, binary)

@@ -227,6 +227,58 @@ class AnalysisSpec(_Strict):
     confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/confirm_lane.py)
 
 
+#: Hit points of a roving-hammer plan and averages per point: a plan is typed by a person (hundreds of points on an
+#: aircraft); each point holds one FRF accumulator (n_outputs x n_lines complex) in memory.
+MAX_PLAN_POINTS = 1000
+MAX_PLAN_AVERAGES = 1000
+Averages = Annotated[int, Field(ge=1, le=MAX_PLAN_AVERAGES)]
+
+
+class HitPointSpec(_Strict):
+    """One hit point of a roving-hammer plan (daq/roving.py): where, in which direction, how many averages.
+
+    Where: ``sensor`` (hit at that sensor: its model DOF, node and direction), or ``node`` (the test geometry's
+    node of a channel, analysis/model/geometry.py ``rig_nodes``), or ``dof`` (a model DOF name such as ``w23`` or
+    ``x1``; ``node`` then names its test node, needed when no channel sits on that DOF)."""
+
+    name: Annotated[str, Field(min_length=1, max_length=32)] | None = None  # default P1, P2, ...
+    sensor: ChannelName | None = None
+    node: Annotated[int, Field(ge=1, le=2_147_483_647)] | None = None
+    dof: Annotated[str, Field(min_length=1, max_length=64)] | None = None
+    direction: Annotated[str, Field(min_length=1, max_length=3)] | None = None  # "+Z", "-X", ... (default: the channel's)
+    averages: Averages | None = None  # default: the plan's
+
+    @model_validator(mode="after")
+    def _one_place(self) -> HitPointSpec:
+        if self.sensor is not None and (self.node is not None or self.dof is not None):
+            raise ValueError("give sensor, or node, or dof (with an optional node): not sensor with another")
+        if self.sensor is None and self.node is None and self.dof is None:
+            raise ValueError("a hit point needs sensor, node or dof")
+        if self.direction is not None:
+            from analysis.model.channels import parse_direction
+
+            try:
+                parse_direction(self.direction)
+            except ValueError as exc:
+                raise ValueError(f"direction {self.direction!r}: {exc}") from None
+        return self
+
+
+class PlanSpec(_Strict):
+    """A roving-hammer test plan: the hit points in the order the operator hits them, and averages per point."""
+
+    averages: Averages = 3
+    points: Annotated[list[HitPointSpec], Field(min_length=1), at_most_items(MAX_PLAN_POINTS, "points", "typed by a person")]
+
+    @model_validator(mode="after")
+    def _unique(self) -> PlanSpec:
+        names = [p.name or f"P{k + 1}" for k, p in enumerate(self.points)]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise ValueError(f"points: hit point name {n!r} is used twice")
+        return self
+
+
 class SessionConfig(_Strict):
     name: Annotated[str, Field(min_length=1, max_length=200)]
     rig: Annotated[str, Field(min_length=1)]  # rig TOML or shipped rig name: calibration, positions, model
@@ -251,6 +303,7 @@ class SessionConfig(_Strict):
     trigger: TriggerSpec
     channels: ChannelsSpec = ChannelsSpec()
     analysis: AnalysisSpec = AnalysisSpec()
+    plan: PlanSpec | None = None  # a roving-hammer test plan (docs/session.md, "Roving hammer")
 
     _source: str | None = PrivateAttr(default=None)  # the file it was loaded from (analysis/model/loader.py)
 
@@ -536,6 +589,10 @@ def _check_against_rig(cfg: SessionConfig, rig: Rig) -> None:
             )
     label = "recorded" if cfg.listed_channels() is not None else f"a device that lists no channels records rig {rig.name}'s"
     check_recorded(cfg, recorded, label)
+    if cfg.plan is not None:
+        from daq.roving import resolve_plan
+
+        resolve_plan(cfg.plan, rig)  # raises ConfigFieldError naming plan.points[k].<field>
     _check_level(cfg, rig)
     _check_budgets(cfg, rig, len(recorded), max(rates))
 

@@ -24,26 +24,32 @@ that reason), and an exception in the lane is one ``frf_error`` event, never the
 
 from __future__ import annotations
 
+import dataclasses
 import queue
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from analysis.frf import FRFAccumulator, FRFSet, choose_tau
+from analysis.frf import FRFAccumulator, FRFSet, choose_tau, stack_references
 from analysis.hammer import check_hit, force_spectrum, level_db
-from analysis.records import FRF_TOPIC, FRFUpdate
+from analysis.records import FRF_TOPIC, PLAN_TOPIC, FRFUpdate, PlanRecord
 from daq.fanout import END, FanOut, Subscription
 from daq.frf_cmd import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
 from daq.lanes import Sink
 from daq.log import layout
+from daq.roving import PlanTracker
 from drivers.blocks import SampleBlock
 
 #: the view's topic for the curves of one update (in-process only: never written to a log)
 FRF_CURVES = "frf/curves"
 N_PEAKS = 6  # peaks in each update, as gvt frf's table
+#: the log attachment holding a roving-hammer session's FRF matrix (analysis.frf.FRFSet.to_npz)
+MATRIX_ATTACHMENT = "frf/matrix.npz"
 
 
 @dataclass(frozen=True)
@@ -189,17 +195,26 @@ class FRFLane:
     name = "frf"
 
     def __init__(self, fan: FanOut, plan: FRFPlan, sink: Sink, *, say: Callable[[str], None] | None = None,
-                 view: Callable[[str, dict], None] | None = None, maxsize: int = 256, hit_queue: int = 1024) -> None:  # fmt: skip
+                 view: Callable[[str, dict], None] | None = None, maxsize: int = 256, hit_queue: int = 1024,
+                 points: tuple | None = None, attach: Callable[[str, bytes, str], None] | None = None) -> None:  # fmt: skip
         self.plan = plan
+        self.attach = attach
+        self.tracker = None if not points else PlanTracker(tuple(points))
         self.sink, self.say, self.view = sink, say, view
         self.sub: Subscription = fan.subscribe("frf", maxsize=maxsize)
         self.hits: queue.Queue = queue.Queue(maxsize=max(1, hit_queue))
         self.dropped_hits = 0
         self.ring = SampleRing(2 * plan.n + plan.pre + round(plan.fs), len(plan.channels))
-        self.acc = FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
-                                  f_max=plan.band_hz, quantities=list(plan.quantities), end_level=1e-3)  # fmt: skip
+        # one accumulator per reference: the hammer, or each hit point of a roving-hammer plan (daq/roving.py)
+        self.accs = [FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
+                                    f_max=plan.band_hz, quantities=list(plan.quantities), end_level=1e-3)
+                     for _ in (self.tracker.points if self.tracker is not None else (None,))]  # fmt: skip
         self.records: list[FRFUpdate] = []
-        self.costs_s: list[float] = []  # computing time per hit
+        self.costs_s: list[float] = []  # computing time per hit (wall clock)
+        # the lane thread's own CPU time per hit: what the lane costs, whatever else the machine is doing (a
+        # loaded test run stretches the wall clock, not this)
+        self.cpu_costs_s: list[float] = []
+        self._c0 = 0.0
         self.error: str | None = None
         self._pending: list[dict] = []
         self._cols = plan.columns
@@ -207,7 +222,31 @@ class FRFLane:
         self._thread = threading.Thread(target=self._main, name="frf", daemon=True)
         warm_up(plan)
 
+    @property
+    def acc(self) -> FRFAccumulator:
+        """The accumulator the next accepted hit joins (the current hit point's)."""
+        return self.accs[self.tracker.current if self.tracker is not None else 0]
+
+    def _dp_plan(self) -> FRFPlan:
+        """The plan with the driving point of the current hit point (the sensor on its DOF, if any)."""
+        if self.tracker is None:
+            return self.plan
+        pt = self.tracker.point
+        dp = next((s for s in self.plan.outputs if s == pt.sensor), None)
+        return dataclasses.replace(self.plan, reference=pt.name, driving_point=dp)
+
+    def _plan_record(self, event: str, **kw) -> None:
+        t = self.tracker
+        assert t is not None
+        done = {"point": t.point.name, "done": t.done[t.current], "required": t.point.averages}
+        rec = PlanRecord(event=event, next_point=None if t.complete else t.point.name, message=t.prompt(), **{**done, **kw})
+        self.sink(PLAN_TOPIC, rec, None)
+        if self.say is not None:
+            self.say(rec.message)
+
     def start(self) -> FRFLane:
+        if self.tracker is not None:
+            self._plan_record("plan", points=tuple(p.as_dict() for p in self.tracker.points))
         self._thread.start()
         return self
 
@@ -270,6 +309,7 @@ class FRFLane:
 
     def _judge(self, hit: dict, i0: int) -> None:
         t0 = time.perf_counter()
+        self._c0 = time.thread_time()
         p = self.plan
         rec = self.ring.span(i0, i0 + p.n)
         nxt = next((int(h["index"]) for h in self._pending if i0 < int(h["index"]) - p.pre < i0 + p.n), None)
@@ -291,9 +331,21 @@ class FRFLane:
             else:
                 why = chk.reason
         self._publish(hit, why, checks, force, t0)
+        if self.tracker is not None:
+            self._progress(hit, why)
+
+    def _progress(self, hit: dict, why: str | None) -> None:
+        """After a hit at the current point: count it, move on when the point has its averages, prompt."""
+        t = self.tracker
+        assert t is not None
+        pt, k = t.point, t.current
+        moved = why is None and t.accept()
+        event = "complete" if moved and t.complete else "progress"
+        self._plan_record(event, point=pt.name, done=t.done[k], required=pt.averages, hit=int(hit.get("hit", -1)),
+                          verdict="refused" if why else "accepted")  # fmt: skip
 
     def _publish(self, hit: dict, why: str | None, checks: dict | None, force: np.ndarray | None, t0: float) -> None:
-        p = self.plan
+        p = self._dp_plan()
         frf = self.acc.frf() if self.acc.count else None
         peaks = peak_summary(frf, p.driving_point) if frf is not None else {}
         refused = sum(r.verdict == "refused" for r in self.records) + (why is not None)
@@ -305,6 +357,7 @@ class FRFLane:
                         driving_point=p.driving_point, record_s=p.n / p.fs, tau_s=p.tau, band_hz=p.band_hz, checks=checks,
                         elapsed_s=elapsed, **peaks)  # fmt: skip
         self.costs_s.append(elapsed)
+        self.cpu_costs_s.append(time.thread_time() - self._c0)
         self.records.append(rec)
         self.sink(FRF_TOPIC, rec, round(t_s * 1e9))
         if self.say is not None:
@@ -319,12 +372,35 @@ class FRFLane:
         """After the hit gate finished (its last hits are offered): judge what is left, then say what was lost."""
         self._hits_done.set()
         self._thread.join(max(0.0, deadline - time.monotonic()))
+        if self.tracker is not None and not self._thread.is_alive():
+            self._write_matrix()
         if self.sub.dropped_blocks or self.dropped_hits:
             self.sink(layout.EVENTS_TOPIC, {
                 "kind": "frf_overrun", "count": self.sub.dropped_samples,
                 "message": f"live FRFs fell behind: {self.sub.dropped_blocks} blocks ({self.sub.dropped_samples} samples) "
                            f"and {self.dropped_hits} hits not seen; hits whose record lost samples were refused",
             }, None)  # fmt: skip
+
+
+    def matrix(self) -> FRFSet | None:
+        """The FRF matrix: every hit point with at least one average, one reference each, named by the point."""
+        t = self.tracker
+        assert t is not None
+        sets = [dataclasses.replace(a.frf(), references=[p.name]) for a, p in zip(self.accs, t.points, strict=True) if a.count]
+        return stack_references(sets) if sets else None
+
+    def _write_matrix(self) -> None:
+        """At the end: the ``end`` plan record (points short of their averages) and the matrix as ``frf/matrix.npz``."""
+        t = self.tracker
+        assert t is not None
+        self._plan_record("end", missing=tuple(t.missing()))
+        m = self.matrix()
+        if m is None or self.attach is None:
+            return
+        with tempfile.TemporaryDirectory() as tmp:  # to_npz writes a path
+            path = Path(tmp) / "matrix.npz"
+            m.to_npz(path)
+            self.attach(MATRIX_ATTACHMENT, path.read_bytes(), "application/x-npz")
 
 
 def start_frf_lane(fan: FanOut, rig, streams: dict[str, tuple[str, ...]], fs: float, sink: Sink, **kw) -> FRFLane | None:

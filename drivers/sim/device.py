@@ -24,12 +24,54 @@ from drivers.sim.sensor_model import AdcModel, ChannelModel, channel_models_for,
 
 @dataclass(frozen=True)
 class HitSchedule:
+    """Hit times and peak forces; ``dofs`` (optional) the model DOF each hit lands on (a roving hammer,
+    daq/roving.py), else every hit is at the rig's hammer DOF."""
+
     times_s: tuple[float, ...]
     forces_n: tuple[float, ...]
+    dofs: tuple[int, ...] | None = None
 
     @classmethod
     def every(cls, period: float, forces: Sequence[float], first: float = 0.2) -> HitSchedule:
         return cls(tuple(first + k * period for k in range(len(forces))), tuple(float(f) for f in forces))
+
+
+def simulator_at(rig: Rig, dof: int):
+    """The rig's simulator with the force at model DOF ``dof`` instead of the hammer's (same settings and modes)."""
+    if dof == rig.hammer.dof:
+        return rig.simulator
+    from analysis.model.simulate import ImpactSimulator
+
+    sim = rig.config.simulation
+    return ImpactSimulator(rig.structure, dof, rig.sensor_dofs, cutoff_hz=sim.modal_cutoff_hz,
+                           residual_vectors=sim.residual_vectors, max_omega_dt=sim.max_omega_dt, order=sim.order,
+                           modes=rig.modes)  # fmt: skip
+
+
+def roving_signals(rig: Rig, schedule: HitSchedule, duration: float) -> tuple[list, np.ndarray]:
+    """Physical signals (hammer, then sensors) of the scheduled hits, each at its own DOF.
+
+    One simulation per DOF hit, over the span from that DOF's first hit, summed: exact for a linear structure
+    (superposition; the hammer channel is the sum of the forces, wherever they land). With nonlinear springs it
+    neglects the coupling of one point's ring-down with the next point's hits; a roving test spaces its hits
+    by a record, so that ring-down is small, but the sum is then an approximation (docs/session.md)."""
+    pulse = rig.config.hammer.pulse_duration
+    if schedule.dofs is None:  # the fixed hammer: one simulation, as always (bit-identical to earlier logs)
+        force = pulse_train(schedule.times_s, schedule.forces_n, pulse)
+        res = rig.simulator.run(force, duration, rig.sample_rate, amplitudes=[1.0])
+        return channel_signals(rig, res)
+    dofs = schedule.dofs
+    n = max(2, round(duration * rig.sample_rate))
+    placed, total = [rig.hammer, *rig.sensors], np.zeros((n, 1 + len(rig.sensors)))
+    for dof in dict.fromkeys(dofs):
+        ks = [k for k, d in enumerate(dofs) if d == dof]
+        # start a whole number of samples before this DOF's first hit: before it, this DOF's part is zero
+        i0 = max(0, int(np.floor((schedule.times_s[ks[0]] - 0.01) * rig.sample_rate)))
+        t0 = i0 / rig.sample_rate
+        force = pulse_train([schedule.times_s[k] - t0 for k in ks], [schedule.forces_n[k] for k in ks], pulse)
+        res = simulator_at(rig, dof).run(force, (n - i0) / rig.sample_rate, rig.sample_rate, amplitudes=[1.0])
+        total[i0:] += channel_signals(rig, res)[1][: n - i0]
+    return placed, total
 
 
 class SimulatedDevice:
@@ -41,9 +83,7 @@ class SimulatedDevice:
         self.seed = seed
         n = max(1, round(duration * self.fs))
         if schedule.times_s:
-            force = pulse_train(schedule.times_s, schedule.forces_n, rig.config.hammer.pulse_duration)
-            res = rig.simulator.run(force, n / self.fs, self.fs, amplitudes=[1.0])
-            placed, physical = channel_signals(rig, res)
+            placed, physical = roving_signals(rig, schedule, n / self.fs)
         else:
             placed = [rig.hammer, *rig.sensors]
             physical = np.zeros((n, len(placed)))

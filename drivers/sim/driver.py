@@ -22,6 +22,8 @@ class SimConfig(DriverConfig):
     physics_seconds: float = Field(5.0, gt=0)  # simulated span; the device rests (noise floor) after it
     seed: int = 0
     duration: float | None = None  # stop after this many seconds of data
+    # a roving hammer (daq/roving.py): the model DOF name each hit lands on; empty: all at the rig's hammer
+    hit_dofs: list[str] = Field(default_factory=list)
 
 
 class SimDriver(Driver):
@@ -43,9 +45,12 @@ class SimDriver(Driver):
         rig = open_rig(c.rig)
         if abs(rig.sample_rate - c.sample_rate) > 1e-9:
             raise ValueError(f"sim driver: sample_rate {c.sample_rate:g} Hz but rig {rig.name} runs at {rig.sample_rate:g} Hz")
-        self.device = SimulatedDevice(
-            rig, HitSchedule.every(c.period, c.forces), c.physics_seconds, block_size=c.block_size, seed=c.seed
-        )
+        schedule = HitSchedule.every(c.period, c.forces)
+        if c.hit_dofs:
+            if len(c.hit_dofs) != len(c.forces):
+                raise ValueError(f"sim driver: {len(c.hit_dofs)} hit_dofs for {len(c.forces)} hits")
+            schedule = HitSchedule(schedule.times_s, schedule.forces_n, tuple(rig.structure.dof_index(d) for d in c.hit_dofs))
+        self.device = SimulatedDevice(rig, schedule, c.physics_seconds, block_size=c.block_size, seed=c.seed)
         if not c.channels:
             c.channels = list(self.device.channels)
         missing = [ch for ch in c.channels if ch not in self.device.channels]

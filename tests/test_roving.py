@@ -1,0 +1,147 @@
+"""Roving-hammer test plans (issue 20, item 7): a simulated session over 5 hit points x 3 averages.
+
+Data: the in-process simulated device (drivers/sim) following the session's ``[plan]`` — each hit simulated at
+its point's model DOF — on a linear ``beam_ch4_exp`` (cubic spring removed: superposition is then exact) with
+1 s records (hits 1.2 s apart, so a record never holds the next hit), 15 channels at 16384 Hz, recorded by
+``run_session`` with the live FRF lane. Oracles, independent of the lane: Maxwell-Betti reciprocity
+(H[i, j] = H[j, i] for a linear structure: it holds only if each hit landed where the plan said), the rig's
+modal model (sum of phi_o phi_r s^2 / (s^2 + 2 sigma s + w^2), poles moved by the window's 1/tau), and pyuff
+reading back the UFF file ``gvt export`` wrote.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.frf import FRFSet
+from analysis.model.rig import load_rig
+from analysis.records import PLAN_TOPIC, PlanRecord
+from daq.config.session import AnalysisSpec, DeviceSpec, HitPointSpec, PlanSpec, SessionConfig, TriggerSpec
+from daq.lanes.frf import MATRIX_ATTACHMENT
+from daq.log.reader import LogReader
+from daq.roving import hit_dofs, resolve_plan
+from daq.session import run_session
+
+ROOT = Path(__file__).resolve().parents[1]
+PERIOD = 1.2  # s between hits: a 1 s record plus margin
+POINTS = (HitPointSpec(sensor="a03"), HitPointSpec(sensor="a06"), HitPointSpec(sensor="a09"),
+          HitPointSpec(dof="w100", name="DP"), HitPointSpec(sensor="a12", direction="-Z"))  # fmt: skip
+
+
+def linear_rig(tmp: Path):
+    src = (ROOT / "configs/rigs/beam_ch4_exp.toml").read_text()
+    txt = re.sub(r"\[\[nonlinear_springs\]\].*?(?=\n\[)", "", src, flags=re.S)
+    path = tmp / "beam_linear_1s.toml"
+    path.write_text(txt.replace("record_length = 2.0", "record_length = 1.0"))
+    return load_rig(path)
+
+
+@pytest.fixture(scope="module")
+def roving(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("roving")
+    rig = linear_rig(tmp)
+    n = 15  # paced: at full speed the hit gate dropped blocks (11 of 15 hits found) when two workers shared the CPU
+    cfg = SessionConfig(
+        name="roving", rig=rig.path, duration=0.2 + n * PERIOD, analysis=AnalysisSpec(enabled=False),
+        device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 1024, "forces": [200.0] * n, "period": PERIOD,
+                                                "physics_seconds": 0.2 + n * PERIOD + 0.2, "seed": 5}),
+        queue_seconds=20.0, trigger=TriggerSpec(level=20.0, record_length=0.3), plan=PlanSpec(averages=3, points=list(POINTS)),
+    )  # fmt: skip
+    lines: list[str] = []
+    out = tmp / "roving.mcap"
+    res = run_session(cfg, rig, out, frf_line=lines.append)
+    return rig, cfg, out, res, lines
+
+
+def test_the_plan_resolves_and_schedules_refused_hits_again(tmp_path):
+    rig = linear_rig(tmp_path)
+    pts = resolve_plan(PlanSpec(averages=2, points=list(POINTS)), rig)
+    assert [p.name for p in pts] == ["P1", "P2", "P3", "DP", "P5"]
+    assert [p.dof_name for p in pts] == ["w23", "w46", "w69", "w100", "w92"]
+    assert pts[3].sensor == "a13" and pts[4].direction == -3 and pts[0].direction == 3
+    # hit 1 is refused (overload): the device hits P1 again; after the plan, hits stay at the last point
+    assert hit_dofs(pts, 12, refused={1}) == [0, 0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 4]
+
+
+def test_five_points_three_averages_each_with_prompts(roving):
+    _rig, _cfg, out, res, lines = roving
+    assert res.lost_samples == 0 and len(res.hits) == 15, (res.events, [h.t_s for h in res.hits])
+    frf = res.frf
+    assert [r["verdict"] for r in frf] == ["accepted"] * 15
+    assert [r["reference"] for r in frf] == [p for p in ("P1", "P2", "P3", "DP", "P5") for _ in range(3)]
+    assert [r["averages"] for r in frf] == [1, 2, 3] * 5
+    plan = LogReader(out).json_messages(PLAN_TOPIC)
+    assert [p["event"] for p in plan] == ["plan"] + ["progress"] * 14 + ["complete", "end"]
+    assert plan[-1]["missing"] == []
+    for p in plan:
+        PlanRecord.from_json(p)
+    import jsonschema
+
+    for p in plan:
+        jsonschema.validate(p, PlanRecord.SCHEMA)
+    node = {p["name"]: p["node"] for p in plan[0]["points"]}
+    assert f"hit point P3 (node {node['P3']}, +Z): 2 of 3 averages" in lines
+    assert f"hit point P5 (node {node['P5']}, -Z): 0 of 3 averages" in lines
+    assert lines[-2].startswith("plan complete: 5 points, 15 averages")
+
+
+def _modal(rig, freq, out_dofs, ref_dof, a):
+    m = rig.modes
+    sigma = rig.structure.damping.modal_coefficients(m.omega) / 2.0
+    s = 2j * np.pi * freq + a
+    den = s[None, :] ** 2 + 2.0 * sigma[:, None] * s[None, :] + m.omega[:, None] ** 2
+    return ((m.shapes[out_dofs, :] * m.shapes[ref_dof, :])[:, :, None] / den[None]).sum(axis=1) * s**2
+
+
+def test_the_frf_matrix_in_the_log_is_reciprocal_and_matches_the_model(roving):
+    rig, cfg, out, _res, _ = roving
+    _media, data = LogReader(out).attachments()[MATRIX_ATTACHMENT]
+    path = out.with_suffix(".npz")
+    path.write_bytes(data)
+    m = FRFSet.from_npz(path)
+    assert m.references == ["P1", "P2", "P3", "DP", "P5"] and list(m.n_averages) == [3] * 5
+    assert m.H.shape == (14, 5, m.freq.size)
+    # modes 3-6 (194-965 Hz): modes 1-2 (21, 68 Hz) still ring from the previous hit, at ANOTHER point, 1.2 s
+    # later (exp(-0.654 * 1.2) = 46 % of mode 1's amplitude; measured 17 % and 4 % off reciprocity there), which
+    # no estimator removes: a real roving test waits longer between hits (tests/test_frf.py uses 10 s)
+    pk = m.peaks(6)[2:]
+    out_idx = {s: m.outputs.index(s) for s in ("a03", "a06", "a09", "a13", "a12")}
+    refs = {"a03": 0, "a06": 1, "a09": 2, "a13": 3, "a12": 4}
+    pairs = [("a03", "a06"), ("a03", "a09"), ("a06", "a13"), ("a09", "a12"), ("a06", "a12")]
+    for i, j in pairs:  # reciprocity at the peaks where both are well above the noise
+        hij, hji = m.H[out_idx[i], refs[j], pk], m.H[out_idx[j], refs[i], pk]
+        strong = np.abs(hij) > 0.05 * np.abs(m.H[:, :, pk]).max(axis=(0, 1))
+        assert np.allclose(hij[strong], hji[strong], rtol=0.01), (i, j, np.abs(hij / hji))
+    pts = resolve_plan(cfg.plan, rig)
+    dofs = [s.dof for s in rig.sensors]
+    for r, pt in enumerate(pts):
+        model = _modal(rig, m.freq[pk], dofs, pt.dof, m.window["sigma_added"])
+        dp = m.outputs.index(pt.sensor)
+        assert np.abs(m.H[dp, r, pk]) == pytest.approx(np.abs(model[dp]), rel=0.05)  # measured <= 3.8 %
+
+
+def test_the_frf_matrix_goes_to_uff58_with_each_points_node_and_direction(roving, tmp_path):
+    """``gvt export --format uff --frf`` of the matrix: pyuff reads back one FRF (and one coherence) per response
+    and hit point, each with the hit point's node and direction as reference and the response's as response."""
+    pyuff = pytest.importorskip("pyuff", reason="pyuff is a runtime dependency; make test installs it")
+    from daq.cli import run as gvt
+
+    _rig, _cfg, out, _res, _ = roving
+    _media, data = LogReader(out).attachments()[MATRIX_ATTACHMENT]
+    npz, uff = tmp_path / "matrix.npz", tmp_path / "roving.uff"
+    npz.write_bytes(data)
+    m = FRFSet.from_npz(npz)
+    assert gvt(["export", str(out), "--format", "uff", "--out", str(uff), "--frf", str(npz)]) == 0
+    plan = next(p for p in LogReader(out).json_messages(PLAN_TOPIC) if p.get("event") == "plan")
+    where = {p["name"]: (int(p["node"]), p["direction"]) for p in plan["points"]}
+    frfs = [s for s in pyuff.UFF(str(uff)).read_sets() if s["type"] == 58 and s["func_type"] == 4]
+    assert len(frfs) == len(m.outputs) * len(m.references)
+    sign = {"+": 1, "-": -1}
+    got = {(s["ref_node"], s["ref_dir"]) for s in frfs}
+    want = {(node, sign[d[0]] * "XYZ".index(d[1]) + sign[d[0]]) for node, d in where.values()}
+    assert got == want, (got, want)
+    assert all(s["ordinate_axis_units_lab"].strip().lower().startswith("m/s") for s in frfs), frfs[0]["ordinate_axis_units_lab"]

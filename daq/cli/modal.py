@@ -22,6 +22,9 @@ def modal(
     modes_out: Annotated[
         Path | None, typer.Option("--modes-out", help="Write the modes (JSON; gvt export --modes reads it).")
     ] = None,
+    rrd: Annotated[
+        Path | None, typer.Option("--rrd", help="Write the mode shapes, animated on the rig's test geometry (rerun .rrd).")
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
@@ -32,13 +35,15 @@ def modal(
     from daq.modal_cmd import load_frf_source, modal_from_frf, rows_summary, table_text, write_modes
     from daq.outputs import atomic_output
 
-    for p, what in ((png, "--png"), (modes_out, "--modes-out")):
+    for p, what in ((png, "--png"), (modes_out, "--modes-out"), (rrd, "--rrd")):
         if p is not None:
             check_output(p, overwrite, what, inputs=[source])
     targets = load_targets(poles) if poles is not None else None
     r = open_rig(rig) if rig is not None else None
     refused: list[dict] = []
     if source.suffix == ".npz":
+        if rrd is not None and r is None:
+            fail("--rrd draws the modes on the rig's test geometry: give --rig (an FRF file carries none)")
         frf = load_frf_source(source)
     else:
         from daq.analyze import rig_from_log
@@ -62,6 +67,11 @@ def modal(
 
         with atomic_output(png) as tmp:
             stabilisation_png(run.result.table, tmp, frf.freq, frf.H, run.result.selected)
+    if rrd is not None:
+        from daq.view.modes import write_modal_run_rrd
+
+        with atomic_output(rrd) as tmp:
+            write_modal_run_rrd(run, r, tmp)
     if json_out:
         out.print_json(json.dumps(rows_summary(run), default=float))
         return
@@ -71,6 +81,6 @@ def modal(
     out.print(table_text(run), markup=False)
     for h in refused:
         out.print(f"hit {h['hit']} refused: {h['reason']}", markup=False)
-    for p in (png, modes_out):
+    for p in (png, modes_out, rrd):
         if p is not None:
             out.print(f"wrote {p}", markup=False)

@@ -238,7 +238,11 @@ class FRFAccumulator:
     the exponential on every response: :func:`exponential_window` says why both) and adds ``|F|^2``,
     ``F* X`` and ``|X|^2`` to the sums; the sums are all H1, H2, Hv and coherence need, so the FRF after each
     hit costs one real FFT of the record, whatever the number of hits so far. ``frf`` returns an
-    :class:`FRFSet`. Spectra are DFTs times ``1 / fs`` (N s, m/s) and sums, not densities: scale cancels in
+    :class:`FRFSet`. A response the hit gate left out of a hit (clipped, dead: the hit record's
+    ``excluded_channels``) is left out of that output's sums only (``use``): the force auto-spectrum is kept per
+    output, so each output is the average of the hits it was good on (``counts``; an output with none is NaN),
+    instead of a clipped accelerometer's record going into the average.
+    Spectra are DFTs times ``1 / fs`` (N s, m/s) and sums, not densities: scale cancels in
     every estimator, and linear averaging of ``n`` hits is the sum divided by ``n`` in each spectrum.
     """
 
@@ -252,13 +256,15 @@ class FRFAccumulator:
         self.tau, self.end_level = tau, end_level
         self.exp = exponential_window(self.n, self.fs, tau, t0)
         self.quantities = quantities or ["acceleration"] * len(self.outputs)
-        self.gff = np.zeros(self.n_f)
+        self.gff = np.zeros((len(self.outputs), self.n_f))  # per output: each averages only the hits it was good on
         self.gfx = np.zeros((len(self.outputs), self.n_f), dtype=complex)
         self.gxx = np.zeros((len(self.outputs), self.n_f))
-        self.count = 0
+        self.count = 0  # hits added
+        self.counts = np.zeros(len(self.outputs), dtype=np.int64)  # hits per output
 
-    def add(self, force: np.ndarray, responses: np.ndarray) -> None:
-        """Add one hit: ``force`` (n,) N, ``responses`` (n, n_out) in the channels' SI units."""
+    def add(self, force: np.ndarray, responses: np.ndarray, use: np.ndarray | None = None) -> None:
+        """Add one hit: ``force`` (n,) N, ``responses`` (n, n_out) in the channels' SI units; ``use`` (n_out,) bool:
+        the outputs this hit counts for (default all; the others' sums are left as they were)."""
         if np.shape(force) != (self.n,) or np.shape(responses) != (self.n, len(self.outputs)):
             raise BadInput(f"FRF: a hit of {np.shape(force)} / {np.shape(responses)} samples, expected ({self.n},) / "
                            f"({self.n}, {len(self.outputs)})")  # fmt: skip
@@ -269,10 +275,12 @@ class FRFAccumulator:
         x = np.asarray(responses, dtype=float).T * self.exp
         F = fft.rfft(fw)[: self.n_f] / self.fs
         X = fft.rfft(x, axis=-1, workers=-1)[:, : self.n_f] / self.fs
-        self.gff += F.real**2 + F.imag**2
-        self.gfx += np.conj(F) * X
-        self.gxx += X.real**2 + X.imag**2
+        m = np.ones(len(self.outputs), bool) if use is None else np.asarray(use, bool)
+        self.gff[m] += F.real**2 + F.imag**2
+        self.gfx[m] += np.conj(F) * X[m]
+        self.gxx[m] += X.real[m] ** 2 + X.imag[m] ** 2
         self.count += 1
+        self.counts += m
 
     def frf(self, kind: str = "H1", quantity: str = "accelerance") -> FRFSet:
         """The averaged FRFs so far as an :class:`FRFSet` (one reference)."""
@@ -284,12 +292,16 @@ class FRFAccumulator:
             raise BadInput(f"FRF: estimator {kind!r} unknown; use one of {KINDS}")
         if quantity not in QUANTITIES:
             raise BadInput(f"FRF: quantity {quantity!r} unknown; use one of {sorted(QUANTITIES)}")
-        H = est[kind]()
+        with np.errstate(invalid="ignore", divide="ignore"):  # an output no hit was good on: 0/0, made NaN below
+            H = est[kind]()
+            coh = coherence(self.gff, self.gxx, self.gfx)
+        H[self.counts == 0], coh[self.counts == 0] = np.nan, np.nan
         H = np.stack([convert_quantity(H[o], self.freq, _FROM_CHANNEL[q], quantity) for o, q in enumerate(self.quantities)])
-        return FRFSet(freq=self.freq.copy(), H=H[:, None, :], coherence=coherence(self.gff, self.gxx, self.gfx)[:, None, :],
+        window = window_info("transient (pulse + 1 width, cosine taper)", self.tau, self.end_level)
+        window["averages_per_output"] = self.counts.tolist()  # fewer than n_averages: excluded on some hits
+        return FRFSet(freq=self.freq.copy(), H=H[:, None, :], coherence=coh[:, None, :],
                       outputs=list(self.outputs), references=[self.reference], kind=kind, quantity=quantity,
-                      units=QUANTITIES[quantity], n_averages=np.array([self.count]),
-                      window=window_info("transient (pulse + 1 width, cosine taper)", self.tau, self.end_level))  # fmt: skip
+                      units=QUANTITIES[quantity], n_averages=np.array([self.count]), window=window)  # fmt: skip
 
 
 def stack_references(sets: list[FRFSet]) -> FRFSet:

@@ -211,6 +211,8 @@ def identify_arrays(
     sigma_added: float = 0.0, n_consecutive: int = 6,
 ) -> ModalResult:
     """The whole chain on arrays: pLSCF to ``max_order``, stabilisation, auto or manual pick, LSFD."""
+    if not np.isfinite(H).all():  # LAPACK would fail deep inside with "illegal value"
+        raise BadInput("modal identification: the FRFs hold NaN or inf (a response with no average?); leave it out")
     table = stabilisation(plscf(freq, H, f_lo, f_hi, max_order), crit)
     sel = auto_select(table, n_consecutive) if targets is None else select_targets(table, targets)
     if sel.size == 0:

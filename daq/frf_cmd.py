@@ -105,7 +105,7 @@ def frf_from_log(path: str | Path, rig: Rig, *, reference: str | None = None, ch
         verdict, reason, chk = _judge(reader, stream, cols, hit, n, pre, fs, band_hz, force_full_scale(rig), run)
         if verdict == "accepted":
             d = chk[1]
-            acc.add(d[:, 0], d[:, 1:])
+            acc.add(d[:, 0], d[:, 1:], use=[o not in (hit.excluded_channels or ()) for o in outs])
         run.hits.append({"hit": hit.hit, "t_s": hit.t_s, "peak_force_N": hit.peak_force_N, "verdict": verdict,
                          "reason": reason, "checks": chk[0].as_dict() if chk[0] is not None else None})  # fmt: skip
         if progress:
@@ -158,6 +158,9 @@ def summary(run: FRFRun, n_peaks: int = 6) -> dict:
         "kind": f.kind if f else None, "quantity": f.quantity if f else None, "units": f.units if f else None,
         "reference": f.references[0] if f else None, "averages": int(f.n_averages[0]) if f else 0,
         "hits": run.hits, "peaks": peak_rows(f, n_peaks) if f is not None else [],
+        # responses the hit gate left out of some hits (clipped, dead): averaged over the hits they were good on
+        "fewer_averages": {o: int(c) for o, c in zip(f.outputs, f.window.get("averages_per_output", []), strict=False)
+                           if c < f.n_averages[0]} if f is not None else {},
     }  # fmt: skip
 
 

@@ -10,7 +10,7 @@ UFF 55 (``daq/uff_export.py::load_modes_json``) and what model updating (issue 2
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +59,23 @@ def mode_rows(res: ModalResult, rig: Rig | None, outputs: list[str]) -> list[dic
     return rows
 
 
+def usable_outputs(frf: FRFSet) -> FRFSet:
+    """``frf`` without the responses that have no FRF (NaN: the hit gate left them out of every hit, e.g. a
+    clipped accelerometer; analysis/frf.py), which a modal fit cannot take; BadInput if none is left."""
+    keep = np.isfinite(frf.H).all(axis=(1, 2))
+    if keep.all():
+        return frf
+    if not keep.any():
+        raise BadInput("no response has an FRF: every one was left out of every hit (clipped or dead); see `gvt frf`")
+    per = frf.window.get("averages_per_output")
+    window = {**frf.window, "averages_per_output": [c for c, k in zip(per, keep, strict=True) if k]} if per else frf.window
+    outputs = [o for o, k in zip(frf.outputs, keep, strict=True) if k]
+    return replace(frf, H=frf.H[keep], coherence=frf.coherence[keep], outputs=outputs, window=window)
+
+
 def modal_from_frf(frf: FRFSet, rig: Rig | None, f_lo: float, f_hi: float, targets: list[Target] | None = None,
                    max_order: int = 60, source: str = "") -> ModalRun:  # fmt: skip
+    frf = usable_outputs(frf)
     if not f_lo < f_hi <= float(frf.freq[-1]):
         raise BadInput(f"--band {f_lo:g} {f_hi:g}: must satisfy 0 <= low < high <= {frf.freq[-1]:g} Hz (the FRFs' range)")
     res = identify(frf, f_lo, f_hi, driving=driving_points(rig, frf), targets=targets, max_order=max_order)

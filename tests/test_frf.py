@@ -246,3 +246,44 @@ def test_pyfrf_h1_agrees_on_the_same_windowed_records(clean):
     ours = acc.frf("H1")
     np.testing.assert_allclose(theirs[:, 1:], ours.H[:, 0, 1:], rtol=1e-9)
     np.testing.assert_allclose(coh[:, 1:], ours.coherence[:, 0, 1:], atol=1e-9)
+
+
+def test_a_response_excluded_on_a_hit_is_averaged_over_the_other_hits_only(clean):
+    """A clipped accelerometer on one hit (the gate's ``excluded_channels``) must not enter that output's average:
+    the output is the average of the hits it was good on, the other outputs keep every hit."""
+    rig, log = clean
+    r = LogReader(log)
+    stream = next(iter(r.streams()))
+    d = r.read_stream(stream)
+    cols = ["hammer", *[s.name for s in rig.sensors]]
+    idx = [d.channels.index(c) for c in cols]
+    hits = [Hit.from_json(h) for h in r.json_messages(HITS_TOPIC)][:3]
+    fs, n = rig.sample_rate, 2 * int(rig.sample_rate)
+    pre = round(PRE_TRIGGER_S * fs)
+    recs = [d.data[h.index - pre : h.index - pre + n][:, idx].astype(float) for h in hits]
+    bad = recs[1].copy()
+    bad[:, 5] = np.clip(bad[:, 5], -0.2, 0.2)  # a05 clipped on hit 1
+    kw = dict(tau=0.357, t0=pre / fs, f_max=1000.0)
+    outs = cols[1:]
+    mixed = FRFAccumulator(fs, n, outs, "hammer", **kw)
+    for k, rec in enumerate([recs[0], bad, recs[2]]):
+        mixed.add(rec[:, 0], rec[:, 1:], use=[not (k == 1 and o == "a05") for o in outs])
+    all3, two = FRFAccumulator(fs, n, outs, "hammer", **kw), FRFAccumulator(fs, n, outs, "hammer", **kw)
+    for rec in recs:
+        all3.add(rec[:, 0], rec[:, 1:])
+    for rec in (recs[0], recs[2]):
+        two.add(rec[:, 0], rec[:, 1:])
+    m, a, t = mixed.frf(), all3.frf(), two.frf()
+    o = outs.index("a05")
+    assert m.window["averages_per_output"][o] == 2 and m.n_averages[0] == 3 and sum(m.window["averages_per_output"]) == 3 * 14 - 1
+    np.testing.assert_allclose(m.H[o], t.H[o], rtol=1e-12)  # a05: the two good hits only
+    others = [k for k in range(len(outs)) if k != o]
+    np.testing.assert_allclose(m.H[others], a.H[others], rtol=1e-12)  # the rest: all three
+    clipped = FRFAccumulator(fs, n, outs, "hammer", **kw)
+    for rec in [recs[0], bad, recs[2]]:
+        clipped.add(rec[:, 0], rec[:, 1:])
+    pk = a.peaks(1)
+    assert abs(clipped.frf().H[o, 0, pk] / a.H[o, 0, pk] - 1).max() > 1e-3  # what the exclusion prevents
+    none = FRFAccumulator(fs, n, outs, "hammer", **kw)
+    none.add(recs[0][:, 0], recs[0][:, 1:], use=[oo != "a05" for oo in outs])
+    assert np.isnan(none.frf().H[o]).all() and not np.isnan(none.frf().H[others]).any()

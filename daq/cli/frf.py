@@ -75,6 +75,9 @@ def _print(s: dict) -> None:
     for p in s["peaks"]:
         t.add_row(f"{p['freq_hz']:.2f}", p["response"], f"{p['mag']:.4g}", f"{p['phase_deg']:.1f}", f"{p['coherence']:.4f}")
     out.print(t)
+    for o, c in s.get("fewer_averages", {}).items():
+        out.print(f"{o}: {c} of {s['averages']} averages (left out of the hits where the gate found it clipped or dead)",
+                  markup=False)  # fmt: skip
     for h in s["hits"]:
         if h["verdict"] != "accepted":
             out.print(f"hit {h['hit']} (t = {h['t_s']:.2f} s): refused: {h['reason']}", markup=False)

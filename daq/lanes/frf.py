@@ -327,7 +327,8 @@ class FRFLane:
             checks = chk.as_dict()
             if chk.verdict == "accepted":
                 force = data[:, 0]
-                self.acc.add(force, data[:, 1:])
+                excluded = hit.get("excluded_channels") or ()  # the gate's per-channel verdicts: a clipped response
+                self.acc.add(force, data[:, 1:], use=[o not in excluded for o in self.plan.outputs])
             else:
                 why = chk.reason
         self._publish(hit, why, checks, force, t0)

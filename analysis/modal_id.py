@@ -36,7 +36,7 @@ import numpy as np
 from analysis.errors import BadInput
 from analysis.lsfd import LSFDResult, lsfd, shapes_from_constants
 from analysis.mac import mac, mpc, mpd
-from analysis.plscf import PoleSet, plscf
+from analysis.plscf import PoleSet, plscf, pole_freq_hz, pole_zeta
 
 LABELS = ("o", "f", "d", "v", "s")  # status codes 0..4
 
@@ -61,11 +61,11 @@ class StabTable:
 
     @property
     def freq_hz(self) -> np.ndarray:
-        return np.abs(self.s) / (2 * np.pi)
+        return pole_freq_hz(self.s)
 
     @property
     def zeta(self) -> np.ndarray:
-        return -self.s.real / np.abs(self.s)
+        return pole_zeta(self.s)
 
 
 def _vec_mac(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -200,7 +200,7 @@ def modes_from_poles(
     shapes = shapes_from_constants(fit.modal_constants, driving)
     true = s + sigma_added
     return ModalResult(
-        s=s, freq_hz=np.abs(true) / (2 * np.pi), zeta=-true.real / np.abs(true), shapes=shapes,
+        s=s, freq_hz=pole_freq_hz(true), zeta=pole_zeta(true), shapes=shapes,
         mpc=mpc(shapes), mpd=mpd(shapes), fit=fit, table=table, selected=np.asarray(selected), sigma_added=sigma_added,
     )
 

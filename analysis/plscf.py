@@ -43,11 +43,21 @@ class PoleSet:
 
     @property
     def freq_hz(self) -> np.ndarray:
-        return np.abs(self.s) / (2 * np.pi)
+        return pole_freq_hz(self.s)
 
     @property
     def zeta(self) -> np.ndarray:
-        return -self.s.real / np.abs(self.s)
+        return pole_zeta(self.s)
+
+
+def pole_freq_hz(s: np.ndarray) -> np.ndarray:
+    """Undamped natural frequency of poles ``s`` (rad/s): ``|s| / 2 pi``."""
+    return np.abs(s) / (2 * np.pi)
+
+
+def pole_zeta(s: np.ndarray) -> np.ndarray:
+    """Damping ratio of poles ``s``: ``-Re(s) / |s|``."""
+    return -s.real / np.abs(s)
 
 
 def band_indices(freq: np.ndarray, f_lo: float, f_hi: float) -> np.ndarray:

@@ -20,9 +20,10 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from daq.fanout import END, FanOut
+from daq.log.export import export
 from daq.log.proto import BlockDecodeError, decode_block, encode_block
 from daq.log.reader import LogReader, LogReadError
-from daq.log.tools import export, log_info, recover
+from daq.log.tools import log_info, recover
 from daq.log.writer import ChannelInfo, LogWriter, LogWriterError
 from daq.replay import Replayer
 from drivers.blocks import SampleBlock

@@ -1,4 +1,4 @@
-"""``gvt log`` tools as library functions: info, recover, export.
+"""``gvt log`` tools as library functions: info and recover (export: ``daq/log/export.py``).
 
 ``log_info`` answers from the summary (the writer's ``gvtlink.streams`` record, the indexes) without reading
 sample data, so it takes well under a second for any size; ``verify=True`` (``gvt log info --verify``) reads
@@ -9,10 +9,8 @@ whether data was lost (exit code 3 in the CLI) or not (0).
 
 from __future__ import annotations
 
-import csv
 import json
 from collections import Counter
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -234,53 +232,6 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
         w.finish()
     tmp.replace(dst)
     return r.report
-
-
-def export(
-    path: str | Path,
-    out: str | Path,
-    fmt: str,
-    channels: Sequence[str] | None = None,
-    start: float | None = None,
-    end: float | None = None,
-    stream: str | None = None,
-) -> str:
-    r = LogReader(path)
-    streams = r.streams()
-    if not streams:
-        raise LogReadError(f"{path}: no sample streams to export")
-    names = [stream] if stream else sorted(streams)
-    if stream and stream not in streams:
-        raise LogReadError(f"{path}: no stream {stream!r}; streams: {sorted(streams)}")
-    out = Path(out)
-    if fmt == "npz":
-        arrays: dict[str, np.ndarray] = {}
-        for s in names:
-            chans = [c for c in (channels or []) if c in streams[s].channels] or None
-            if channels and not chans:
-                continue
-            d = r.read_stream(s, chans, start, end)
-            arrays[f"{s}/t"] = d.t
-            arrays[f"{s}/index"] = d.index
-            arrays[f"{s}/data"] = d.data
-            arrays[f"{s}/channels"] = np.array(d.channels)
-            arrays[f"{s}/gaps"] = np.array(d.gaps, dtype=np.int64).reshape(-1, 2)
-        if not arrays:
-            raise LogReadError(f"{path}: none of the channels {list(channels or [])} exist")
-        with open(out, "wb") as fh:
-            np.savez(fh, **arrays)
-        return f"wrote {out}: {', '.join(names)}"
-    if fmt == "csv":
-        if len(names) > 1:
-            raise LogReadError(f"{path}: {len(names)} streams; choose one with --stream ({', '.join(names)})")
-        d = r.read_stream(names[0], channels, start, end)
-        with open(out, "w", newline="") as fh:
-            wr = csv.writer(fh)
-            wr.writerow(["t_s", "index", *d.channels])
-            for t, i, row in zip(d.t, d.index, d.data, strict=True):
-                wr.writerow([f"{t:.9f}", int(i), *(f"{v:.9g}" for v in row)])
-        return f"wrote {out}: {len(d.index)} rows x {len(d.channels)} channels"
-    raise LogReadError(f"unknown export format {fmt!r}; use npz or csv")
 
 
 def info_text(info: dict[str, Any]) -> str:

@@ -20,9 +20,10 @@ block companion matrix of ``sum_r z^r alpha_r^T`` (eq. 8); ``s = ln(z) / dt``.
 
 Speed: ``R``, ``S_o`` and ``T = sum_o T_o`` are block-Toeplitz in the basis index (they depend on
 ``s - r`` only), so they are built once, for the highest order, from ``2p + 1`` "lag sums"
-``sum_k X(w_k) exp(j w_k dt d)``; each order then takes leading sub-blocks, one Cholesky solve and one
-``(p m)^2`` eigenproblem. With equal weights per output (the default; each output is scaled to unit rms so
-no channel dominates by its units or its position) ``R_o`` is the same for every output.
+``sum_k X(w_k) exp(j w_k dt d)``; one triangular solve serves every order (``normal_matrices``), and each
+order takes leading sub-blocks and one ``p m`` eigenproblem. With equal weights per output (the default;
+each output is scaled to unit rms so no channel dominates by its units or its position) ``R_o`` is the
+same for every output.
 """
 
 from __future__ import annotations
@@ -101,34 +102,45 @@ def reduced_blocks(freq: np.ndarray, H: np.ndarray, max_order: int, f_max: float
     return R, S, T
 
 
-def poles_of_order(chol: np.ndarray, S: np.ndarray, T: np.ndarray, p: int, m: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """All ``p m`` poles ``s = ln(z)/dt`` and participation vectors ``L (m, p m)`` of the order-``p`` model.
+def normal_matrices(chol: np.ndarray, S: np.ndarray, T: np.ndarray, m: int, max_order: int):
+    """Reduced normal matrices ``M_p`` (eq. 5) of every order ``p = 1..max_order``, one after another.
 
-    ``chol`` is the Cholesky factor of the full ``R``: its leading block is the factor of ``R``'s leading
-    block, so every order reuses it."""
-    nb, q, k = p + 1, (p + 1) * m, p * m
-    Sp = S[:, :nb, :q].transpose(1, 0, 2).reshape(nb, -1)
-    U = scipy.linalg.solve_triangular(chol[:nb, :nb], Sp, lower=True, check_finite=False).reshape(-1, q)
-    M = T[:q, :q] - U.T @ U  # sum over outputs of S_o^T R^-1 S_o, as one product
-    alpha = -np.linalg.solve(M[:k, :k], M[:k, k:])  # (p m, m): alpha_0..alpha_{p-1} stacked, alpha_p = I
+    ``chol`` is the lower Cholesky factor of the full ``R``. Because it is triangular, the leading ``p + 1``
+    rows of ``U = chol^-1 S`` are the order-``p`` solve ``chol_p^-1 S_p`` for every ``p`` at once, so one
+    triangular solve serves all orders, and ``sum_o S_o^T R_p^-1 S_o = sum_{r <= p} U_r^T U_r`` (restricted to
+    the leading ``(p+1) m`` columns) grows by one rank-``n_out`` update per order."""
+    n_out, nb_max, q_max = S.shape
+    U = scipy.linalg.solve_triangular(chol, S.transpose(1, 0, 2).reshape(nb_max, -1), lower=True, check_finite=False)
+    U = U.reshape(nb_max, n_out, q_max)
+    G = U[0].T @ U[0]
+    for p in range(1, max_order + 1):
+        G += U[p].T @ U[p]
+        q = (p + 1) * m
+        yield p, T[:q, :q] - G[:q, :q]
+
+
+def poles_of_order(M: np.ndarray, p: int, m: int, dt: float) -> np.ndarray:
+    """All ``p m`` poles ``s = ln(z)/dt`` of the order-``p`` model from its reduced normal matrix ``M``,
+    and the denominator coefficients ``alpha`` (``(p m, m)``: ``alpha_0..alpha_{p-1}`` stacked, ``alpha_p = I``)."""
+    k = p * m
+    alpha = -np.linalg.solve(M[:k, :k], M[:k, k:])
     comp = np.zeros((k, k))
     comp[:-m, m:] = np.eye(k - m)
     comp[-m:, :] = -alpha.T
     z = scipy.linalg.eigvals(comp, overwrite_a=True, check_finite=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.log(z) / dt
-    return s, _participation(z, alpha, m)
+    return s, alpha
 
 
-def _participation(z: np.ndarray, alpha: np.ndarray, m: int) -> np.ndarray:
-    """``L`` with ``(sum_r z^r alpha_r^T) L = 0`` (alpha_p = I): the null vector of an m x m matrix per pole,
-    cheaper than the companion's eigenvectors (whose first block row it is)."""
+def participation(s: np.ndarray, alpha: np.ndarray, m: int, dt: float) -> np.ndarray:
+    """``L (m, n)`` with ``(sum_r z^r alpha_r^T) L = 0`` (alpha_p = I, ``z = exp(s dt)``): the null vector of an
+    ``m x m`` matrix per pole, cheaper than the companion's eigenvectors (whose first block row it is)."""
     if m == 1:
-        return np.ones((1, z.size), dtype=complex)
+        return np.ones((1, s.size), dtype=complex)
     p = alpha.shape[0] // m
-    A = np.broadcast_to(np.eye(m, dtype=complex), (z.size, m, m)).copy()  # Horner from alpha_p = I down
-    for r in range(p - 1, -1, -1):
-        A = A * z[:, None, None] + alpha[r * m : (r + 1) * m].T[None, :, :]
+    blocks = np.concatenate([alpha, np.eye(m)]).reshape(p + 1, m, m).transpose(0, 2, 1)  # alpha_r^T, r = 0..p
+    A = np.einsum("nr,rij->nij", np.exp(np.outer(s * dt, np.arange(p + 1))), blocks)  # sum_r z^r alpha_r^T
     _, _, vh = np.linalg.svd(A)
     return vh[:, -1, :].conj().T
 
@@ -162,12 +174,14 @@ def plscf(
     chol = np.linalg.cholesky(R)
     out = []
     with _one_blas_thread():
-        for p in range(min_order, max_order + 1):
-            s, L = poles_of_order(chol, S, T, p, m, dt)
-            fr = np.abs(s) / (2 * np.pi)
+        for p, M in normal_matrices(chol, S, T, m, max_order):
+            if p < min_order:
+                continue
+            s, alpha = poles_of_order(M, p, m, dt)
+            fr = pole_freq_hz(s)
             keep = np.isfinite(s) & (s.imag > 0) & (s.real < 0) & (fr >= f_lo) & (fr <= f_hi)
-            order = np.argsort(fr[keep])
-            out.append(PoleSet(order=p, s=s[keep][order], L=L[:, keep][:, order]))
+            s = s[keep][np.argsort(fr[keep])]
+            out.append(PoleSet(order=p, s=s, L=participation(s, alpha, m, dt)))
     return out
 
 
@@ -184,4 +198,13 @@ def _one_blas_thread():
     return threadpool_limits(1, "blas")
 
 
-__all__ = ["PoleSet", "band_indices", "output_weights", "plscf", "poles_of_order", "reduced_blocks"]
+__all__ = [
+    "PoleSet",
+    "band_indices",
+    "normal_matrices",
+    "output_weights",
+    "participation",
+    "plscf",
+    "poles_of_order",
+    "reduced_blocks",
+]

@@ -107,20 +107,51 @@ def main() -> None:
         add("sdypy-EMA lscf p30, 1 BLAS thread", lambda: sdypy_run(EMA, freq, H0, 30))
         add("sdypy-EMA lscf p60, 1 BLAS thread", lambda: sdypy_run(EMA, freq, H0, 60))
     m = add("sdypy-EMA lscf p30 + select", lambda: sdypy_run(EMA, freq, H0, 30, res.freq_hz))
+    add("sdypy-EMA lscf p60 + select", lambda: sdypy_run(EMA, freq, H0, 60, res.freq_hz))
+    by = {r["case"]: r["seconds"] for r in rows}
+    ratios = {
+        "gvt plscf 2 refs / sdypy p60 (same largest pole count)": by["gvtlink plscf orders 1..60, 2 refs"]
+        / by["sdypy-EMA lscf p60 (orders 2..120)"],
+        "gvt identify 2 refs / sdypy p60 + select (whole chain each)": by["gvtlink identify (2 refs, all steps)"]
+        / by["sdypy-EMA lscf p60 + select"],
+    }
+    print()
+    for k, v in ratios.items():
+        print(f"{k:<62} {v:5.2f}  ({'faster' if v < 1 else 'slower'})")
 
     f_fe, z_fe, _ = fe_modes_at_sensors(rig, 6)
     print("\nmode   FE [Hz]   gvt 2ref   gvt 1ref   sdypy    d(sdypy-gvt1) %   zeta FE   gvt 2ref  gvt 1ref  sdypy")
     agree = []
     for k in range(6):
         d = 100 * (m.nat_freq[k] / res1.freq_hz[k] - 1)
-        agree.append({"mode": k + 1, "fe_hz": f_fe[k], "gvt_2ref_hz": res.freq_hz[k], "gvt_1ref_hz": res1.freq_hz[k],
-                      "sdypy_hz": float(m.nat_freq[k]), "diff_pct": d, "zeta_fe": z_fe[k], "zeta_gvt_2ref": res.zeta[k],
-                      "zeta_gvt_1ref": res1.zeta[k], "zeta_sdypy": float(m.nat_xi[k])})
-        print(f"{k + 1:>4} {f_fe[k]:9.3f} {res.freq_hz[k]:10.3f} {res1.freq_hz[k]:10.3f} {m.nat_freq[k]:9.3f} {d:12.4f}"
-              f"      {z_fe[k]:.5f}   {res.zeta[k]:.5f}   {res1.zeta[k]:.5f}  {m.nat_xi[k]:.5f}")
-    out = {"bench": "modal_id", "python": platform.python_version(), "cpus": os.cpu_count(), "repeat": args.repeat,
-           "frfs": {"outputs": 14, "references": 2, "lines": int(freq.size), "band_hz": [2, 1000], "noise": 0.01},
-           "timings": rows, "agreement": agree}
+        agree.append(
+            {
+                "mode": k + 1,
+                "fe_hz": f_fe[k],
+                "gvt_2ref_hz": res.freq_hz[k],
+                "gvt_1ref_hz": res1.freq_hz[k],
+                "sdypy_hz": float(m.nat_freq[k]),
+                "diff_pct": d,
+                "zeta_fe": z_fe[k],
+                "zeta_gvt_2ref": res.zeta[k],
+                "zeta_gvt_1ref": res1.zeta[k],
+                "zeta_sdypy": float(m.nat_xi[k]),
+            }
+        )
+        print(
+            f"{k + 1:>4} {f_fe[k]:9.3f} {res.freq_hz[k]:10.3f} {res1.freq_hz[k]:10.3f} {m.nat_freq[k]:9.3f} {d:12.4f}"
+            f"      {z_fe[k]:.5f}   {res.zeta[k]:.5f}   {res1.zeta[k]:.5f}  {m.nat_xi[k]:.5f}"
+        )
+    out = {
+        "bench": "modal_id",
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "repeat": args.repeat,
+        "frfs": {"outputs": 14, "references": 2, "lines": int(freq.size), "band_hz": [2, 1000], "noise": 0.01},
+        "timings": rows,
+        "ratios": ratios,
+        "agreement": agree,
+    }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(out, indent=1, default=float))
     print(f"\nwrote {args.json}")

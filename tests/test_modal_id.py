@@ -177,3 +177,21 @@ def test_mac_mpc_mpd_against_theory():
     np.testing.assert_allclose(mpd(two), 10.0, rtol=1e-9)
     # components 90 deg apart with equal amplitude: no preferred line, MPC = 0
     np.testing.assert_allclose(mpc(np.array([1.0, 1j])), 0.0, atol=1e-12)
+
+
+def test_one_triangular_solve_gives_every_orders_normal_matrix(beam):
+    """normal_matrices' shortcut (leading rows of one solve, rank updates) against the textbook formula
+    M_p = T_p - sum_o S_o,p^T R_p^-1 S_o,p with R_p inverted on its own, at three orders."""
+    from analysis.plscf import normal_matrices, output_weights, reduced_blocks
+
+    _, freq, H, _ = beam
+    idx = (freq >= 2) & (freq <= 1000)
+    Hb = H[:, :, idx] * output_weights(H[:, :, idx])[:, None, None]
+    m, P = Hb.shape[1], 12
+    R, S, T = reduced_blocks(freq[idx], Hb, P, float(freq[idx][-1]))
+    got = dict(normal_matrices(np.linalg.cholesky(R), S, T, m, P))
+    for p in (1, 5, P):
+        nb, q = p + 1, (p + 1) * m
+        Rinv = np.linalg.inv(R[:nb, :nb])
+        want = T[:q, :q] - sum(S[o, :nb, :q].T @ Rinv @ S[o, :nb, :q] for o in range(S.shape[0]))
+        np.testing.assert_allclose(got[p], want, rtol=1e-8, atol=1e-8 * np.abs(want).max())

@@ -305,7 +305,8 @@ class FRFAccumulator:
 
 
 def stack_references(sets: list[FRFSet]) -> FRFSet:
-    """One FRFSet with every reference of ``sets`` (same outputs, frequencies, kind, quantity and window)."""
+    """One FRFSet with every reference of ``sets`` (same outputs, frequencies, kind, quantity and window); the
+    window's ``averages_per_output`` becomes the fewest over the references (what a fit using them all rests on)."""
     a = sets[0]
     for s in sets[1:]:
         if s.outputs != a.outputs or not np.array_equal(s.freq, a.freq) or (s.kind, s.quantity) != (a.kind, a.quantity):
@@ -313,7 +314,14 @@ def stack_references(sets: list[FRFSet]) -> FRFSet:
     return FRFSet(freq=a.freq, H=np.concatenate([s.H for s in sets], axis=1),
                   coherence=np.concatenate([s.coherence for s in sets], axis=1), outputs=a.outputs,
                   references=[r for s in sets for r in s.references], kind=a.kind, quantity=a.quantity, units=a.units,
-                  n_averages=np.concatenate([s.n_averages for s in sets]), window=a.window)  # fmt: skip
+                  n_averages=np.concatenate([s.n_averages for s in sets]), window=_fewest_averages(sets))  # fmt: skip
+
+
+def _fewest_averages(sets: list[FRFSet]) -> dict:
+    per = [s.window.get("averages_per_output") for s in sets]
+    if len(sets) == 1 or any(p is None for p in per):
+        return sets[0].window
+    return {**sets[0].window, "averages_per_output": np.min(np.array(per), axis=0).tolist()}
 
 
 __all__ = [

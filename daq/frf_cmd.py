@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import BadInput
-from analysis.frf import FRFAccumulator, FRFSet, choose_tau
+from analysis.frf import FRFAccumulator, FRFSet, choose_tau, stack_references
 from analysis.hammer import HammerCheck, check_hit
 from analysis.model.rig import Rig
-from analysis.records import HITS_TOPIC, Hit
+from analysis.records import HITS_TOPIC, PLAN_TOPIC, Hit, PlanRecord
 from daq.log.reader import LogReader, LogReadError
 
 PRE_TRIGGER_S = 0.01  # s of record before the hit's index: the pulse's rising edge is before the trigger
@@ -33,7 +33,11 @@ QUANTITY_OF_UNIT = {"m/s^2": "acceleration", "m/s": "velocity", "m": "displaceme
 
 @dataclass
 class FRFRun:
-    """What ``gvt frf`` computed: the FRFs, every hit's verdict and the record/window choices."""
+    """What ``gvt frf`` computed: the FRFs, every hit's verdict and the record/window choices.
+
+    ``frf`` has one reference per hit point of a roving-hammer plan (named by the point), else the force
+    channel; ``points`` the plan's points with their accepted averages; ``driving`` reference -> the response
+    at its DOF (for mass-normalised shapes)."""
 
     log: str
     rig: str
@@ -43,8 +47,20 @@ class FRFRun:
     pre_s: float
     tau_s: float | None
     band_hz: float
-    hits: list[dict] = field(default_factory=list)  # hit, t_s, verdict, reason, checks
+    hits: list[dict] = field(default_factory=list)  # hit, t_s, verdict, reason, checks (and point)
     spectra: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)  # (hit, freq, |F|) for the plot
+    points: list[dict] = field(default_factory=list)
+    driving: dict[str, str] = field(default_factory=dict)
+    streams: dict[str, int] = field(default_factory=dict)  # stream -> offset on the hit's grid (samples)
+
+
+@dataclass(frozen=True)
+class Source:
+    """Some channels of one stream and where its samples lie on the hits' grid: own index = hit index - offset."""
+
+    stream: str
+    channels: tuple[str, ...]
+    offset: int
 
 
 def lowest_decay_rate(rig: Rig) -> float:
@@ -69,6 +85,65 @@ def _stream_for(reader: LogReader, reference: str) -> str:
     raise BadInput(f"{reader.path}: no stream has the reference channel {reference!r}; give it with --reference")
 
 
+def layout(reader: LogReader, ref: str, channels: Sequence[str] | None) -> tuple[list[Source], list[str], dict[str, str]]:
+    """Where the reference and the responses are: the reference's stream first, then every stream at its sample
+    rate (a second DAQ on the session's timeline: docs/session.md), each with its offset from the log's time base;
+    the responses (given, or every channel not in N); their units."""
+    from daq.log.export import time_base
+
+    infos = reader.streams()
+    ref_stream = _stream_for(reader, ref)
+    fs = infos[ref_stream].sample_rate
+    names = [ref_stream, *sorted(s for s in infos if s != ref_stream and infos[s].sample_rate == fs)]
+    units = {c: u for s in names for c, u in zip(infos[s].channels, infos[s].units, strict=True)}
+    if channels:
+        other = {c: s for s in infos for c in infos[s].channels if s not in names}
+        bad = [c for c in channels if c not in units]
+        if bad:
+            why = "; ".join(f"{c} is in {other[c]} at another rate" for c in bad if c in other) or f"channels: {list(units)}"
+            raise BadInput(f"{reader.path}: no response channel(s) {bad} on the reference's sample grid ({why})")
+        outs = list(channels)
+    else:
+        outs = [c for c, u in units.items() if u != "N" and c != ref]
+    if not outs:
+        raise BadInput(f"{reader.path}: no channel to respond besides {ref!r} in {', '.join(names)}; give --channels")
+    tb = time_base(reader)
+    base = tb.offset_samples.get(tb.reference, 0)
+    sources = []
+    for s in names:
+        chans = tuple(c for c in ([ref] if s == ref_stream else []) + outs if c in infos[s].channels)
+        if chans:
+            sources.append(Source(s, chans, tb.offset_samples.get(s, 0) - base))
+    return sources, outs, units
+
+
+def plan_of_hits(reader: LogReader, hits: Sequence[Hit]) -> tuple[list[dict], dict[int, str]]:
+    """A roving-hammer log's points (the ``plan`` record of ``/daq/plan``) and the point each hit was made at:
+    the FRF lane's ``progress`` record for that hit (what the operator was told), else the point a
+    :class:`~daq.roving.PlanTracker` fed the gate's verdicts in order was at (a log recorded with --no-frf).
+    No plan: ``([], {})``."""
+    recs = [PlanRecord.from_json(m) for m in reader.json_messages(PLAN_TOPIC)]
+    plan = next((r for r in recs if r.event == "plan" and r.points), None)
+    if plan is None:
+        return [], {}
+    points = [dict(p) for p in plan.points or ()]
+    told = {r.hit: r.point for r in recs if r.event in ("progress", "complete") and r.hit is not None and r.point}
+    return points, assign_points(points, hits, told)
+
+
+def assign_points(points: Sequence[dict], hits: Sequence[Hit], told: dict[int, str]) -> dict[int, str]:
+    """Hit number -> hit point: ``told`` where the log says, else where the operator was then (the plan's order,
+    each point until its accepted averages are in, counting the gate's accepted hits)."""
+    names = [p["name"] for p in points]
+    done, at = [0] * len(points), {}
+    for h in hits:
+        k = next((i for i in range(len(points)) if done[i] < points[i]["averages"]), len(points) - 1)
+        at[h.hit] = told.get(h.hit, names[k])
+        if h.verdict == "accepted" and at[h.hit] in names:
+            done[names.index(at[h.hit])] += 1
+    return at
+
+
 def _record_samples(rig: Rig, hits: Sequence[Hit], fs: float) -> int:
     n = round(rig.config.daq.record_length * fs)
     gaps = np.diff(sorted(h.index for h in hits))
@@ -78,52 +153,79 @@ def _record_samples(rig: Rig, hits: Sequence[Hit], fs: float) -> int:
 def frf_from_log(path: str | Path, rig: Rig, *, reference: str | None = None, channels: Sequence[str] | None = None,
                  band_hz: float = 1000.0, kind: str = "H1", quantity: str = "accelerance", end_level: float = 1e-3,
                  progress: Callable[[float], None] | None = None) -> FRFRun:  # fmt: skip
-    """FRFs of the accepted hits of the log at ``path`` (one reference: the force channel)."""
+    """FRFs of the accepted hits of the log at ``path``: the force channel against every response, on one DAQ
+    or two (the responses read on the hits' grid through the time base), one reference per hit point of a
+    roving-hammer plan."""
     try:
         reader = LogReader(path)
     except LogReadError as exc:
         raise BadInput(str(exc)) from None
     ref = reference or rig.hammer.name
-    stream = _stream_for(reader, ref)
-    info = reader.streams()[stream]
-    outs = list(channels) if channels else [c for c, u in zip(info.channels, info.units, strict=True) if u != "N" and c != ref]
-    bad = [c for c in outs if c not in info.channels]
-    if bad or not outs:
-        raise BadInput(f"{path}: stream {stream} has no channel(s) {bad or 'to respond'}; it has {info.channels}")
-    units = dict(zip(info.channels, info.units, strict=True))
+    sources, outs, units = layout(reader, ref, channels)
+    fs = reader.streams()[sources[0].stream].sample_rate
     quantities = [QUANTITY_OF_UNIT.get(units[c], "acceleration") for c in outs]
     hits = [Hit.from_json(h) for h in reader.json_messages(HITS_TOPIC)]
     if not hits:
         raise BadInput(f"{path}: the log has no hits ({HITS_TOPIC}); record or simulate a session with hits")
-    fs = info.sample_rate
+    points, at = plan_of_hits(reader, hits)
     n, pre = _record_samples(rig, hits, fs), round(PRE_TRIGGER_S * fs)
     tau = choose_tau(lowest_decay_rate(rig), n / fs, end_level)
-    acc = FRFAccumulator(fs, n, outs, ref, tau=tau, t0=pre / fs, f_max=band_hz, quantities=quantities, end_level=end_level)
-    run = FRFRun(str(path), rig.name, stream, None, n / fs, pre / fs, tau, band_hz)
-    cols = [ref, *outs]
+    names = [p["name"] for p in points] or [ref]
+    accs = {r: FRFAccumulator(fs, n, outs, r, tau=tau, t0=pre / fs, f_max=band_hz, quantities=quantities, end_level=end_level)
+            for r in names}  # fmt: skip
+    run = FRFRun(str(path), rig.name, sources[0].stream, None, n / fs, pre / fs, tau, band_hz, points=points,
+                 streams={s.stream: s.offset for s in sources})  # fmt: skip
+    full_scale = force_full_scale(rig)
     for k, hit in enumerate(hits):
-        verdict, reason, chk = _judge(reader, stream, cols, hit, n, pre, fs, band_hz, force_full_scale(rig), run)
+        verdict, reason, chk = _judge(reader, sources, [ref, *outs], hit, n, pre, fs, band_hz, full_scale, run)
         if verdict == "accepted":
             d = chk[1]
-            acc.add(d[:, 0], d[:, 1:], use=[o not in (hit.excluded_channels or ()) for o in outs])
-        run.hits.append({"hit": hit.hit, "t_s": hit.t_s, "peak_force_N": hit.peak_force_N, "verdict": verdict,
-                         "reason": reason, "checks": chk[0].as_dict() if chk[0] is not None else None})  # fmt: skip
+            accs[at.get(hit.hit, ref)].add(d[:, 0], d[:, 1:], use=[o not in (hit.excluded_channels or ()) for o in outs])
+        row = {"hit": hit.hit, "t_s": hit.t_s, "peak_force_N": hit.peak_force_N, "verdict": verdict, "reason": reason,
+               "checks": chk[0].as_dict() if chk[0] is not None else None}  # fmt: skip
+        if points:
+            row["point"] = at.get(hit.hit)
+        run.hits.append(row)
         if progress:
             progress((k + 1) / len(hits))
-    run.frf = acc.frf(kind, quantity) if acc.count else None
+    for p in points:
+        p["accepted"] = accs[p["name"]].count
+    sets = [accs[r].frf(kind, quantity) for r in names if accs[r].count]
+    run.frf = stack_references(sets) if sets else None
+    run.driving = _driving(rig, ref, points, outs)
     return run
 
 
-def _judge(reader: LogReader, stream: str, cols: list[str], hit: Hit, n: int, pre: int, fs: float, band: float,
+def _driving(rig: Rig, ref: str, points: list[dict], outs: list[str]) -> dict[str, str]:
+    """Reference -> the response on its DOF: each hit point's sensor, or the sensor at the hammer's DOF."""
+    if points:
+        return {p["name"]: p["sensor"] for p in points if p.get("sensor") in outs}
+    at = next((s.name for s in rig.sensors if s.dof == rig.hammer.dof and s.name in outs), None)
+    return {ref: at} if at else {}
+
+
+def _read_record(reader: LogReader, sources: list[Source], cols: list[str], i0: int, n: int, fs: float) -> np.ndarray | None:
+    """``cols`` over ``[i0, i0 + n)`` of the hits' grid, each stream read on its own clock; None if any stream
+    lacks a sample there (end of log, gap, restart, damage)."""
+    parts: dict[str, np.ndarray] = {}
+    for src in sources:
+        j0 = i0 - src.offset
+        d = reader.read_stream(src.stream, list(src.channels), start=j0 / fs, end=(j0 + n) / fs, on_damage="skip")
+        if d.data.shape[0] != n or d.gaps or d.damaged or (n and (d.index[0] != j0 or d.index[-1] != j0 + n - 1)):
+            return None
+        parts.update({c: d.data[:, k] for k, c in enumerate(src.channels)})
+    return np.stack([parts[c] for c in cols], axis=1).astype(float)
+
+
+def _judge(reader: LogReader, sources: list[Source], cols: list[str], hit: Hit, n: int, pre: int, fs: float, band: float,
            full_scale: float, run: FRFRun) -> tuple[str, str, tuple[HammerCheck | None, np.ndarray | None]]:  # fmt: skip
     """Verdict, reason and (checks, record) of one hit."""
     if hit.verdict != "accepted":
         return "refused", f"hit gate: {hit.reason or hit.verdict}", (None, None)
-    i0 = hit.index - pre
-    d = reader.read_stream(stream, cols, start=i0 / fs, end=(i0 + n) / fs, on_damage="skip")
-    if d.data.shape[0] != n or d.gaps or d.damaged:
-        return "refused", f"record incomplete: {d.data.shape[0]} of {n} samples (end of log, gap or damage)", (None, None)
-    data = d.data.astype(float)
+    data = _read_record(reader, sources, cols, hit.index - pre, n, fs)
+    if data is None:
+        why = f"record incomplete: not all {n} samples of every stream (end of log, gap, restart or damage)"
+        return "refused", why, (None, None)
     chk = check_hit(data[:, 0], fs, band, full_scale)
     run.spectra.append((hit.hit, *_spectrum(data[:, 0], fs, band)))
     return chk.verdict, chk.reason, (chk, data)
@@ -138,29 +240,34 @@ def _spectrum(force: np.ndarray, fs: float, band: float) -> tuple[np.ndarray, np
 
 
 def peak_rows(frf: FRFSet, n_peaks: int = 6) -> list[dict]:
-    """Per peak of the mode indicator (:meth:`FRFSet.peaks`) and response: frequency, |H|, phase, coherence."""
+    """Per peak of the mode indicator (:meth:`FRFSet.peaks`), reference and response: frequency, |H|, phase,
+    coherence."""
     rows = []
     for k in frf.peaks(n_peaks):
-        for o, name in enumerate(frf.outputs):
-            h = frf.H[o, 0, k]
-            rows.append({"freq_hz": float(frf.freq[k]), "response": name, "mag": float(abs(h)),
-                         "phase_deg": float(np.degrees(np.angle(h))), "coherence": float(frf.coherence[o, 0, k])})  # fmt: skip
+        for r, ref in enumerate(frf.references):
+            for o, name in enumerate(frf.outputs):
+                h = frf.H[o, r, k]
+                rows.append({"freq_hz": float(frf.freq[k]), "reference": ref, "response": name, "mag": float(abs(h)),
+                             "phase_deg": float(np.degrees(np.angle(h))),
+                             "coherence": float(frf.coherence[o, r, k])})  # fmt: skip
     return rows
 
 
 def summary(run: FRFRun, n_peaks: int = 6) -> dict:
-    """The ``--json`` document."""
+    """The ``--json`` document (``reference``/``averages``: the first reference; ``references``: all of them)."""
     f = run.frf
+    refs = [{"name": r, "averages": int(c)} for r, c in zip(f.references, f.n_averages, strict=True)] if f else []
     return {
-        "log": run.log, "rig": run.rig, "stream": run.stream, "band_hz": run.band_hz, "record_s": run.record_s,
-        "pre_trigger_s": run.pre_s, "df_hz": 1.0 / run.record_s,
+        "log": run.log, "rig": run.rig, "stream": run.stream, "streams": run.streams, "band_hz": run.band_hz,
+        "record_s": run.record_s, "pre_trigger_s": run.pre_s, "df_hz": 1.0 / run.record_s,
         "window": f.window if f is not None else {"tau_s": run.tau_s, "sigma_added": 1.0 / run.tau_s if run.tau_s else 0.0},
         "kind": f.kind if f else None, "quantity": f.quantity if f else None, "units": f.units if f else None,
-        "reference": f.references[0] if f else None, "averages": int(f.n_averages[0]) if f else 0,
+        "reference": f.references[0] if f else None, "averages": int(f.n_averages[0]) if f else 0, "references": refs,
+        "plan_points": run.points, "driving_points": run.driving,
         "hits": run.hits, "peaks": peak_rows(f, n_peaks) if f is not None else [],
         # responses the hit gate left out of some hits (clipped, dead): averaged over the hits they were good on
         "fewer_averages": {o: int(c) for o, c in zip(f.outputs, f.window.get("averages_per_output", []), strict=False)
-                           if c < f.n_averages[0]} if f is not None else {},
+                           if c < f.n_averages[0]} if f is not None and f.n_averages.size == 1 else {},
     }  # fmt: skip
 
 
@@ -202,4 +309,5 @@ def plot(run: FRFRun, path: Path, channel: str | None = None) -> None:
     plt.close(fig)
 
 
-__all__ = ["FRFRun", "force_full_scale", "frf_from_log", "lowest_decay_rate", "peak_rows", "plot", "summary"]
+__all__ = ["FRFRun", "Source", "assign_points", "force_full_scale", "frf_from_log", "layout", "lowest_decay_rate", "peak_rows",
+           "plan_of_hits", "plot", "summary"]  # fmt: skip

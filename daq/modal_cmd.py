@@ -74,11 +74,14 @@ def usable_outputs(frf: FRFSet) -> FRFSet:
 
 
 def modal_from_frf(frf: FRFSet, rig: Rig | None, f_lo: float, f_hi: float, targets: list[Target] | None = None,
-                   max_order: int = 60, source: str = "") -> ModalRun:  # fmt: skip
+                   max_order: int = 60, source: str = "", driving: dict[str, str] | None = None) -> ModalRun:  # fmt: skip
+    """``driving``: reference -> response at its DOF (``gvt frf``'s, e.g. each roving hit point's sensor); by
+    default the sensor at the rig hammer's DOF."""
     frf = usable_outputs(frf)
     if not f_lo < f_hi <= float(frf.freq[-1]):
         raise BadInput(f"--band {f_lo:g} {f_hi:g}: must satisfy 0 <= low < high <= {frf.freq[-1]:g} Hz (the FRFs' range)")
-    res = identify(frf, f_lo, f_hi, driving=driving_points(rig, frf), targets=targets, max_order=max_order)
+    dp = driving_points(rig, frf) if driving is None else {r: o for r, o in driving.items() if o in frf.outputs}
+    res = identify(frf, f_lo, f_hi, driving=dp, targets=targets, max_order=max_order)
     return ModalRun(source, frf, res, f_lo, f_hi, mode_rows(res, rig, list(frf.outputs)))
 
 

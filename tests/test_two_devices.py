@@ -332,3 +332,34 @@ def _ranges(cfg) -> dict[str, float]:
 
     rig = open_rig(cfg.rig)
     return {p.name: p.props.range for p in [rig.hammer, *rig.sensors] if p.props.range is not None}
+
+
+@pytest.mark.slow
+def test_gvt_frf_reads_the_responses_on_the_other_device_through_the_time_base(two):
+    """``gvt frf`` on a two-device log: the force from hammer_daq, the 14 responses from acc_daq at the log's
+    offset. Oracle: the same FRFs accumulated here from the two streams sliced by hand at the offset the hit gate
+    applied during the session (res.timeline), which must also be the offset the log's time base gives."""
+    from analysis.frf import FRFAccumulator
+    from analysis.model.rigs import open_rig
+    from daq.frf_cmd import frf_from_log
+    from daq.log.export import time_base
+    from daq.log.reader import LogReader
+
+    cfg, out, res = two
+    rig = open_rig(cfg.rig)
+    run = frf_from_log(out, rig)
+    r = LogReader(out)
+    off = time_base(r).offset_samples["acc_daq"]
+    assert off == res.timeline["acc_daq"]["applied_samples"]
+    assert run.streams == {"hammer_daq": 0, "acc_daq": off}
+    f = run.frf
+    assert f.outputs == [f"a{k:02d}" for k in range(1, 15)] and int(f.n_averages[0]) == 7  # the double hit refused
+    assert [h["verdict"] for h in run.hits].count("accepted") == 7
+    n, pre = round(run.record_s * FS), round(run.pre_s * FS)
+    acc = FRFAccumulator(FS, n, f.outputs, "hammer", tau=run.tau_s, t0=pre / FS, f_max=run.band_hz, end_level=1e-3)
+    h, a = r.read_stream("hammer_daq").data.astype(float), r.read_stream("acc_daq").data.astype(float)
+    for hit, row in zip(r.json_messages("/daq/hits"), run.hits, strict=True):
+        if row["verdict"] == "accepted":
+            i0, left_out = hit["index"] - pre, hit.get("excluded_channels") or ()
+            acc.add(h[i0 : i0 + n, 0], a[i0 - off : i0 - off + n], use=[o not in left_out for o in f.outputs])
+    np.testing.assert_allclose(f.H, acc.frf().H, rtol=1e-9, atol=1e-12)

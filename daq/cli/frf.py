@@ -64,20 +64,31 @@ def _print(s: dict) -> None:
 
     w = s["window"]
     tau = f"tau {w['tau_s']:.3f} s (adds {w['sigma_added']:.2f} 1/s to every pole's decay)" if w.get("tau_s") else "none"
-    if not s["averages"]:
+    refs = s["references"]
+    if not refs:
         out.print(f"{s['rig']} · {s['log']}: no accepted hit, no FRF", markup=False)
     else:
-        out.print(f"{s['rig']} · {s['log']}: {s['kind']} {s['quantity']} [{s['units']}], reference {s['reference']}, "
-                  f"{s['averages']} averages; record {s['record_s']:.3f} s (df {s['df_hz']:.3f} Hz), exponential window {tau}",
-                  markup=False)  # fmt: skip
-    t = FitTable("peaks", [Col("f [Hz]", "right", key=True), Col("response", key=True), Col("|H|", "right"),
-                           Col("phase [deg]", "right"), Col("coherence", "right")])  # fmt: skip
+        each = ", ".join(f"{r['name']} {r['averages']}" for r in refs)
+        who = f"{len(refs)} hit points ({each} averages)"
+        if len(refs) == 1:
+            who = f"reference {s['reference']}, {s['averages']} averages"
+        out.print(f"{s['rig']} · {s['log']}: {s['kind']} {s['quantity']} [{s['units']}], {who}; record {s['record_s']:.3f} s "
+                  f"(df {s['df_hz']:.3f} Hz), exponential window {tau}", markup=False)  # fmt: skip
+    for p in s.get("plan_points", []):
+        if p.get("accepted", 0) < p["averages"]:
+            out.print(f"hit point {p['name']}: {p.get('accepted', 0)} of {p['averages']} averages", markup=False)
+    many = len(refs) > 1
+    cols = [Col("f [Hz]", "right", key=True), *([Col("point", key=True)] if many else []), Col("response", key=True),
+            Col("|H|", "right"), Col("phase [deg]", "right"), Col("coherence", "right")]  # fmt: skip
+    t = FitTable("peaks", cols)
     for p in s["peaks"]:
-        t.add_row(f"{p['freq_hz']:.2f}", p["response"], f"{p['mag']:.4g}", f"{p['phase_deg']:.1f}", f"{p['coherence']:.4f}")
+        t.add_row(f"{p['freq_hz']:.2f}", *([p["reference"]] if many else []), p["response"], f"{p['mag']:.4g}",
+                  f"{p['phase_deg']:.1f}", f"{p['coherence']:.4f}")  # fmt: skip
     out.print(t)
     for o, c in s.get("fewer_averages", {}).items():
         out.print(f"{o}: {c} of {s['averages']} averages (left out of the hits where the gate found it clipped or dead)",
                   markup=False)  # fmt: skip
     for h in s["hits"]:
         if h["verdict"] != "accepted":
-            out.print(f"hit {h['hit']} (t = {h['t_s']:.2f} s): refused: {h['reason']}", markup=False)
+            at = f" at {h['point']}" if h.get("point") else ""
+            out.print(f"hit {h['hit']}{at} (t = {h['t_s']:.2f} s): refused: {h['reason']}", markup=False)

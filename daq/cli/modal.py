@@ -41,6 +41,7 @@ def modal(
     targets = load_targets(poles) if poles is not None else None
     r = open_rig(rig) if rig is not None else None
     refused: list[dict] = []
+    driving = None
     if source.suffix == ".npz":
         if rrd is not None and r is None:
             fail("--rrd draws the modes on the rig's test geometry: give --rig (an FRF file carries none)")
@@ -56,8 +57,8 @@ def modal(
         refused = [h for h in fr.hits if h["verdict"] != "accepted"]
         if fr.frf is None:
             fail(f"{source}: no accepted hit to build FRFs from ({len(refused)} refused; `gvt frf {source}` says why)")
-        frf = fr.frf
-    run = modal_from_frf(frf, r, band[0], band[1], targets, max_order, source=str(source))
+        frf, driving = fr.frf, fr.driving
+    run = modal_from_frf(frf, r, band[0], band[1], targets, max_order, source=str(source), driving=driving)
     run.refused_hits = refused
     if modes_out is not None:
         with atomic_output(modes_out) as tmp:

@@ -48,7 +48,7 @@ def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band
     except BadInput as exc:
         return _absent(table, str(exc))
     sec = FRFSection()
-    sec.tables.append(table("FRF averages", AVG_COLS, [_avg_row(run)]))
+    sec.tables.append(table("FRF averages", AVG_COLS, _avg_rows(run)))
     refused = [[h["hit"], _num(h["t_s"]), _num(h["peak_force_N"], ".0f"), h["reason"]] for h in run.hits
                if h["verdict"] != "accepted"]  # fmt: skip
     sec.tables.append(table("hits refused for the FRFs", REFUSED_COLS, refused, "none: every hit accepted"))
@@ -56,9 +56,9 @@ def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band
         sec.absent = f"no hit was accepted for the FRFs ({len(run.hits)} refused)"
         sec.tables.append(table(TITLE, [], [], f"absent: {sec.absent}"))
     else:
-        shown = shown_outputs(run.frf.outputs, _driving_point(rig, run.frf), channel)
+        shown = shown_outputs(run.frf.outputs, run.driving.get(run.frf.references[0]), channel)
         sec.figures += [("FRF magnitude and phase", frf_figure(run, shown)), ("coherence", coherence_figure(run, shown))]
-        sec.tables.append(_modal_table(run.frf, rig, band_hz, table))
+        sec.tables.append(_modal_table(run.frf, rig, band_hz, table, run.driving))
     if run.spectra:
         sec.figures.append(("hammer spectra", spectra_figure(run)))
     return sec
@@ -77,17 +77,15 @@ def _num(x, fmt: str = ".3f") -> str:
     return "—" if x is None or not np.isfinite(float(x)) else format(float(x), fmt)
 
 
-def _avg_row(run) -> list:
+def _avg_rows(run) -> list[list]:
+    """One row per reference (the hammer, or each hit point of a roving-hammer plan); the refused hits on the first."""
     f = run.frf
     n_ref = sum(h["verdict"] != "accepted" for h in run.hits)
-    return [f.references[0] if f else "—", f.kind if f else "—", f.units if f else "—", int(f.n_averages[0]) if f else 0, n_ref,
-            _num(run.record_s), _num(1.0 / run.record_s, ".4f"), _num(run.tau_s) if run.tau_s else "none"]  # fmt: skip
-
-
-def _driving_point(rig, frf) -> str | None:
-    from daq.modal_cmd import driving_points
-
-    return driving_points(rig, frf).get(frf.references[0])
+    tail = [_num(run.record_s), _num(1.0 / run.record_s, ".4f"), _num(run.tau_s) if run.tau_s else "none"]
+    if f is None:
+        return [["—", "—", "—", 0, n_ref, *tail]]
+    return [[r, f.kind, f.units, int(c), n_ref if k == 0 else "", *tail]
+            for k, (r, c) in enumerate(zip(f.references, f.n_averages, strict=True))]  # fmt: skip
 
 
 def shown_outputs(outputs: list[str], driving: str | None, channel: str | None) -> list[str]:
@@ -100,12 +98,12 @@ def shown_outputs(outputs: list[str], driving: str | None, channel: str | None) 
     return list(dict.fromkeys([first, other]))
 
 
-def _modal_table(frf, rig, band_hz: float, table) -> str:
+def _modal_table(frf, rig, band_hz: float, table, driving: dict[str, str] | None = None) -> str:
     from daq.modal_cmd import modal_from_frf
 
     title = "identified modes (pLSCF + LSFD, window damping removed) against the FE modes"
     try:
-        run = modal_from_frf(frf, rig, MODAL_F_LO, min(band_hz, float(frf.freq[-1])), source="report")
+        run = modal_from_frf(frf, rig, MODAL_F_LO, min(band_hz, float(frf.freq[-1])), source="report", driving=driving)
     except (BadInput, np.linalg.LinAlgError) as exc:
         return table(title, MODE_COLS, [], f"none: {exc}")
     rows = [[r["mode"], _num(r["freq_hz"]), _num(100 * r["zeta"]), _num(r["mpc"]), _num(r["mpd_deg"], ".2f"),

@@ -186,3 +186,18 @@ def test_gvt_modal_on_the_roving_log_uses_every_hit_point(roving):
     assert set(rows) >= {3, 4, 5, 6}, modal.rows
     for k in (3, 4, 5, 6):
         assert abs(rows[k]["freq_error"]) < 1e-3 and abs(rows[k]["zeta_error"]) < 0.05 and rows[k]["mac"] >= 0.99, rows[k]
+
+
+def test_the_report_of_a_roving_log_lists_every_hit_point(roving):
+    """The report's FRF section on the roving log: one averages row per hit point (3 each) and the modal table
+    from the polyreference fit (modes 3-6 paired with their FE modes)."""
+    from daq.report_frf import frf_section
+
+    rig, _cfg, out, _res, _ = roving
+    tables: list[tuple[str, list]] = []
+    sec = frf_section(out, rig, lambda title, cols, rows, empty="": tables.append((title, rows)) or title)
+    assert sec.absent is None
+    avg = dict(tables)["FRF averages"]
+    assert [(r[0], r[3]) for r in avg] == [(p, 3) for p in ("P1", "P2", "P3", "DP", "P5")]
+    modes = next(rows for title, rows in tables if title.startswith("identified modes"))
+    assert {3, 4, 5, 6} <= {r[5] for r in modes}, modes

@@ -14,7 +14,9 @@ def plain_line(st: dict) -> str:
         f"{st['seconds']:6.1f} s  {st['samples']} samples  {st['rate']:.0f} S/s  hits {st['hits']} ({v})  "
         f"lost {st['lost']}  crc {st.get('crc_errors', 0)}  reconnects {st.get('reconnects', 0)}  "
         f"file {st.get('file_bytes', 0) / 1e6:.1f} MB"
-    ) + (f"  frf {st['frf']['averages']} avg" if st.get("frf") else "")
+    ) + (f"  frf {st['frf']['averages']} avg" if st.get("frf") else "") + (
+        f"  plan: {st['plan']['prompt']}" if st.get("plan") else ""
+    )
 
 
 def status_table(title: str, st: dict, width: int | None = None) -> FitTable:
@@ -37,6 +39,9 @@ def status_table(title: str, st: dict, width: int | None = None) -> FitTable:
     )
     if st.get("frf"):
         t.caption += f" · FRF averages {st['frf']['averages']} ({st['frf']['refused']} refused)"
+    if st.get("plan"):
+        pts = " ".join(f"{p['name']} {p['done']}/{p['averages']}" for p in st["plan"]["points"])
+        t.caption += f"\n{st['plan']['prompt']} · points {pts}"
     return t
 
 

@@ -278,6 +278,11 @@ class Session:
 
         ref = self.result.reference
         streams = {ref: self.streams[ref]} if ref in self.streams else self.streams  # the hits' index is the reference's
+        timeline: dict[str, Any] = {}
+        aligner = self.hits.aligner
+        if aligner is not None:  # several devices: responses from every device, placed by the gate's fixed offsets
+            streams = {n: self.streams[n] for n in aligner.order}
+            timeline = {"offsets": lambda: aligner.applied, "lead_s": (self.cfg.timeline or TimelineSpec()).max_buffer_s}
         points = None
         if self.cfg.plan is not None:
             from daq.roving import resolve_plan
@@ -285,7 +290,7 @@ class Session:
             points = resolve_plan(self.cfg.plan, self.rig)
         lane = start_frf_lane(self.fan, self.rig, streams, self.fs, self.results.emit, say=self.opts.frf_line,
                               points=points, attach=self.log.add_attachment,
-                              maxsize=max(64, self._queue_blocks(self.cfg.queue_seconds)))  # fmt: skip
+                              maxsize=max(64, self._queue_blocks(self.cfg.queue_seconds)), **timeline)  # fmt: skip
         if lane is not None:
             self.results.route(lane, [layout.HITS_TOPIC])
         return lane
@@ -363,7 +368,16 @@ class Session:
             "silent": {s.name: s.silent_for for s in self.sources if s.silent_for > 2.0},
             "frf": None if self.frf is None else {"averages": self.frf.acc.count, "refused": sum(
                 r.verdict == "refused" for r in list(self.frf.records))},
+            "plan": self._plan_status(),
         }  # fmt: skip
+
+    def _plan_status(self) -> dict | None:
+        """A roving-hammer plan's progress for the status line: the prompt and each point's accepted averages."""
+        t = None if self.frf is None else self.frf.tracker
+        if t is None:
+            return None
+        pts = [{"name": p.name, "done": d, "averages": p.averages} for p, d in zip(t.points, list(t.done), strict=True)]
+        return {"prompt": t.prompt(), "current": None if t.complete else t.point.name, "points": pts}
 
     def _result(self, outcome: Outcome) -> SessionResult:
         res = self.result

@@ -140,3 +140,10 @@ def test_live_status_renders_levels_against_range_and_plain_lines():
     assert "a09" in text and "100 %" in text and "22 %" in text and "overload: 2" in text
     line = plain_line(st)
     assert "49152 samples" in line and "hits 2 (overload 2)" in line and "file 2.0 MB" in line
+    # a roving-hammer plan: what to hit next and every point's accepted averages
+    st["plan"] = {"prompt": "hit point P2 (node 7, +Z): 1 of 3 averages", "current": "P2",
+                  "points": [{"name": "P1", "done": 3, "averages": 3}, {"name": "P2", "done": 1, "averages": 3}]}  # fmt: skip
+    buf = StringIO()
+    Console(file=buf, width=100, force_terminal=False).print(status_table("s", st))
+    assert "hit point P2 (node 7, +Z): 1 of 3 averages" in buf.getvalue() and "P1 3/3 P2 1/3" in buf.getvalue()
+    assert "plan: hit point P2 (node 7, +Z): 1 of 3 averages" in plain_line(st)

@@ -12,10 +12,15 @@ number of hits so far). Per hit it publishes a small :class:`~analysis.records.F
 (``say``) and, for the live view, the curves of the driving point and one chosen response (``view``).
 
 Record and window are ``gvt frf``'s (:mod:`daq.frf_cmd`): ``n`` = the rig's record length, the exponential
-window's ``tau`` from the rig's lowest mode (:func:`analysis.frf.choose_tau`), the band 1000 Hz. One
+window's ``tau`` from the rig's lowest mode (:func:`analysis.frf.choose_tau`), the band 1000 Hz (fs / 2.56 when
+lower: :func:`default_band`). One
 difference, because a live lane cannot know later hits: ``gvt frf`` shortens every record to the smallest
 spacing between hits, while this lane refuses a hit whose record holds the next hit it knows of. With
 hits at least a record apart both average the same records and give the same FRFs (tests/test_frf_lane.py).
+
+Several devices (two DAQs on one timeline, docs/session.md): the lane keeps a ring per stream and cuts each
+stream's part of a record at the hit's index less the timeline's applied offset (the hit gate's aligner), so
+the responses on the accelerometer device meet the force on the hammer device (tests/test_frf_lab.py).
 
 Rules of the recording path (daq/lanes/__init__.py): ``offer`` never blocks, the subscription is bounded
 (the fan-out drops this lane's blocks and counts them; a hit whose record lost samples is refused with
@@ -48,6 +53,7 @@ from drivers.blocks import SampleBlock
 #: the view's topic for the curves of one update (in-process only: never written to a log)
 FRF_CURVES = "frf/curves"
 N_PEAKS = 6  # peaks in each update, as gvt frf's table
+DEFAULT_BAND_HZ = 1000.0  # gvt frf's default band of interest
 #: the log attachment holding a roving-hammer session's FRF matrix (analysis.frf.FRFSet.to_npz)
 MATRIX_ATTACHMENT = "frf/matrix.npz"
 
@@ -69,33 +75,58 @@ class FRFPlan:
     full_scale: float  # the hammer channel's full scale, N
     driving_point: str | None  # the output at the reference's DOF
     shown: str  # the other response drawn in the view
+    # responses on other devices' streams (two devices on one timeline: the hammer on one, accelerometers on
+    # another): (stream, its channels), each cut at the hit's index less the timeline's applied offset
+    others: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
     @property
-    def columns(self) -> list[int]:
-        """Stream columns of the reference, then the outputs."""
-        return [self.channels.index(c) for c in (self.reference, *self.outputs)]
+    def layout(self) -> list[tuple[str, list[int]]]:
+        """Per stream, its columns of the reference and the outputs: concatenated in this order they are the
+        reference then the outputs (the outputs are listed stream by stream, the hammer's stream first)."""
+        want, taken, out = (self.reference, *self.outputs), set(), []
+        for stream, chans in ((self.stream, self.channels), *self.others):
+            cols = [c for c in want if c in chans and c not in taken]
+            taken.update(cols)
+            out.append((stream, [chans.index(c) for c in cols]))
+        return out
 
 
-def frf_plan(rig, streams: dict[str, tuple[str, ...]], fs: float, band_hz: float = 1000.0, end_level: float = 1e-3,
+def default_band(fs: float) -> float:
+    """gvt frf's 1000 Hz band, or fs / 2.56 when that is lower: the usable band below Nyquist (an analyser's
+    anti-alias convention). Why: at 2048 Hz a 1000 Hz band is above what the hammer spectrum can show — every
+    hit was refused as 'bandwidth below band: -10 dB at 827 Hz < 1000 Hz'."""
+    return min(DEFAULT_BAND_HZ, fs / 2.56)
+
+
+def frf_plan(rig, streams: dict[str, tuple[str, ...]], fs: float, band_hz: float | None = None, end_level: float = 1e-3,
              shown: str | None = None) -> FRFPlan | None:  # fmt: skip
     """The plan for ``rig`` on the session's ``streams``; None when the rig has no hammer or sensors, or no
-    stream carries the hammer and a sensor (the lane is then off)."""
+    stream carries the hammer, or none carries a sensor (the lane is then off). The responses are the hammer
+    stream's sensors, then those of the other streams (several devices: placed by the timeline's offsets).
+    ``band_hz``: the band of interest (default :func:`default_band`)."""
     hammer, sensors = getattr(rig, "hammer", None), tuple(getattr(rig, "sensors", ()) or ())
     if hammer is None or not sensors:
         return None
     quantity = {s.name: s.quantity for s in sensors if s.quantity != "force"}
-    stream = next((n for n in sorted(streams) if hammer.name in streams[n] and any(c in quantity for c in streams[n])), None)
+    with_hammer = [n for n in sorted(streams) if hammer.name in streams[n]]
+    stream = next((n for n in with_hammer if any(c in quantity for c in streams[n])), with_hammer[0] if with_hammer else None)
     if stream is None:
         return None
     chans = tuple(streams[stream])
+    others = tuple((s, tuple(ch)) for s, ch in streams.items() if s != stream and any(c in quantity for c in ch))
     outs = tuple(c for c in chans if c in quantity and c != hammer.name)
+    outs += tuple(c for _s, ch in others for c in ch if c in quantity and c != hammer.name and c not in outs)
+    if not outs:
+        return None
+    band_hz = default_band(fs) if band_hz is None else band_hz
     n = round(rig.config.daq.record_length * fs)
     dp = next((s.name for s in sensors if s.dof == hammer.dof and s.name in outs), None)
     pick = shown if shown in outs else outs[-1]
     tau = choose_tau(lowest_decay_rate(rig), n / fs, end_level)
     return FRFPlan(stream=stream, channels=chans, reference=hammer.name, outputs=outs,
                    quantities=tuple(quantity[c] for c in outs), fs=float(fs), n=n, pre=round(PRE_TRIGGER_S * fs), tau=tau,
-                   band_hz=float(band_hz), full_scale=force_full_scale(rig), driving_point=dp, shown=pick)  # fmt: skip
+                   band_hz=float(band_hz), full_scale=force_full_scale(rig), driving_point=dp, shown=pick,
+                   others=others)  # fmt: skip
 
 
 class SampleRing:
@@ -196,15 +227,22 @@ class FRFLane:
 
     def __init__(self, fan: FanOut, plan: FRFPlan, sink: Sink, *, say: Callable[[str], None] | None = None,
                  view: Callable[[str, dict], None] | None = None, maxsize: int = 256, hit_queue: int = 1024,
-                 points: tuple | None = None, attach: Callable[[str, bytes, str], None] | None = None) -> None:  # fmt: skip
+                 points: tuple | None = None, attach: Callable[[str, bytes, str], None] | None = None,
+                 offsets: Callable[[], dict[str, int] | None] | None = None, lead_s: float = 0.0) -> None:  # fmt: skip
+        """``offsets``: the timeline's applied offsets (reference index = stream index + offset; the hit gate's
+        aligner, None until fixed) when the plan reads other streams; ``lead_s``: how far a stream may run ahead
+        of the hits (the aligner's buffer), added to every ring."""
         self.plan = plan
+        self.offsets = offsets
         self.attach = attach
         self.tracker = None if not points else PlanTracker(tuple(points))
         self.sink, self.say, self.view = sink, say, view
         self.sub: Subscription = fan.subscribe("frf", maxsize=maxsize)
         self.hits: queue.Queue = queue.Queue(maxsize=max(1, hit_queue))
         self.dropped_hits = 0
-        self.ring = SampleRing(2 * plan.n + plan.pre + round(plan.fs), len(plan.channels))
+        cap = 2 * plan.n + plan.pre + round(plan.fs * (1.0 + lead_s))
+        self.rings = {s: SampleRing(cap, len(ch)) for s, ch in ((plan.stream, plan.channels), *plan.others)}
+        self.ring = self.rings[plan.stream]  # the hammer's stream
         # one accumulator per reference: the hammer, or each hit point of a roving-hammer plan (daq/roving.py)
         self.accs = [FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
                                     f_max=plan.band_hz, quantities=list(plan.quantities), end_level=1e-3)
@@ -217,7 +255,7 @@ class FRFLane:
         self._c0 = 0.0
         self.error: str | None = None
         self._pending: list[dict] = []
-        self._cols = plan.columns
+        self._layout = plan.layout
         self._hits_done = threading.Event()
         self._thread = threading.Thread(target=self._main, name="frf", daemon=True)
         warm_up(plan)
@@ -270,7 +308,7 @@ class FRFLane:
                         item = None
                     if item is END:
                         ended = True
-                    elif item is not None and item.stream == self.plan.stream:
+                    elif item is not None and item.stream in self.rings:
                         self._block(item)
                 done = ended and self._hits_done.is_set()
                 self._take_hits()
@@ -286,7 +324,24 @@ class FRFLane:
                 pass
 
     def _block(self, blk: SampleBlock) -> None:
-        self.ring.append(blk.first_index, blk.data)
+        self.rings[blk.stream].append(blk.first_index, blk.data)
+
+    def _offset(self, stream: str) -> int | None:
+        """Samples to add to ``stream``'s index for the hits' (reference) index: 0 with one stream, the timeline's
+        applied offset with several (None while it is not fixed)."""
+        if not self.plan.others:
+            return 0
+        applied = self.offsets() if self.offsets is not None else None
+        return None if applied is None or stream not in applied else int(applied[stream])
+
+    def _arriving(self, i0: int) -> bool:
+        """Whether some stream's part of the record ``[i0, i0 + n)`` (hits' index) is still to come: the ring has
+        not reached its end yet and has not restarted past its start (a gap: it never will)."""
+        for s, ring in self.rings.items():
+            off = self._offset(s)
+            if off is not None and i0 - off + self.plan.n > ring.end and i0 - off >= ring.start:
+                return True
+        return False
 
     def _take_hits(self) -> None:
         while True:
@@ -302,7 +357,7 @@ class FRFLane:
         while self._pending:
             hit = self._pending[0]
             i0 = int(hit["index"]) - p.pre
-            if hit.get("verdict") == "accepted" and i0 + p.n > self.ring.end and not final and i0 >= self.ring.start:
+            if hit.get("verdict") == "accepted" and not final and self._arriving(i0):
                 return  # the record is still arriving
             self._pending.pop(0)
             self._judge(hit, i0)
@@ -311,18 +366,17 @@ class FRFLane:
         t0 = time.perf_counter()
         self._c0 = time.thread_time()
         p = self.plan
-        rec = self.ring.span(i0, i0 + p.n)
+        rec, missing = self._record(i0)
         nxt = next((int(h["index"]) for h in self._pending if i0 < int(h["index"]) - p.pre < i0 + p.n), None)
         checks, why, force = None, None, None
         if hit.get("verdict") != "accepted":
             why = f"hit gate: {hit.get('reason') or hit.get('verdict')}"
         elif rec is None:
-            why = (f"record incomplete: samples {i0}..{i0 + p.n} not all held (end of data, a gap, or the lane fell "
-                   f"behind; held {self.ring.start}..{self.ring.end})")  # fmt: skip
+            why = f"record incomplete: {missing}"
         elif nxt is not None:
             why = f"record holds the next hit ({(nxt - i0 - p.pre) / p.fs:.3f} s after this one; gvt frf shortens the records)"
         else:
-            data = rec[:, self._cols].astype(float)
+            data = rec
             chk = check_hit(data[:, 0], p.fs, p.band_hz, p.full_scale)
             checks = chk.as_dict()
             if chk.verdict == "accepted":
@@ -334,6 +388,22 @@ class FRFLane:
         self._publish(hit, why, checks, force, t0)
         if self.tracker is not None:
             self._progress(hit, why)
+
+    def _record(self, i0: int) -> tuple[np.ndarray | None, str]:
+        """The record ``[i0, i0 + n)`` (hits' index): the reference then the outputs, cut from each stream's ring
+        at its offset; or None and why not."""
+        n, parts = self.plan.n, []
+        for s, cols in self._layout:
+            off, ring = self._offset(s), self.rings[s]
+            if off is None:
+                return None, f"no timeline offset for stream {s} (not fixed yet)"
+            rows = ring.span(i0 - off, i0 - off + n)
+            if rows is None:
+                at = f" of stream {s} (offset {off})" if self.plan.others else ""
+                return None, (f"samples {i0 - off}..{i0 - off + n}{at} not all held (end of data, a gap, or the lane fell "
+                              f"behind; held {ring.start}..{ring.end})")  # fmt: skip
+            parts.append(rows[:, cols])
+        return np.concatenate(parts, axis=1).astype(float), ""
 
     def _progress(self, hit: dict, why: str | None) -> None:
         """After a hit at the current point: count it, move on when the point has its averages, prompt."""
@@ -381,7 +451,6 @@ class FRFLane:
                 "message": f"live FRFs fell behind: {self.sub.dropped_blocks} blocks ({self.sub.dropped_samples} samples) "
                            f"and {self.dropped_hits} hits not seen; hits whose record lost samples were refused",
             }, None)  # fmt: skip
-
 
     def matrix(self) -> FRFSet | None:
         """The FRF matrix: every hit point with at least one average, one reference each, named by the point."""

@@ -789,6 +789,12 @@ def _assemble(
         if end is not None:
             m &= t < end
         index, data = index[m], data[m]
+        # only the gaps inside the window: blocks are fetched from before ``start`` (a block's log time is its first
+        # sample's), and a gap there is not one of this read (it refused every hit after a device restart in gvt frf)
+        lo = -np.inf if start is None else start * info.sample_rate
+        hi = np.inf if end is None else end * info.sample_rate
+        gaps = [(int(max(a, np.ceil(lo))), int(min(b, np.ceil(hi)))) for a, b in gaps if b > lo and a < hi]
+        gaps = [(a, b) for a, b in gaps if b > a]
     return StreamData(info, names, index, data, first, np.asarray(statuses, np.uint32)[keep], gaps, damaged)
 
 

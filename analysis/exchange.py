@@ -78,7 +78,8 @@ class ModalWindower:
     """
 
     def __init__(
-        self, basis: ModalBasis, sample_rate: float, length: int, hop: int, first_index: int = 0, phase_bandpass: bool = True
+        self, basis: ModalBasis, sample_rate: float, length: int, hop: int, first_index: int = 0, phase_bandpass: bool = True,
+        energy_bandpass: bool = False,
     ) -> None:
         if length < 2 or hop < 1:
             raise ValueError("window length must be >= 2 samples and hop >= 1")
@@ -86,6 +87,7 @@ class ModalWindower:
         self.fs = float(sample_rate)
         self.length = int(length)
         self.hop = int(hop)
+        self.energy_bandpass = bool(energy_bandpass) and phase_bandpass
         r = basis.n_modes
         self._sos: FloatArray | None = None  # (modes, sections, 6): mode j's band-pass
         self._zi: FloatArray | None = None  # (modes, sections, 2 states, 2 columns q | q̇), carried
@@ -111,6 +113,8 @@ class ModalWindower:
             qf, qdf = np.empty_like(q64), np.empty_like(qd64)
             _bandpass_pairs(q64, qd64, self._sos, self._zi, qf, qdf)
             theta = modal_phase(qf, qdf, w)
+            if self.energy_bandpass:
+                e = modal_energy(qf, qdf, w)
         else:
             theta = modal_phase(q, qdot, w)
         prev = theta[:1] if self._last_theta is None else self._last_theta[None, :]
@@ -196,6 +200,15 @@ class ExchangeSettings:
     #: search only after an input (a hit) was seen: before it the windows hold the noise floor, which
     #: is measured instead (a stream that starts mid-decay has no input and gets no events — by design)
     after_input_only: bool = True
+    #: modal energies from each mode's band-passed states (:func:`phase_bands`) instead of the raw coordinates:
+    #: late in a decay the raw mode-2 coordinate is mostly mode-1 leakage and integrated low-frequency noise,
+    #: swinging x10-x100 between windows (issue 21); in its own band it is mode 2 and the noise in that band
+    band_limited_energy: bool = True
+    #: the noise floor is measured only on windows this long after the stream's start (the modal filter's
+    #: 5 Hz high-passes and the band-passes settle; measured 6-10x too low in the first 0.1 s), and again
+    #: before every input: the lower quartile of the quiet windows of the last ``noise_span_s``
+    settle_s: float = 0.5
+    noise_span_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.window_s <= 0 or (self.hop_s is not None and self.hop_s <= 0):
@@ -264,19 +277,44 @@ class ExchangeDetector:
         self.damping = None if damping is None else np.asarray(damping, float)  # ζ per mode, for the exchange score
         self._pairs = {p: _PairState() for p in self.s.pairs}
         self._peak_total = 0.0
-        self._noise: FloatArray | None = None  # receiver noise energy from windows before the first input
-        self._quiet: list[FloatArray] = []
+        self._noise: FloatArray | None = None  # per mode: noise energy of the quiet windows before the last input
+        self._quiet: list[tuple[float, FloatArray]] = []  # (t_end, energy) of settled windows since the last input
+        self._t0: float | None = None  # the first window's start: the stream's
         self._seen_input = False
         if n_modes is not None:
             for g, r in self.s.pairs:
                 if r > n_modes:
                     raise ValueError(f"exchange pair {g}-{r} needs {r} modes in the modal filter, it has {n_modes}")
 
+    def _measure_noise(self) -> None:
+        """At an input: per mode, the lower quartile of the settled quiet windows of the last ``noise_span_s`` where
+        they are stationary (the first half's mean within 2x the second's): a previous hit's decay still falling
+        there is the structure, not the noise floor, and would gate the next hit's exchanges; at least 8 windows."""
+        end = self._quiet[-1][0] if self._quiet else 0.0
+        recent = np.array([e for t, e in self._quiet if t >= end - self.s.noise_span_s])
+        self._quiet.clear()
+        if len(recent) < 8:
+            return
+        half = len(recent) // 2
+        steady = recent[:half].mean(axis=0) <= 2.0 * recent[half:].mean(axis=0)
+        floor = np.quantile(recent, 0.25, axis=0)
+        if self._noise is None:
+            self._noise = np.where(steady, floor, np.nan)
+        else:
+            self._noise = np.where(steady, floor, self._noise)
+
+    def _keep_quiet(self, w: WindowFeatures) -> None:
+        if self._t0 is None:
+            self._t0 = w.t_start_s
+        if w.t_start_s - self._t0 >= self.s.settle_s:
+            self._quiet.append((w.t_end_s, w.energy))
+            if len(self._quiet) > 256:  # bounded: ~2.8 s of 21.6 ms windows at half-window hops
+                self._quiet.pop(0)
+
     def feed(self, w: WindowFeatures) -> list[IREvent]:
         out: list[IREvent] = []
         if w.input_active:
-            if not self._seen_input and self._quiet:
-                self._noise = np.median(np.array(self._quiet), axis=0)
+            self._measure_noise()
             self._seen_input = True
             for p, st in self._pairs.items():  # an input ends any open event and restarts the search
                 if st.open:
@@ -284,12 +322,9 @@ class ExchangeDetector:
                 st.reset()
             self._peak_total = 0.0
             return out
-        if not self._seen_input:
-            self._quiet.append(w.energy)
-            if len(self._quiet) > 64:  # bounded: the last 64 quiet windows
-                self._quiet.pop(0)
-            if self.s.after_input_only:
-                return out
+        self._keep_quiet(w)
+        if not self._seen_input and self.s.after_input_only:
+            return out
         self._peak_total = max(self._peak_total, float(w.energy.sum()))
         for p, st in self._pairs.items():
             e = float(w.energy[p[1] - 1])
@@ -321,7 +356,8 @@ class ExchangeDetector:
     def _above_floor(self, pair: tuple[int, int], e: float) -> bool:
         if e < self.s.floor_fraction * self._peak_total:
             return False
-        return not (self._noise is not None and e < self.s.noise_factor * float(self._noise[pair[1] - 1]))
+        noise = np.nan if self._noise is None else float(self._noise[pair[1] - 1])
+        return not (np.isfinite(noise) and e < self.s.noise_factor * noise)
 
     def _close(self, pair: tuple[int, int], st: _PairState) -> list[IREvent]:
         g, r = pair[0] - 1, pair[1] - 1
@@ -379,7 +415,8 @@ def detect_exchanges(
     s = settings or ExchangeSettings()
     fs = float(sample_rate)
     tracker = ModalStateTracker(basis, fs, filter_settings)
-    windower = ModalWindower(basis, fs, round(s.window_s * fs), max(1, round(s.hop * fs)), first_index)
+    windower = ModalWindower(basis, fs, round(s.window_s * fs), max(1, round(s.hop * fs)), first_index,
+                             energy_bandpass=s.band_limited_energy)  # fmt: skip
     det = ExchangeDetector(s, damping, basis.n_modes)
     q, qd = tracker.feed(data)
     windows = windower.feed(q, qd, input_active)

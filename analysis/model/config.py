@@ -74,9 +74,15 @@ class Located(_Strict):
 
     @model_validator(mode="after")
     def _one_location(self) -> Located:
-        if (self.x is None) == (self.dof is None):
+        if (self.x is not None and self.dof is not None) or (self.x is None and self.dof is None and _no_node(self)):
             raise ValueError("give exactly one of 'x' (position along a beam, m) or 'dof' (a lumped DOF name)")
         return self
+
+
+def _no_node(item: object) -> bool:
+    """A sensor or the hammer of an imported (``kind = "matrices"``) rig may be placed by ``node`` (+ ``direction``)
+    alone, as the FE model's DOF map names it (analysis/model/imported.py)."""
+    return getattr(item, "node", None) is None
 
 
 class BeamSpec(_Strict):
@@ -116,6 +122,45 @@ class LumpedSpec(_Strict):
     @property
     def names(self) -> list[str]:
         return self.dof_names or [f"x{i + 1}" for i in range(len(self.masses))]
+
+
+#: Matrix file formats an imported rig reads (analysis/model/imported.py): MatrixMarket (Ansys ``*EXPORT,,MMF``, any
+#: code through scipy), MATLAB .mat (the usual way FE matrices leave Abaqus/Nastran DMAP scripts, as the seed's did)
+#: and Harwell-Boeing RUA (``HBMAT``), each read by scipy.io.
+MatrixFormat = Literal["matrixmarket", "matlab", "harwell-boeing"]
+
+
+class MatrixPart(_Strict):
+    """A named substructure stiffness ``K_i`` of ``K = sum p_i K_i`` (``scale`` is ``p_i``, what updating changes)."""
+
+    name: Annotated[str, Field(min_length=1)]
+    file: Annotated[str, Field(min_length=1)]
+    scale: Positive = 1.0
+
+
+class MatricesSpec(_Strict):
+    """A linear model exported by an FE code at the measured DOFs (analysis/model/imported.py, docs/fe-import.md).
+
+    Paths are relative to the rig TOML; a .mat file names its variable as ``file.mat#K``. ``dofs`` is a CSV with
+    one row per matrix row: ``node,direction[,x,y,z]``. Attachments, nonlinear springs, sensors and the hammer
+    are placed by ``dof = "<node>:<direction>"`` (e.g. ``"12:Z"``), sensors and the hammer also by ``node`` and
+    ``direction``."""
+
+    kind: Literal["matrices"]
+    format: MatrixFormat = "matrixmarket"
+    dofs: Annotated[str, Field(min_length=1)]
+    mass: Annotated[str, Field(min_length=1)]
+    stiffness: str | None = None
+    stiffness_parts: list[MatrixPart] = []
+    damping: str | None = Field(default=None, description="viscous damping matrix C (projected onto the modes)")
+
+    @model_validator(mode="after")
+    def _one_stiffness(self) -> MatricesSpec:
+        if (self.stiffness is None) == (not self.stiffness_parts):
+            raise ValueError("give exactly one of 'stiffness' (a file) or 'stiffness_parts' (named K_i of K = sum p_i K_i)")
+        if len({p.name for p in self.stiffness_parts}) != len(self.stiffness_parts):
+            raise ValueError("stiffness_parts: each part needs its own name")
+        return self
 
 
 class PointMass(Located):
@@ -217,7 +262,7 @@ class SensorSpec(SensorProps):
 
     @model_validator(mode="after")
     def _one_location(self) -> SensorSpec:
-        if (self.x is None) == (self.dof is None):
+        if (self.x is not None and self.dof is not None) or (self.x is None and self.dof is None and _no_node(self)):
             raise ValueError("give exactly one of 'x' (position along a beam, m) or 'dof' (a lumped DOF name)")
         return self
 
@@ -306,11 +351,80 @@ class GeometrySpec(_Strict):
         return self
 
 
+#: Updating parameters a rig may declare (analysis/model/updating.py): a handful in practice (the seed updated 2 in
+#: Ch. 4, 3-4 in Ch. 5-6); each costs ~15 model solves a generation of the global search.
+MAX_UPDATE_PARAMETERS = 12
+#: Measured modes an update may use: the seed used 6; the FE eigenproblem is solved for 2x as many to pair them.
+MAX_UPDATE_MODES = 50
+
+
+class UpdateParameter(_Strict):
+    """One updating parameter (``[[update.parameters]]``): ``target`` names the value it sets, e.g.
+    ``structure.youngs_modulus``, ``point_masses[0].mass``, ``springs[0].k`` (analysis/model/updating.py TARGETS)."""
+
+    name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
+    target: Annotated[str, Field(min_length=1)]
+    bounds: tuple[Positive, Positive] = Field(description="lowest and highest value, the target's SI unit")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> UpdateParameter:
+        if not self.bounds[0] < self.bounds[1]:
+            raise ValueError(f"bounds: the lower bound must be below the upper one (got {list(self.bounds)})")
+        return self
+
+
+class UpdateModeRow(_Strict):
+    """One measured mode of an update's provenance: its FE partner, the two frequencies, eq. 4.5's term."""
+
+    mode: int
+    fe_mode: int
+    measured_hz: float
+    model_hz: float
+    residual: float = Field(description="(f_measured - f_model) / (n f_measured), n = fe_mode (seed eq. 4.5)")
+    mac: float | None = None
+
+
+class UpdateValue(_Strict):
+    name: str
+    target: str
+    nominal: float
+    value: float
+    sigma: float | None = Field(default=None, description="1-sigma from the residuals' Jacobian; absent if undefined")
+
+
+class UpdateProvenance(_Strict):
+    """Where an updated rig's values came from (written by ``gvt model update``; read back by every verb)."""
+
+    rig: str
+    source: str
+    date: str
+    objective: str
+    objective_value: float
+    optimiser: str
+    evaluations: int
+    uncertainty: str
+    modes: list[UpdateModeRow] = []
+    values: list[UpdateValue] = []
+
+
+class UpdateSpec(_Strict):
+    """``[update]``: what ``gvt model update`` may change and how it scores a model (seed eq. 4.5, L1363)."""
+
+    objective: Literal["eq45", "eq45+mac"] = "eq45"
+    modes: Annotated[int, Field(ge=1), at_most(MAX_UPDATE_MODES, "modes", "the seed used 6")] = 6
+    mac_weight: NonNegative = 1.0
+    seed: Annotated[int, Field(ge=0)] = 0
+    parameters: Annotated[
+        list[UpdateParameter], at_most_items(MAX_UPDATE_PARAMETERS, "parameters", "each one widens the global search")
+    ] = []
+    provenance: UpdateProvenance | None = None
+
+
 class RigConfig(_Strict):
     name: Annotated[str, Field(min_length=1)]
     description: str = ""
     source: str = ""
-    structure: Annotated[BeamSpec | LumpedSpec, Field(discriminator="kind")]
+    structure: Annotated[BeamSpec | LumpedSpec | MatricesSpec, Field(discriminator="kind")]
     point_masses: list[PointMass] = []
     springs: list[LinearSpring] = []
     nonlinear_springs: list[NonlinearSpringSpec] = []
@@ -321,6 +435,7 @@ class RigConfig(_Strict):
     daq: DaqSpec
     simulation: SimulationSpec = SimulationSpec()
     geometry: GeometrySpec | None = None
+    update: UpdateSpec | None = None
 
     @property
     def all_sensors(self) -> list[SensorSpec]:
@@ -387,7 +502,8 @@ class RigConfig(_Strict):
             for path, item in located:
                 if item.dof is not None:
                     raise ConfigFieldError(f"{path}.dof", "a beam rig places things by 'x' (m), not by DOF name")
-                assert item.x is not None
+                if item.x is None:
+                    raise ConfigFieldError(f"{path}.x", "a beam rig places things by 'x' (m along the beam)")
                 if item.x < -half or item.x > s.length + half:
                     raise ConfigFieldError(
                         f"{path}.x",
@@ -395,6 +511,12 @@ class RigConfig(_Strict):
                         f"({half:g} m); move it onto the beam",
                     )
             self._check_supports(s, located)
+        elif isinstance(s, MatricesSpec):  # DOF names come from the DOF map: checked when it is read (imported.py)
+            for path, item in located:
+                if item.x is not None:
+                    raise ConfigFieldError(f"{path}.x", "an imported rig places things by 'dof' ('<node>:<direction>') or 'node'")
+            if s.damping is not None and "damping" in self.model_fields_set:
+                raise ConfigFieldError("damping", "the model brings its damping matrix (structure.damping); drop [damping]")
         else:
             names = s.names
             for path, item in located:
@@ -408,6 +530,10 @@ class RigConfig(_Strict):
                     if v is not None and v not in names:
                         raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
         self._check_nodes()
+        if self.update is not None and self.update.parameters:
+            from analysis.model.updating import check_parameters  # numpy only at import; scipy when it optimises
+
+            check_parameters(self, self.update.parameters)
         seen: set[str] = set()
         for sensor in self.all_sensors:
             if sensor.name in seen:

@@ -26,7 +26,7 @@ from analysis.errors import BadInput
 M = TypeVar("M", bound=BaseModel)
 
 #: Discriminator tags pydantic inserts into error locations of tagged unions; not field names.
-_UNION_TAGS = {"beam", "lumped"}
+_UNION_TAGS = {"beam", "lumped", "matrices"}
 
 #: The largest config file read. The shipped configs are 1-5 kB and a rig with 255 sensors written out one
 #: ``[[sensors]]`` table each is ~40 kB; the cap keeps a wrong path (a log, /dev/zero, a FIFO) from being read

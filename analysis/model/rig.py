@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from analysis.model.config import BeamSpec, RigConfig, SensorProps
+from analysis.model.config import BeamSpec, MatricesSpec, RigConfig, SensorProps
 from analysis.model.forces import HalfSine
 from analysis.model.loader import load_config
 from analysis.model.structure import ModalDamping, Structure, build_beam, build_lumped
@@ -108,8 +108,22 @@ class Rig:
 
 
 def _place(
-    structure: Structure, cfg: RigConfig, name: str, quantity: str, x: float | None, dof: str | None, props: SensorProps
+    structure: Structure,
+    cfg: RigConfig,
+    name: str,
+    quantity: str,
+    x: float | None,
+    dof: str | None,
+    props: SensorProps,
+    node: int | None = None,
+    field: str = "sensors",
 ) -> PlacedChannel:
+    if isinstance(cfg.structure, MatricesSpec):  # by "<node>:<direction>" or node + direction (imported.py)
+        from analysis.model.imported import resolve_dof
+
+        idx = resolve_dof(structure.dofs, field, dof, node, props.direction)
+        d = structure.dofs[idx]
+        return PlacedChannel(name, quantity, idx, d.name, None, d.x, props)
     if isinstance(cfg.structure, BeamSpec):
         assert structure.mesh is not None and x is not None
         node, _ = structure.mesh.snap(x)
@@ -141,6 +155,10 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
             nonlinear_springs=[(p.x, p.law, p.coefficient, p.exponent) for p in cfg.nonlinear_springs],
             damping=damping,
         )
+    elif isinstance(s, MatricesSpec):  # matrices from an FE code, attachments added on top (imported.py)
+        from analysis.model.imported import build_imported
+
+        structure = build_imported(cfg, Path(path).parent if str(path) != "<config>" else Path.cwd(), damping)
     else:
         names = s.names
         idx = {n: i for i, n in enumerate(names)}
@@ -156,12 +174,21 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
             names=names,
             damping=damping,
         )
-    sensors = tuple(_place(structure, cfg, sn.name, sn.quantity, sn.x, sn.dof, sn) for sn in cfg.all_sensors)
+    n_listed = len(cfg.sensors)
+
+    def where(i: int) -> str:
+        return f"sensors[{i}]" if i < n_listed else "sensor_arrays"
+
+    sensors = tuple(
+        _place(structure, cfg, sn.name, sn.quantity, sn.x, sn.dof, sn, sn.node, where(i)) for i, sn in enumerate(cfg.all_sensors)
+    )
     h = cfg.hammer
     hprops = SensorProps(
         quantity="force", sensitivity_mv_per_unit=h.sensitivity_mv_per_unit, range=h.range, noise_rms=h.noise_rms, model=h.model
     )
-    hammer = _place(structure, cfg, "hammer", "force", h.x, h.dof, hprops)
+    if isinstance(s, MatricesSpec):
+        hprops = hprops.model_copy(update={"direction": h.direction})
+    hammer = _place(structure, cfg, "hammer", "force", h.x, h.dof, hprops, h.node, "hammer")
     return Rig(config=cfg, structure=structure, sensors=sensors, hammer=hammer, path=str(path))
 
 

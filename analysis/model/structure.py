@@ -63,6 +63,18 @@ class ModalDamping:
 
 
 @dataclass(frozen=True)
+class StiffnessPart:
+    """A named substructure stiffness of an imported model, ``K = sum_i scale_i matrix_i + attachments``.
+
+    Kept beside ``K`` so that updating can scale a part (the issue's ``K = sum p_i K_i`` when the FE model has
+    no physical parameters); ``matrix`` is unscaled, over the same DOFs as ``K``."""
+
+    name: str
+    matrix: FloatArray
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
 class Structure:
     """Mass and stiffness over the free (unconstrained) DOFs, plus nonlinear springs and damping."""
 
@@ -72,6 +84,7 @@ class Structure:
     nonlinear: tuple[NonlinearSpring, ...] = ()
     damping: ModalDamping = field(default_factory=ModalDamping)
     mesh: BeamMesh | None = None
+    K_parts: tuple[StiffnessPart, ...] = ()
 
     @property
     def n_dof(self) -> int:
@@ -101,6 +114,7 @@ class Structure:
             K=self.K[np.ix_(keep, keep)],
             dofs=tuple(self.dofs[i] for i in keep),
             nonlinear=springs,
+            K_parts=tuple(replace(p, matrix=p.matrix[np.ix_(keep, keep)]) for p in self.K_parts),
         )
 
     def high_energy_limit(self) -> Structure:

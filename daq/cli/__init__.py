@@ -21,6 +21,8 @@ from daq.cli.common import err
 from daq.cli.device import device_app
 from daq.cli.log import log_app
 from daq.cli.model import model_app
+from daq.cli.model_export import model_export
+from daq.cli.model_update import model_update
 
 app = typer.Typer(
     add_completion=False,
@@ -28,6 +30,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     help="gvtlink: ground-vibration-test data acquisition and nonlinear modal analysis.",
 )
+model_app.command("update")(model_update)  # here, not in model.py: verb modules never import each other
+model_app.command("export")(model_export)
 app.add_typer(model_app, name="model")
 app.add_typer(log_app, name="log")
 app.add_typer(device_app, name="device")

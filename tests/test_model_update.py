@@ -1,0 +1,163 @@
+"""Model updating (analysis/model/updating.py, ``gvt model update``): issue 21 item 1.
+
+Oracles. (1) A "true" rig: beam_ch4_exp with its Young's modulus, attachment spring and attachment mass
+moved by 2-5 % (seeded factors; the optimiser starts from the nominal TOML and knows only the bounds). Its
+modes come either from its own FE model (with noise) or from a simulated session of low-force hits on the
+nonlinear rig, through ``gvt frf``/``gvt modal``'s chain; the update must give each true value within 0.5 %.
+(2) The seed's Table 4.2 experimental column with E and k free: the seed's own pair (E = 190 GPa, k = 10854
+N/m) is checked against two independent facts: it is the exact fit of modes 1-2 alone, and eq. 4.5's optimum
+over six modes lies elsewhere (docs/model-updating.md explains why).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.model.config import UpdateParameter
+from analysis.model.rig import load_rig
+from analysis.model.updating import MeasuredModes, ParametricModel, Problem, update
+from daq.cli import run as gvt
+from daq.sim_session import SessionPlan, simulate_session
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = (ROOT / "configs/rigs/beam_ch4_exp.toml").read_text()
+_rng = np.random.default_rng(2121)
+#: True / nominal: each 2-5 % off, sign at random (seeded, never given to the optimiser).
+FACTORS = {k: 1.0 + float(_rng.choice([-1.0, 1.0]) * _rng.uniform(0.02, 0.05)) for k in ("E", "k_att", "m_att")}
+NOMINAL_VALUES = {"E": 190e9, "k_att": 10854.0, "m_att": 0.171}
+UPDATE_TABLE = """
+[update]
+objective = "eq45"
+modes = 6
+
+[[update.parameters]]
+name = "E"
+target = "structure.youngs_modulus"
+bounds = [150e9, 230e9]
+
+[[update.parameters]]
+name = "k_att"
+target = "springs[0].k"
+bounds = [5000.0, 20000.0]
+
+[[update.parameters]]
+name = "m_att"
+target = "point_masses[0].mass"
+bounds = [0.1, 0.3]
+"""
+TABLE_4_2_EXP = [20.90, 68.3, 188.3, 373.3, 614.3, 927.0]  # Hz, seed L1348-L1357
+
+
+def true_text() -> str:
+    t = NOMINAL.replace("youngs_modulus = 190e9", f"youngs_modulus = {190e9 * FACTORS['E']!r}")
+    t = t.replace("k = 10854.0", f"k = {10854.0 * FACTORS['k_att']!r}")
+    return t.replace("mass = 0.171", f"mass = {0.171 * FACTORS['m_att']!r}").replace("seed = 2", "seed = 2\norder = 4")
+
+
+def updated_values(path: Path) -> dict[str, float]:
+    cfg = load_rig(path).config
+    return {"E": cfg.structure.youngs_modulus, "k_att": cfg.springs[0].k, "m_att": cfg.point_masses[0].mass}
+
+
+def assert_recovered(path: Path, tol: float = 5e-3) -> None:
+    got = updated_values(path)
+    errors = {k: got[k] / (NOMINAL_VALUES[k] * FACTORS[k]) - 1 for k in got}
+    assert all(abs(e) < tol for e in errors.values()), (errors, FACTORS)
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("update")
+    (d / "nominal.toml").write_text(NOMINAL + UPDATE_TABLE)
+    (d / "true.toml").write_text(true_text())
+    return d
+
+
+def test_update_from_fe_modes_with_noise_recovers_each_parameter(rigs, tmp_path, capsys):
+    """True FE modes 1-8, frequencies with 1e-4 relative noise (the modal estimates' level, test_modal_cmd) and
+    shapes with 1 % noise; eq45+mac objective (the shapes pair the modes and enter the objective)."""
+    true = load_rig(rigs / "true.toml")
+    rng = np.random.default_rng(5)
+    f = true.modes.frequencies_hz[:8] * (1 + 1e-4 * rng.standard_normal(8))
+    phi = true.modes.shapes[true.sensor_dofs, :8]
+    phi = phi * (1 + 0.01 * rng.standard_normal(phi.shape))
+    modes = tmp_path / "modes.json"
+    modes.write_text(json.dumps({"freq_hz": f.tolist(), "outputs": [s.name for s in true.sensors],
+                                 "shapes_re": phi.tolist(), "shapes_im": np.zeros_like(phi).tolist()}))  # fmt: skip
+    out = tmp_path / "updated.toml"
+    argv = ["model", "update", str(rigs / "nominal.toml"), "--from", str(modes), "--out", str(out)]
+    assert gvt([*argv, "--objective", "eq45+mac", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert_recovered(out)
+    assert [m["fe_mode"] for m in doc["modes"]] == [1, 2, 3, 4, 5, 6] and min(m["mac"] for m in doc["modes"]) > 0.99
+    for p in doc["parameters"]:  # the Jacobian's sigma: finite, and the 1e-4 noise keeps it well inside 0.5 %
+        assert 0 < p["sigma"] < 2e-3 * p["value"], p
+    # the updated rig loads, carries its provenance, and every verb takes it
+    cfg = load_rig(out).config
+    prov = cfg.update.provenance
+    assert prov.source == str(modes) and prov.objective == "eq45+mac" and len(prov.modes) == 6
+    assert {v.name for v in prov.values} == {"E", "k_att", "m_att"}
+    assert gvt(["model", "modes", str(out), "--json", "--count", "6"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert np.allclose([m["frequency_hz"] for m in rep["modes"]], [m["model_hz"] for m in doc["modes"]], rtol=1e-6)
+    # --out exists: refused without --overwrite (exit 2, one line), accepted with it
+    assert gvt(argv) == 2
+    assert "pass --overwrite" in capsys.readouterr().err
+
+
+def test_update_from_low_force_hits_of_the_nonlinear_rig(rigs, tmp_path, capsys):
+    """Two 20 N hits on the true rig, cubic spring included (at 20 N its tangent stiffness adds < 0.1 % to the
+    linear spring: 50 N moved k by 0.4 %): FRFs -> pLSCF/LSFD -> update, all through ``gvt model update --from LOG``."""
+    true = load_rig(rigs / "true.toml")
+    log = tmp_path / "session.mcap"
+    simulate_session(
+        true, log, SessionPlan(forces=(20.0, 20.0), pre_trigger=0.1, spacing=10.0, tail=2.0, block_size=1024), seed=3
+    )
+    out = tmp_path / "updated.toml"
+    assert gvt(["model", "update", str(rigs / "nominal.toml"), "--from", str(log), "--out", str(out), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [m["fe_mode"] for m in doc["modes"]] == [1, 2, 3, 4, 5, 6]
+    assert_recovered(out)
+    assert load_rig(out).config.update.provenance.source == str(log)
+
+
+def test_seed_table_4_2_with_e_and_k_free():
+    """Eq. 4.5 on the seed's experimental column, E and the attachment spring free (the seed's Ch. 4 update)."""
+    cfg = load_rig(ROOT / "configs/rigs/beam_ch4_exp.toml").config
+    params = [UpdateParameter(name="E", target="structure.youngs_modulus", bounds=(100e9, 300e9)),
+              UpdateParameter(name="k", target="springs[0].k", bounds=(1e3, 1e5))]  # fmt: skip
+    measured = MeasuredModes(np.array(TABLE_4_2_EXP), source="seed Table 4.2")
+    res = update(cfg, measured, params)
+    E, k = res.values
+    # our values (docs/model-updating.md): E 178.1 GPa, k 11230 N/m; eq. 4.5 0.0206
+    assert E == pytest.approx(178.13e9, rel=2e-3) and k == pytest.approx(11230.0, rel=5e-3)
+    # oracle 1: eq. 4.5 at the seed's pair on the same model is twice as large, so (190 GPa, 10854) is not its optimum
+    model = ParametricModel(cfg, params)
+    at_seed = Problem(model, measured, res.pairs).value(np.array([190e9, 10854.0]))
+    assert res.objective_value < 0.55 * at_seed
+    # oracle 2: the seed's pair is (to 0.3 % and 1.3 %) the exact fit of modes 1 and 2 alone
+    two = update(cfg, measured, params, n_modes=2)
+    assert two.objective_value < 1e-6
+    assert two.values[0] == pytest.approx(190e9, rel=5e-3) and two.values[1] == pytest.approx(10854.0, rel=2e-2)
+    assert two.values[1] > 10854.0 and res.values[0] < 190e9
+
+
+def test_bad_inputs_are_one_line(rigs, tmp_path, capsys):
+    modes = tmp_path / "m.json"
+    modes.write_text(json.dumps({"freq_hz": TABLE_4_2_EXP}))
+    base = ["model", "update", str(rigs / "nominal.toml"), "--from", str(modes), "--out", str(tmp_path / "u.toml")]
+    assert gvt([*base, "--params", "E,k_wire"]) == 2
+    assert gvt([*base, "--objective", "eq45+mac"]) == 2  # no shapes in the modes file
+    bad = tmp_path / "bad.toml"
+    bad.write_text(re.sub(r'target = "springs\[0\]\.k"', 'target = "nonlinear_springs[0].coefficient"', NOMINAL + UPDATE_TABLE))
+    assert gvt(["model", "update", str(bad), "--from", str(modes), "--out", str(tmp_path / "v.toml")]) == 2
+    errs = [e for e in capsys.readouterr().err.splitlines() if e.strip()]
+    assert len(errs) == 3 and all(e.startswith("gvt: error:") for e in errs), errs
+    assert "k_wire" in errs[0] and "E, k_att, m_att" in errs[0]
+    assert "update.parameters[1].target" in errs[2]
+    assert not (tmp_path / "u.toml").exists() and not (tmp_path / "v.toml").exists()

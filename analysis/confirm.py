@@ -22,6 +22,7 @@ the orthogonality index.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Mapping
@@ -59,6 +60,8 @@ class ConfirmSettings:
     overlap_s: float = 0.1  # captured loops must overlap the event interval widened by this much
     wbemd: WbemdParams | None = None  # None: WbemdParams() — the text's values
     detector: DetectorParams | None = None  # None: DetectorParams() — docs/slowflow.md
+    fast: bool = True  # issue 21: banded MWTs for the peak pick and the bound test (docs/confirmation.md "Speed");
+    # False: the path before it (full-CWT peak pick, zoom MWT), kept so bench/bench_confirm.py times both in one run
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,8 @@ def _frequencies(x: NDArray[np.float64], fs: float, f_a: float, f_b: float, s: C
 
     lo, hi = min(f_a, f_b), max(f_a, f_b)
     f_max = min(s.f_max_factor * hi, 0.4 * fs)
-    peaks = list(characteristic_frequencies(x, fs, s.n_imfs, 0.5 * lo, f_max, at_most=True))
+    engine = "banded" if s.fast else "cwt"
+    peaks = list(characteristic_frequencies(x, fs, s.n_imfs, 0.5 * lo, f_max, at_most=True, engine=engine))
     for f in (f_a, f_b):
         near = [p for p in peaks if abs(p - f) <= s.match_rel * f]
         if near:
@@ -174,7 +178,8 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     _v, disp = acc_to_disp(acc[:, [k]], fs, pre)
     x = disp[:, 0]
     freqs = _frequencies(x, fs, f_give, f_recv, s)
-    dec = wbemd(x, fs, freqs, params=s.wbemd or WbemdParams())
+    params = s.wbemd or WbemdParams()
+    dec = wbemd(x, fs, freqs, params=params if s.fast else dataclasses.replace(params, mwt="zoom"))
     i_lo = int(np.argmin(np.abs(dec.char_freqs_hz - f_low)))
     i_hi = int(np.argmin(np.abs(dec.char_freqs_hz - max(f_give, f_recv))))
     examined = {  # the keys of every record whose segment was decomposed (records.Confirmation)

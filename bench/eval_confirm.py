@@ -15,7 +15,10 @@ Linear rig: the detector flags nothing there, so to test the confirmation itself
 events are replayed on its linear twin (same force, damping, noise; cubic term zero) — nothing may be
 confirmed. Prints tables, writes bench/results/eval_confirm.json.
 
-    python bench/eval_confirm.py [--workers 2] [--ratios 3:1,5:2]
+    python bench/eval_confirm.py [--workers 2] [--ratios 3:1,5:2] [--before]
+
+``--before``: the confirmation path before issue 21 (bench/results/eval_confirm_before.json), to score both paths
+on the same events.
 """
 
 from __future__ import annotations
@@ -39,17 +42,17 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from analysis.confirm import ConfirmContext, confirm_segment  # noqa: E402
+from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment  # noqa: E402
 from analysis.evaluation.detectors import WINDOW_S, modal_exchange_acc  # noqa: E402
 from analysis.evaluation.grid import case_rig, default_grid, simulate_cases  # noqa: E402
 from analysis.evaluation.score import match_case  # noqa: E402
 
 
-def _context(case) -> ConfirmContext:
+def _context(case, settings: ConfirmSettings | None = None) -> ConfirmContext:
     rig = case_rig(case.case)
     g = rig.guyan([s.dof for s in rig.sensors])
     _w, phi = scipy.linalg.eigh(g.K, g.M)
-    return ConfirmContext(sensors=tuple(case.sensor_names), shapes=phi)
+    return ConfirmContext(sensors=tuple(case.sensor_names), shapes=phi, settings=settings or ConfirmSettings())
 
 
 def _confirm_all(case, events: list[dict], ctx: ConfirmContext) -> list[dict]:
@@ -64,7 +67,7 @@ def _confirm_all(case, events: list[dict], ctx: ConfirmContext) -> list[dict]:
     return out
 
 
-def _one(pair_index: int, ratios: tuple[str, ...]) -> dict:
+def _one(pair_index: int, ratios: tuple[str, ...], before: bool = False) -> dict:
     grid = default_grid()
     nl = [c for c in grid if c.cubic][pair_index]
     lin = next(c for c in grid if not c.cubic and c.force_n == nl.force_n and c.zeta == nl.zeta)
@@ -73,8 +76,9 @@ def _one(pair_index: int, ratios: tuple[str, ...]) -> dict:
     events = [{"id": i, **e.as_dict()} for i, e in enumerate(raw)]
     picked = [e for e in events if e["ratio"] in ratios]
     t0 = time.perf_counter()
-    conf_nl = _confirm_all(case_nl, picked, _context(case_nl))
-    conf_lin = _confirm_all(case_lin, picked, _context(case_lin))
+    settings = ConfirmSettings(fast=not before)
+    conf_nl = _confirm_all(case_nl, picked, _context(case_nl, settings))
+    conf_lin = _confirm_all(case_lin, picked, _context(case_lin, settings))
     truths = [tr for tr in case_nl.exchanges]
     return {
         "case": nl.name, "force_n": nl.force_n, "zeta": nl.zeta, "events": events, "picked": [e["id"] for e in picked],
@@ -120,6 +124,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--ratios", default="3:1,5:2")
     ap.add_argument("--limit", type=int, default=None, help="only the first N nonlinear cases (smoke runs)")
+    ap.add_argument("--before", action="store_true", help="the confirmation path before issue 21 (ConfirmSettings(fast=False))")
     args = ap.parse_args()
     ratios = tuple(args.ratios.split(","))
     n_cases = sum(c.cubic for c in default_grid())
@@ -127,7 +132,7 @@ def main() -> None:
     simulate_cases(default_grid())  # fill the cache once, in this process
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        rows = list(pool.map(_one, idx, [ratios] * len(idx)))
+        rows = list(pool.map(_one, idx, [ratios] * len(idx), [args.before] * len(idx)))
     wall = time.perf_counter() - t0
     s = score(rows, ratios)
     print(f"{'case':<22} {'events':>6} {'picked':>6} {'confirmed':>9} {'as label':>8} {'truth':>5} {'lin conf':>8} {'s':>6}")
@@ -143,13 +148,16 @@ def main() -> None:
           f"{s['truth_exchanges']} truth exchanges ({s['recall_vs_detected']:.2f} of the {s['detected_with_label']} the detector "
           f"labelled right); statuses {s['statuses']}; confirmed on the linear twins: {s['linear_confirmed']}; "
           f"wall {wall:.0f} s")  # fmt: skip
-    out = ROOT / "bench" / "results" / "eval_confirm.json"
+    el = [c["elapsed_s"] for r in rows for c in r["confirm_nl"] + r["confirm_lin"] if c.get("elapsed_s") is not None]
+    print(f"CPU per confirmation (elapsed_s): median {np.median(el):.2f} s, p90 {np.percentile(el, 90):.2f} s, "
+          f"max {max(el):.2f} s ({'before issue 21' if args.before else 'now'})")  # fmt: skip
+    out = ROOT / "bench" / "results" / ("eval_confirm_before.json" if args.before else "eval_confirm.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     slim = [{k: v for k, v in r.items() if k not in ("confirm_nl", "confirm_lin")} | {
         "confirm_nl": [{k: v for k, v in c.items() if k != "trajectory"} for c in r["confirm_nl"]],
         "confirm_lin": [{k: v for k, v in c.items() if k != "trajectory"} for c in r["confirm_lin"]]} for r in rows]  # fmt: skip
     meta = {"ratios": ratios, "workers": args.workers, "wall_s": wall, "python": platform.python_version(),
-            "loadavg": os.getloadavg()}  # fmt: skip
+            "loadavg": os.getloadavg(), "path": "before" if args.before else "now"}  # fmt: skip
     out.write_text(json.dumps({"meta": meta, "score": s, "cases": slim}, indent=1, default=float))
     print(f"wrote {out.relative_to(ROOT)}")
 

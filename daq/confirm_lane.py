@@ -29,7 +29,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from daq.children import die_with_parent
 from daq.fanout import FanOut, Subscription
 from daq.log import layout
 from drivers.blocks import SampleBlock
+
+if TYPE_CHECKING:  # the analysis side is imported where it runs (worker, lane start)
+    from analysis.confirm import ConfirmSettings
 
 CONFIRM_TOPIC = layout.CONFIRMATIONS_TOPIC
 _END_EVENTS = object()
@@ -308,14 +311,17 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
 
 def start_confirm_lane(
     fan: FanOut, analysis_lane, sink: Sink, settings: LaneSettings = LaneSettings(), log_path: str | None = None,
+    confirm_settings: ConfirmSettings | None = None,
 ) -> ConfirmLane:  # fmt: skip
     """The confirmation lane beside a started analysis lane (same stream, same rig model). Feed it the
     analysis lane's ``/analysis/events`` with :meth:`ConfirmLane.offer`; join it after the analysis lane.
-    ``log_path`` (replay): read each event's samples from the log instead of a ring of the fan-out."""
-    from analysis.confirm import ConfirmContext
+    ``log_path`` (replay): read each event's samples from the log instead of a ring of the fan-out.
+    ``confirm_settings``: an :class:`analysis.confirm.ConfirmSettings` (None: its defaults; bench/bench_confirm.py
+    passes ``fast=False`` to time the path before issue 21 in a session)."""
+    from analysis.confirm import ConfirmContext, ConfirmSettings
 
     op = analysis_lane.op
-    ctx = ConfirmContext.from_model(op.model)
+    ctx = ConfirmContext.from_model(op.model, confirm_settings or ConfirmSettings())
     fetch = None
     if log_path is not None:
         from daq.log.reader import LogReader

@@ -13,14 +13,13 @@
 
 from __future__ import annotations
 
-from functools import cache
-
 import numpy as np
 
-from analysis.evaluation.grid import CaseData, case_rig
+from analysis.evaluation.grid import CaseData, GridCase, case_rig
 from analysis.evaluation.score import DetectedEvent
 from analysis.exchange import ExchangeSettings, detect_exchanges, nearest_ratio
-from analysis.modal_filter import ModalFilterSettings, modal_basis
+from analysis.modal_filter import ModalBasis, ModalFilterSettings, modal_basis
+from analysis.model.rig import Rig
 from analysis.operator import window_rq
 from analysis.preprocess import PreprocessSettings, acc_to_disp
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
@@ -29,17 +28,32 @@ from analysis.seed_detector import seed_spikes
 WINDOW_S = 0.0216
 
 
-@cache
-def _model(zeta: float, cubic: bool):
-    from analysis.evaluation.grid import GridCase
-
-    rig = case_rig(GridCase(1.0, zeta, cubic))
-    g = rig.guyan([s.dof for s in rig.sensors])
-    return g.M, g.K, modal_basis(g.M, g.K, 4)
+_MODELS: dict[int, tuple[Rig, tuple]] = {}
 
 
-def _seed_events(case: CaseData, disp: np.ndarray) -> list[DetectedEvent]:
-    M, K, _ = _model(case.case.zeta, case.case.cubic)
+def rig_model(rig: Rig) -> tuple[np.ndarray, np.ndarray, ModalBasis]:
+    """Guyan ``M``, ``K`` at the sensors and the 4-mode basis the detectors use, built from ``rig`` (cached per rig).
+
+    The seed's method assumes the detector's linear model is the structure's (an updated model, Ch. 4
+    L1367); ``model_rig`` below lets the realistic grid hand the detectors a model that is off.
+    """
+    hit = _MODELS.get(id(rig))
+    if hit is None or hit[0] is not rig:
+        g = rig.guyan([s.dof for s in rig.sensors])
+        hit = _MODELS[id(rig)] = (rig, (g.M, g.K, modal_basis(g.M, g.K, 4)))
+    return hit[1]
+
+
+def _model(case: CaseData, model_rig: Rig | None = None) -> tuple[np.ndarray, np.ndarray, ModalBasis]:
+    """The detector's model: ``model_rig``'s when given, else the case's own rig (the default: a perfect model)."""
+    if model_rig is not None:
+        return rig_model(model_rig)
+    c = case.case
+    return rig_model(case_rig(GridCase(1.0, c.zeta, c.cubic, 0, c.rig)))
+
+
+def _seed_events(case: CaseData, disp: np.ndarray, model_rig: Rig | None = None) -> list[DetectedEvent]:
+    M, K, _ = _model(case, model_rig)
     fs = case.fs
     L = round(WINDOW_S * fs)
     first = int(np.ceil(case.pulse_end_s * fs))
@@ -55,18 +69,18 @@ def _seed_events(case: CaseData, disp: np.ndarray) -> list[DetectedEvent]:
     return out
 
 
-def seed_literal_acc(case: CaseData) -> list[DetectedEvent]:
+def seed_literal_acc(case: CaseData, model_rig: Rig | None = None) -> list[DetectedEvent]:
     _, disp = acc_to_disp(case.acc.astype(np.float64), case.fs, PreprocessSettings())
-    return _seed_events(case, disp)
+    return _seed_events(case, disp, model_rig)
 
 
-def seed_literal_disp(case: CaseData) -> list[DetectedEvent]:
-    return _seed_events(case, case.disp_true.astype(np.float64))
+def seed_literal_disp(case: CaseData, model_rig: Rig | None = None) -> list[DetectedEvent]:
+    return _seed_events(case, case.disp_true.astype(np.float64), model_rig)
 
 
-def _exchange(case: CaseData, data: np.ndarray, quantity: str) -> list:
-    _, _, basis = _model(case.case.zeta, case.case.cubic)
-    inp = case.t <= case.pulse_end_s
+def _exchange(case: CaseData, data: np.ndarray, quantity: str, model_rig: Rig | None = None) -> list:
+    _, _, basis = _model(case, model_rig)
+    inp = case.input_active()
     zeta = case.case.zeta
     events, _ = detect_exchanges(
         data.astype(np.float64), case.fs, basis, ExchangeSettings(window_s=WINDOW_S), ModalFilterSettings(quantity=quantity),
@@ -75,16 +89,16 @@ def _exchange(case: CaseData, data: np.ndarray, quantity: str) -> list:
     return events
 
 
-def modal_exchange_acc(case: CaseData) -> list:
-    return _exchange(case, case.acc, "acceleration")
+def modal_exchange_acc(case: CaseData, model_rig: Rig | None = None) -> list:
+    return _exchange(case, case.acc, "acceleration", model_rig)
 
 
-def modal_exchange_disp(case: CaseData) -> list:
-    return _exchange(case, case.disp_true, "displacement")
+def modal_exchange_disp(case: CaseData, model_rig: Rig | None = None) -> list:
+    return _exchange(case, case.disp_true, "displacement", model_rig)
 
 
-def robust_rq_acc(case: CaseData) -> list[DetectedEvent]:
-    M, K, _ = _model(case.case.zeta, case.case.cubic)
+def robust_rq_acc(case: CaseData, model_rig: Rig | None = None) -> list[DetectedEvent]:
+    M, K, _ = _model(case, model_rig)
     _, disp = acc_to_disp(case.acc.astype(np.float64), case.fs, PreprocessSettings(mode="causal"))
     fs = case.fs
     L = round(WINDOW_S * fs)

@@ -54,43 +54,66 @@ class GridCase:
     zeta: float
     cubic: bool = True
     seed: int = 0
+    rig: str = ""  # a rig TOML (path, or a name under configs/rigs/); "" = beam_ch4_exp
 
     @property
     def zeta_rest(self) -> float:
         return min(self.zeta, ZETA_REST_CAP)
 
     @property
+    def rig_toml(self) -> Path:
+        return rig_toml(self.rig)
+
+    @property
     def name(self) -> str:
-        return f"{'nl' if self.cubic else 'lin'}-F{self.force_n:g}-z{self.zeta:g}"
+        prefix = f"{self.rig_toml.stem}-" if self.rig else ""
+        return f"{prefix}{'nl' if self.cubic else 'lin'}-F{self.force_n:g}-z{self.zeta:g}"
 
 
-def default_grid(forces_n: Sequence[float] = DEFAULT_FORCES_N, zetas: Sequence[float] = DEFAULT_ZETAS) -> tuple[GridCase, ...]:
+def rig_toml(rig: str | Path = "") -> Path:
+    """The TOML of a grid rig: ``""`` is beam_ch4_exp, a bare name is ``configs/rigs/<name>.toml``, else a path."""
+    if not rig:
+        return RIG_TOML
+    p = Path(rig)
+    return p if p.suffix == ".toml" else REPO / "configs" / "rigs" / f"{rig}.toml"
+
+
+def default_grid(
+    forces_n: Sequence[float] = DEFAULT_FORCES_N, zetas: Sequence[float] = DEFAULT_ZETAS, rig: str = ""
+) -> tuple[GridCase, ...]:
     """The nonlinear grid (force x damping, seeds 0, 1, ...) followed by the same grid with the cubic term zero.
 
     A linear case uses its nonlinear twin's seed, so the two differ only in the cubic spring.
     """
-    nl = [GridCase(float(f), float(z), True, i) for i, (z, f) in enumerate((z, f) for z in zetas for f in forces_n)]
-    return (*nl, *(GridCase(c.force_n, c.zeta, False, c.seed) for c in nl))
+    nl = [GridCase(float(f), float(z), True, i, rig) for i, (z, f) in enumerate((z, f) for z in zetas for f in forces_n)]
+    return (*nl, *(GridCase(c.force_n, c.zeta, False, c.seed, rig) for c in nl))
 
 
-@lru_cache(maxsize=16)
-def _rig(zeta: float, cubic: bool) -> Rig:
-    data = parse_toml(RIG_TOML)
+def rig_data(zeta: float, cubic: bool, rig: str = "") -> dict:
+    """The grid rig's TOML as a dict with the case's damping and (no) cubic spring (before validation)."""
+    path = rig_toml(rig)
+    data = parse_toml(path)
     data["damping"] = {**data.get("damping", {}), "zeta": [zeta, zeta], "zeta_rest": min(zeta, ZETA_REST_CAP)}
     if not cubic:
         data["nonlinear_springs"] = []
-    return build_rig(validate(RigConfig, data, RIG_TOML), RIG_TOML)
+    return data
+
+
+@lru_cache(maxsize=32)
+def _rig(zeta: float, cubic: bool, rig: str = "") -> Rig:
+    path = rig_toml(rig)
+    return build_rig(validate(RigConfig, rig_data(zeta, cubic, rig), path), path)
 
 
 def case_rig(case: GridCase) -> Rig:
-    """The beam_ch4_exp rig with the case's damping and (no) cubic spring, built through RigConfig."""
-    return _rig(float(case.zeta), bool(case.cubic))
+    """The case's rig (beam_ch4_exp by default) with its damping and (no) cubic spring, built through RigConfig."""
+    return _rig(float(case.zeta), bool(case.cubic), case.rig)
 
 
-@lru_cache(maxsize=1)
-def _code_hash() -> str:
+@lru_cache(maxsize=8)
+def _code_hash(rig: str = "") -> str:
     h = hashlib.sha256(CACHE_VERSION.encode())
-    h.update(RIG_TOML.read_bytes())
+    h.update(rig_toml(rig).read_bytes())
     for name in _SOURCES:
         h.update((REPO / "analysis" / "model" / name).read_bytes())
     h.update(Path(__file__).read_bytes())
@@ -98,7 +121,7 @@ def _code_hash() -> str:
 
 
 def _cache_path(cache_dir: Path, case: GridCase, duration: float) -> Path:
-    key = f"{case.force_n!r}|{case.zeta!r}|{case.cubic}|{duration!r}|{_code_hash()}"
+    key = f"{case.force_n!r}|{case.zeta!r}|{case.cubic}|{duration!r}|{_code_hash(case.rig)}"
     return cache_dir / f"{case.name}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
 
 
@@ -131,6 +154,15 @@ class CaseData:
     sim_seconds: float = float("nan")  # wall time of the simulation share of this case; NaN if from cache
     from_cache: bool = False
     noise_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hit_times_s: tuple[float, ...] = (0.0,)  # hammer pulse starts: one hit at 0, or a session's hits
+
+    def input_active(self) -> np.ndarray:
+        """True at samples inside any hammer pulse (``[hit, hit + pulse duration]``), as a hammer channel marks them."""
+        dur = self.pulse_end_s - self.hit_times_s[0]
+        inp = np.zeros(self.t.shape, dtype=bool)
+        for h in self.hit_times_s:
+            inp |= (self.t >= h) & (self.t <= h + dur)
+        return inp
 
     @property
     def modal_energy(self) -> np.ndarray:
@@ -245,10 +277,10 @@ def simulate_cases(
             p = _cache_path(cdir, c, duration)
             if p.exists() and (r := _load(p)) is not None:
                 raws[i] = r
-    groups: dict[tuple[float, bool], list[int]] = {}
+    groups: dict[tuple[float, bool, str], list[int]] = {}
     for i, c in enumerate(cases):
         if i not in raws:
-            groups.setdefault((c.zeta, c.cubic), []).append(i)
+            groups.setdefault((c.zeta, c.cubic, c.rig), []).append(i)
     for idx in groups.values():
         out, wall = _simulate_group([cases[i] for i in idx], duration)
         for i, r in zip(idx, out, strict=True):

@@ -209,6 +209,7 @@ class ExchangeSettings:
     #: before every input: the lower quartile of the quiet windows of the last ``noise_span_s``
     settle_s: float = 0.5
     noise_span_s: float = 1.0
+    noise_decayed: float = 1e-4  # ... between hits only once the last hit's total modal energy fell below this of its peak
 
     def __post_init__(self) -> None:
         if self.window_s <= 0 or (self.hop_s is not None and self.hop_s <= 0):
@@ -287,13 +288,18 @@ class ExchangeDetector:
                     raise ValueError(f"exchange pair {g}-{r} needs {r} modes in the modal filter, it has {n_modes}")
 
     def _measure_noise(self) -> None:
-        """At an input: per mode, the lower quartile of the settled quiet windows of the last ``noise_span_s`` where
-        they are stationary (the first half's mean within 2x the second's): a previous hit's decay still falling
-        there is the structure, not the noise floor, and would gate the next hit's exchanges; at least 8 windows."""
+        """At an input: per mode, the lower quartile of the settled quiet windows of the last ``noise_span_s``, taken
+        only where they are noise: before the first input, or once the previous hit's decay has died away (total
+        modal energy below ``noise_decayed`` of its peak since that input) and the windows are stationary (the first
+        half's mean within 2x the second's). A decay's tail, even one beating at a steady level, is the structure,
+        not the floor: taken as the floor it gated the next hit's exchanges (recall 0.88 -> 0.53 on the realistic
+        grid's 5-hit sessions). At least 8 windows."""
         end = self._quiet[-1][0] if self._quiet else 0.0
         recent = np.array([e for t, e in self._quiet if t >= end - self.s.noise_span_s])
         self._quiet.clear()
         if len(recent) < 8:
+            return
+        if self._seen_input and float(recent.sum(axis=1).mean()) > self.s.noise_decayed * self._peak_total:
             return
         half = len(recent) // 2
         steady = recent[:half].mean(axis=0) <= 2.0 * recent[half:].mean(axis=0)

@@ -370,26 +370,34 @@ def test_band_limited_energies_keep_noisy_linear_twins_quiet_and_the_exchanges()
     assert tp >= 0.9 * n_ev and tp >= 0.75 * n_truth, (tp, n_ev, n_truth)
 
 
-def test_the_noise_floor_waits_for_the_filters_and_ignores_a_decay_still_falling():
-    """The noise gate is measured on quiet windows after ``settle_s`` (not while the filters settle) and, before each
-    input, only where the windows are stationary: a previous hit's decay is the structure, not the noise."""
+def test_the_noise_floor_waits_for_the_filters_and_for_the_last_hit_to_die_away():
+    """The noise gate's floor is measured on quiet windows after ``settle_s`` (not while the filters settle) and,
+    between hits, only once the previous hit's modal energy has fallen below ``noise_decayed`` of its peak and the
+    windows are stationary: a decay's tail is the structure, not the noise (as the floor it gated the next hit)."""
     from analysis.exchange import ExchangeDetector, WindowFeatures
 
-    def w(k, e, inp=False):
-        f = np.array([20.8, 68.4])
-        return WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([1.0, e]), f, inp)
+    f = np.array([20.8, 68.4])
+
+    def w(k, e1, e2, inp=False):
+        return WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([e1, e2]), f, inp)
 
     det = ExchangeDetector(ExchangeSettings(settle_s=0.5))
     k = 0
     for k in range(40):  # 0.43 s: all settling, a filter transient 100x the floor then the floor
-        det.feed(w(k, 100.0 if k < 10 else 1e-6))
-    det.feed(w(k + 1, 1.0, True))
+        det.feed(w(k, 1e-6, 100.0 if k < 10 else 1e-6))
+    det.feed(w(k + 1, 1.0, 1.0, True))
     assert det._noise is None  # nothing settled yet: no gate rather than a wrong one
-    for j in range(k + 2, k + 102):  # a decay falling by 10x every 0.2 s, then an input
-        det.feed(w(j, 10.0 ** (-(j - k) * 0.0108 / 0.2)))
-    det.feed(w(j + 1, 1.0, True))
-    assert det._noise is not None and np.isnan(det._noise[1])  # still falling: not the floor
-    for m in range(j + 2, j + 102):  # stationary noise at 1e-6
-        det.feed(w(m, 1e-6 * (1.5 if m % 2 else 0.7)))
-    det.feed(w(m + 1, 1.0, True))
+    j = k + 2
+    for j in range(k + 2, k + 202):  # the hit's decay, beating steadily at 1e-2 of its peak: not died away
+        det.feed(w(j, 1e-2, 1e-2 * (1.5 if j % 2 else 0.7)))
+    det.feed(w(j + 1, 1.0, 1.0, True))
+    assert det._noise is None
+    m = j + 2
+    for m in range(j + 2, j + 82):  # the next hit's decay from 1 to its noise (1e-6) in 0.86 s
+        e = 10.0 ** (-6 * (m - j - 2) / 80)
+        det.feed(w(m, e, e))
+    start = m + 1
+    for m in range(start, start + 100):  # died away: stationary noise at 1e-6 (total 2e-6 < 1e-4 of the peak 2)
+        det.feed(w(m, 1e-6, 1e-6 * (1.5 if m % 2 else 0.7)))
+    det.feed(w(m + 1, 1.0, 1.0, True))
     assert det._noise[1] == pytest.approx(0.7e-6)

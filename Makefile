@@ -46,6 +46,13 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/eval_beam_ch3.py
 	$(BIN)/python bench/bench_view.py
 	$(BIN)/python bench/bench_view.py --path record --duty 2 --seconds 60 --repeats 4
+	$(BIN)/python bench/bench_frf.py
+	$(BIN)/python bench/bench_modal_id.py
+	$(BIN)/python bench/bench_report.py
+	$(BIN)/python bench/bench_confirm.py
+	$(BIN)/python bench/bench_model_update.py
+	$(BIN)/python bench/eval_realistic.py
+	$(BIN)/python bench/eval_updated_model.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

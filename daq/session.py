@@ -43,6 +43,20 @@ from drivers.base import Driver, available_drivers
 BLOCK_GUESS = {"serial": 64, "modbus": 1024, "can": 256, "sim": 1024}
 
 
+def rig_identity(rig) -> dict[str, str]:
+    """Which model the session used (issue 21): the rig file's SHA-256 and, for a rig written by ``gvt model update``,
+    where its parameters came from (its ``[update.provenance]``); the file itself is attached as ``rig/<name>``."""
+    import hashlib
+
+    path = Path(rig.path)
+    out = {"rig_sha256": hashlib.sha256(path.read_bytes()).hexdigest()} if path.exists() else {}
+    upd = getattr(getattr(rig, "config", None), "update", None)
+    prov = getattr(upd, "provenance", None)
+    if prov is not None:
+        out["rig_updated_from"] = f"{prov.source} ({prov.objective})"
+    return out
+
+
 @dataclass
 class SessionResult:
     path: Path
@@ -206,8 +220,9 @@ class Session:
         cfg = self.cfg
         overwrite = self.opts.overwrite if self.opts.overwrite is not None else cfg.overwrite
         hold_s = (cfg.timeline or TimelineSpec()).max_buffer_s  # a second device waits at most this for its offset
+        meta = {"session": cfg.name, "rig": self.rig.name, **rig_identity(self.rig)}
         lane = LogLane(self.out, queue_size=self._queue_blocks(cfg.queue_seconds), rotate_bytes=cfg.rotate_bytes,
-                       rotate_seconds=cfg.rotate_seconds, metadata={"session": cfg.name, "rig": self.rig.name},
+                       rotate_seconds=cfg.rotate_seconds, metadata=meta,
                        overwrite=overwrite, max_hold_s=hold_s)  # fmt: skip
         infos = {c.name: c for c in channel_infos(self.rig)}
         offsets = (cfg.timeline or TimelineSpec()).offsets if cfg.multi else {}

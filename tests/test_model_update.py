@@ -124,6 +124,14 @@ def test_update_from_low_force_hits_of_the_nonlinear_rig(rigs, tmp_path, capsys)
     assert [m["fe_mode"] for m in doc["modes"]] == [1, 2, 3, 4, 5, 6]
     assert_recovered(out)
     assert load_rig(out).config.update.provenance.source == str(log)
+    # a session on the updated rig records which model it used (daq/session.py rig_identity -> gvtlink.session)
+    import hashlib
+
+    from daq.session import rig_identity
+
+    ident = rig_identity(load_rig(out))
+    assert ident["rig_sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
+    assert ident["rig_updated_from"] == f"{log} (eq45)"
 
 
 def test_seed_table_4_2_with_e_and_k_free():

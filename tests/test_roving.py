@@ -87,6 +87,10 @@ def test_five_points_three_averages_each_with_prompts(roving):
     assert f"hit point P3 (node {node['P3']}, +Z): 2 of 3 averages" in lines
     assert f"hit point P5 (node {node['P5']}, -Z): 0 of 3 averages" in lines
     assert lines[-2].startswith("plan complete: 5 points, 15 averages")
+    import hashlib
+
+    meta = LogReader(out).metadata()["gvtlink.session"]  # which model the session used
+    assert meta["rig_sha256"] == hashlib.sha256(Path(_rig.path).read_bytes()).hexdigest() and "rig_updated_from" not in meta
 
 
 def _modal(rig, freq, out_dofs, ref_dof, a):

@@ -167,6 +167,11 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     modes = tuple(int(k) for k in event["modes"])
     f_give, f_recv = float(event["f_give_hz"]), float(event["f_recv_hz"])
     m, n = int(event["m"]), int(event["n"])
+    # analysis.exchange.LEAK_RATIO (not imported here: that module compiles numba kernels the worker does not need):
+    # f_recv near f_give is a leak of the giving mode, not an m:n IR to look for (issue 21)
+    if (m, n) == (1, 1):
+        return Confirmation.skipped(event, "1:1 event (receiving frequency near the giving mode's): a leak, not an m:n "
+                                           "internal resonance; not confirmed").to_json()  # fmt: skip
     if not (math.isfinite(f_give) and math.isfinite(f_recv) and f_give > 0 and f_recv > 0):
         raise ValueError(f"event {event.get('id')}: frequencies {f_give}, {f_recv} Hz are not usable")
     acc = np.asarray(seg, dtype=np.float64)

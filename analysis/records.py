@@ -202,6 +202,7 @@ class IREventRecord(Record):
 
     TOPIC = IR_EVENTS_TOPIC
     TUPLES = frozenset({"modes"})
+    OMIT_NONE = frozenset({"label_confidence"})
     id: int
     start_s: float
     end_s: float
@@ -215,6 +216,7 @@ class IREventRecord(Record):
     scores: dict[str, float] = field(default_factory=dict)
     confidence: float = 0.0
     source: str = "modal-exchange"
+    label_confidence: float | None = None  # absent in logs written before issue 21
     SCHEMA = _schema("gvtlink.IREvent", "An internal-resonance (energy exchange) event", {
         "id": ("integer", "event number in the session, from 0"),
         "start_s": ("number", "event start on the stream clock, s"),
@@ -227,15 +229,16 @@ class IREventRecord(Record):
         "f_recv_hz": ("number", "receiving mode's frequency, Hz"),
         "gain": ("number", "receiver energy peak / minimum, 1"),
         "scores": ({"type": "object", "additionalProperties": {"type": "number"}}, "evidence scores by name, 0–1"),
-        "confidence": ("number", "combined confidence, 0–1"),
+        "confidence": ("number", "calibrated probability that the event is a true major exchange, 0–1 (docs/evaluation.md §6)"),
         "source": ("string", "detector that flagged it"),
+        "label_confidence": (OPT_NUM, "calibrated probability that it is one with this m:n, 0–1; a 1:1 ratio is a leak"),
     }, ("id", "start_s", "end_s", "modes", "ratio", "m", "n", "f_give_hz", "f_recv_hz", "gain"))  # fmt: skip
 
     @classmethod
     def of(cls, id: int, ev: Any) -> IREventRecord:
         """The record of the detector's event ``ev`` (an ``IREvent``), numbered ``id``."""
         return cls(id, ev.start_s, ev.end_s, tuple(ev.modes), f"{ev.m}:{ev.n}", ev.m, ev.n, ev.f_give_hz, ev.f_recv_hz,
-                   ev.gain, dict(ev.scores), ev.confidence, ev.source)  # fmt: skip
+                   ev.gain, dict(ev.scores), ev.confidence, ev.source, getattr(ev, "label_confidence", None))  # fmt: skip
 
 
 @dataclass(frozen=True, eq=True)

@@ -3,7 +3,8 @@
 One HTML file, PNG plots embedded as base64 data URIs (matplotlib, Agg backend — no display, no network,
 no external assets), and tables of what a test engineer signs off: hits and verdicts, loss counters
 (gaps, writer overruns, driver events by kind), the near-live analysis (IR events, window-robust RQ
-spikes, warnings), confirmations of the background lane (``/analysis/confirmations``, or "none") and the
+spikes as supporting evidence, warnings; each output with its measured precision, ``daq/view/scores.py``),
+confirmations of the background lane (``/analysis/confirmations``, or "none") and the
 plots: hammer force with hits, driving-point response, RQ per NNM against time with IR events, modal
 energies, the RQ-FEP (RQ frequency against windowed modal energy, seed Ch. 4), a Morlet wavelet
 spectrum of a hit record (eq. 3.2, amplitude normalisation), POM shapes of IR events and slow-flow phase
@@ -267,15 +268,24 @@ def build_report(
     parts += sec.tables
     figs += [(name, _png(fig)) for name, fig in sec.figures]
     summary.frf_absent = sec.absent
+    from daq.view.scores import MODAL_EXCHANGE, ROBUST_RQ_SPIKES, SCORE_COLS, score_note, score_rows
+
+    # what each output is worth, measured on the simulator (issue 21): before the outputs themselves
+    parts.append(_table("detectors and their measured scores", SCORE_COLS, score_rows()))
     parts.append(_table(f"internal-resonance events (near-live analysis, results from {source})", IR_COLS,
                         [_ir_row(k, e) for k, e in enumerate(ir)]))  # fmt: skip
+    parts.append(f"<p class='note'>{html.escape(score_note(MODAL_EXCHANGE))}. Confidence: calibrated probability that "
+                 "the event is a true major exchange; label conf.: that it is one with this m:n (docs/evaluation.md §6); "
+                 "1:1 = receiving frequency near the giving mode's, a leak, not an m:n resonance.</p>")  # fmt: skip
     spikes = [[_f(s["start_s"]), _f(s["end_s"]), _f(s.get("agreement"), ".2f")] for s in res.get(layout.RQ_SPIKES_TOPIC, [])]
-    parts.append(_table("window-robust RQ spikes", ["start [s]", "end [s]", "agreement"], spikes))
+    parts.append(_table("window-robust RQ spikes (supporting evidence, not a detector)", ["start [s]", "end [s]", "agreement"],
+                        spikes))  # fmt: skip
+    parts.append(f"<p class='note'>{html.escape(score_note(ROBUST_RQ_SPIKES))}.</p>")
     parts.append(_table("confirmations (WBEMD + slow flow)", CONF_COLS, [_conf_row(c) for c in confs],
                         "none (no /analysis/confirmations in this log)"))  # fmt: skip
     warns = [[w.get("kind"), w.get("message")] for w in res.get(layout.WARNINGS_TOPIC, [])]
     parts.append(_table("analysis warnings", ["kind", "message"], warns))
-    summary.tables = [p.split("</h2>")[0][4:] for p in parts]
+    summary.tables = [p.split("</h2>")[0][4:] for p in parts if p.startswith("<h2>")]
     summary.figures = [name for name, _ in figs]
     header = (
         f"<h1>gvtlink session report</h1><p>log <code>{html.escape(str(log))}</code> · health: {html.escape(info['health'])} · "
@@ -294,7 +304,7 @@ td,th{{border:1px solid #bbb;padding:2px 6px;text-align:right}} th{{background:#
 STREAM_COLS = ["stream", "channels", "fs [Hz]", "duration [s]", "samples", "gaps", "missing samples", "writer overruns",
                "undecodable blocks"]  # fmt: skip
 HIT_COLS = ["#", "t [s]", "peak [N]", "width [ms]", "energy [J]", "verdict", "reason"]
-IR_COLS = ["#", "start [s]", "end [s]", "modes", "m:n", "f give/recv [Hz]", "gain", "confidence", "source"]
+IR_COLS = ["#", "start [s]", "end [s]", "modes", "m:n", "f give/recv [Hz]", "gain", "confidence", "label conf.", "source"]
 CONF_COLS = ["event", "status", "evidence", "m:n", "start [s]", "end [s]", "orthogonality", "IMF freqs [Hz]",
              "candidates (captured)", "why"]
 
@@ -312,7 +322,7 @@ def _hit_row(h: dict) -> list:
 def _ir_row(k: int, e: dict) -> list:
     return [e.get("id", k), _f(e["start_s"]), _f(e["end_s"]), "→".join(str(m) for m in e.get("modes", [])), e.get("ratio"),
             f"{_f(e.get('f_give_hz'), '.1f')} / {_f(e.get('f_recv_hz'), '.1f')}", _f(e.get("gain"), ".1f"),
-            _f(e.get("confidence"), ".2f"), e.get("source", "")]  # fmt: skip
+            _f(e.get("confidence"), ".2f"), _f(e.get("label_confidence"), ".2f"), e.get("source", "")]  # fmt: skip
 
 
 def _conf_row(c: dict) -> list:

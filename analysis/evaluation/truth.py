@@ -2,7 +2,8 @@
 
 Issue 6 defines a major exchange as "an interval after the pulse in which mode-2 modal energy at least
 doubles (modal energies from the simulator's exact modal coordinates, smoothed over one window); its
-ratio is f2/f1 at that time rounded to the nearest of 2:1, 5:2, 3:1, 7:2, 4:1". This module makes
+ratio is f2/f1 at that time rounded to the nearest of 2:1, 5:2, 3:1, 7:2, 4:1" — since issue 21 with 1:1 first
+(:data:`analysis.exchange.LEAK_RATIO`, every ratio <= 1.5: a leak, not a resonance), the detector's rule. This module makes
 that definition precise (``docs/evaluation.md`` §1):
 
 * ``E2`` is the linear modal energy ``(q2'^2 + w2^2 q2^2)/2`` of the rig's *second linear mode* (the

@@ -218,7 +218,8 @@ class ViewLogger:
                 self._ir_event(ev)
         elif topic == layout.RQ_SPIKES_TOPIC:
             for sp in objs:
-                text = f"window-robust RQ spike {sp['start_s']:.3f}–{sp['end_s']:.3f} s (agreement {sp.get('agreement', 0):.2f})"
+                text = (f"window-robust RQ spike {sp['start_s']:.3f}–{sp['end_s']:.3f} s "
+                        f"(agreement {sp.get('agreement', 0):.2f}; {R.RQ_SPIKE_NOTE})")  # fmt: skip
                 R.log_text(self.rec, R.LOG_ANALYSIS, sp["start_s"], text, "INFO")
         elif topic == layout.WARNINGS_TOPIC:
             for w in objs:

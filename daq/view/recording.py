@@ -23,6 +23,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from daq.view.scores import MODAL_EXCHANGE, ROBUST_RQ_SPIKES, score_note
+
 TIMELINE = "time"
 APP_ID = "gvtlink"
 
@@ -287,6 +289,10 @@ def log_hit(rec: rr.RecordingStream, hit: dict) -> None:
     ))  # fmt: skip
 
 
+_MX_NOTE = score_note(MODAL_EXCHANGE)  # what an event and a spike are worth, measured (issue 21)
+RQ_SPIKE_NOTE = score_note(ROBUST_RQ_SPIKES)
+
+
 def log_ir_event(rec: rr.RecordingStream, ev: dict) -> None:
     t = float(ev["start_s"])
     rec.set_time(TIMELINE, duration=t)
@@ -295,6 +301,7 @@ def log_ir_event(rec: rr.RecordingStream, ev: dict) -> None:
     rec.log(LOG_ANALYSIS, rr.TextLog(
         f"IR event {ev.get('id', '?')}: modes {modes[0]}→{modes[1]} {ev.get('ratio', '?')} from {t:.3f} to {ev['end_s']:.3f} s, "
         f"f {ev['f_give_hz']:.1f}/{ev['f_recv_hz']:.1f} Hz, gain {ev.get('gain', float('nan')):.1f}, "
-        f"confidence {ev.get('confidence', float('nan')):.2f}",
+        f"confidence {ev.get('confidence', float('nan')):.2f}, label confidence {ev.get('label_confidence') or float('nan'):.2f} "
+        f"(calibrated probabilities; modal-exchange detector: {_MX_NOTE})",
         level="WARN",
     ))  # fmt: skip

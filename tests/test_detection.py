@@ -401,3 +401,50 @@ def test_the_noise_floor_waits_for_the_filters_and_for_the_last_hit_to_die_away(
         det.feed(w(m, 1e-6, 1e-6 * (1.5 if m % 2 else 0.7)))
     det.feed(w(m + 1, 1.0, 1.0, True))
     assert det._noise[1] == pytest.approx(0.7e-6)
+
+
+def test_band_noise_energy_is_what_white_sensor_noise_puts_into_each_modes_band():
+    """The noise a receiver's rise must stand above (issue 21's miss classification, docs/detection.md §7):
+    :func:`band_noise_energy` is computed in the frequency domain (projector row, ideal integrators, the 5 Hz
+    high-passes, the mode's band-pass); white noise of unequal per-channel std through the streaming chain (the
+    causal modal filter and band-limited windows) must average to it. 8 s of ~100 Hz-wide bands hold ~1600
+    independent samples per mode, so the mean's scatter is ~3-5 %: tolerance 10 % (measured within 2.2 %)."""
+    from analysis.exchange import ModalWindower, band_noise_energy
+
+    rig = rig_with(False)
+    g = rig.guyan([s.dof for s in rig.sensors])
+    basis = modal_basis(g.M, g.K, 4)
+    fs = float(rig.sample_rate)
+    rng = np.random.default_rng(3)
+    sig = rng.uniform(0.5, 2.0, basis.projector.shape[1])
+    q, qd = ModalStateTracker(basis, fs, ModalFilterSettings()).feed(rng.standard_normal((int(8 * fs), sig.size)) * sig)
+    windows = ModalWindower(basis, fs, 354, 177, energy_bandpass=True).feed(q, qd)
+    measured = np.array([w.energy for w in windows if w.t_start_s > 1.0]).mean(axis=0)  # after the filters settle
+    np.testing.assert_allclose(measured, band_noise_energy(basis, sig, fs), rtol=0.10)
+    with pytest.raises(ValueError, match="one noise standard deviation per channel"):
+        band_noise_energy(basis, sig[:3], fs)
+
+
+def test_energy_floor_lets_a_faint_exchange_through_and_not_a_fainter_one():
+    """``floor_fraction`` 2e-5 (issue 21; was 1e-4, set on the raw mode-2 coordinate): a receiver that rises x5 to
+    5e-5 of the hit's peak total energy opens an event — at 1e-4 it did not, and such rises were 220 of the 246
+    misses of the 8 s and beam_al_mid classes, all 3-3000x above the band's sensor noise — while the same rise to
+    1e-5 (below the floor, where noise in mode 2's band opened false events on the 3 %-noise session twins) does not."""
+    from analysis.exchange import ExchangeDetector, WindowFeatures
+
+    f = np.array([20.8, 62.4])
+
+    def run(top: float, floor: float | None = None) -> list:
+        s = ExchangeSettings() if floor is None else ExchangeSettings(floor_fraction=floor)
+        det = ExchangeDetector(s)
+        e2 = [top / 5] * 5 + list(np.geomspace(top / 5, top, 6)) + [top * 0.5] * 5
+        ev = det.feed(WindowFeatures(0, 0, 354, 0.0, 0.0216, np.array([1.0, 1.0]), f, True))
+        for k, e in enumerate(e2, 1):
+            ev += det.feed(WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([1.0, e]), f))
+        return ev + det.finish()
+
+    assert ExchangeSettings().floor_fraction == 2e-5
+    (ev,) = run(5e-5)
+    assert ev.gain == pytest.approx(5.0) and (ev.m, ev.n) == (3, 1)
+    assert run(5e-5, floor=1e-4) == []  # the old floor missed it
+    assert run(1e-5) == []

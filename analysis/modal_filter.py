@@ -99,6 +99,17 @@ class ModalStateTracker:
         self._integrate = CausalPreprocessor(self.fs, basis.n_modes, chain)
         self._prev: FloatArray | None = None  # displacement input: last projected sample
 
+    def set_basis(self, basis: ModalBasis) -> None:
+        """Swap the projection (a sensor left the filter: analysis/sensor_health.py), keeping the filter state.
+
+        The integrators and high-passes are the same linear filter on every modal coordinate, and the new
+        basis's modes are the old ones (same count, signs aligned) at fewer sensors, so their state carries
+        over: what changes is only the old projection's leakage, a small step that the filters carry off
+        like any input (restarting them instead would cost a settling time inside a hit's decay)."""
+        if basis.n_modes != self.basis.n_modes:
+            raise ValueError("modal filter: a new basis must keep the number of modes")
+        self.basis = basis
+
     def feed(self, block: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Modal displacement and velocity (each ``(n_samples, r)``) for the block's samples."""
         y = np.asarray(block, dtype=np.float64) @ self.basis.projector.T

@@ -51,6 +51,7 @@ from analysis.records import (
     RQWindow,
 )
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
+from analysis.sensor_health import HealthGuard, HealthSettings
 
 #: ``emit(topic, record)``: a typed record of analysis/records.py (a read-only Mapping of its JSON keys)
 Emit = Callable[[str, Record], None]
@@ -87,6 +88,9 @@ class AnalysisSettings:
     #: (sim_two_devices session, docs/detection.md)
     input_jump: float = 1.5
     seed_lane: bool = True
+    #: sensor health in front of the modal filter (analysis/sensor_health.py): bad channels leave it, with a
+    #: warning; None: every sensor is trusted (the behaviour before issue 21)
+    health: HealthSettings | None = field(default_factory=HealthSettings)
 
     def __post_init__(self) -> None:
         if (self.window_s is not None and self.window_s <= 0) or self.n_keep < 1 or self.n_modes < 1:
@@ -104,6 +108,9 @@ class RigModel:
     damping: tuple[float, ...] | None = None
     x: np.ndarray | None = None
     nonlinearity_measured: bool | None = None  # a sensor sits on every nonlinear spring's DOF (L69); None: no springs
+    nonlinear_sensors: tuple[str, ...] = ()  # the sensors on the nonlinear springs' DOFs: losing one blinds detection
+    ranges: tuple[float | None, ...] | None = None  # ± range per sensor (SI), for the clipping check
+    sensitivities: tuple[float, ...] | None = None  # mV per SI unit per sensor: noise compared in volts
 
     @classmethod
     def from_rig(cls, rig) -> RigModel:
@@ -114,11 +121,25 @@ class RigModel:
         g = rig.guyan([rig.sensors[i].dof for i in order])
         z = rig.config.damping
         zeta = (*z.zeta, *([z.zeta_rest] * 8)) if z is not None else None
+        nl_dofs = {sp.dof for sp in rig.structure.nonlinear}
         return cls(
             sensors=tuple(rig.sensors[i].name for i in order), hammer=rig.hammer.name, M=g.M, K=g.K, damping=zeta,
             x=np.array([rig.sensors[i].x_model or 0.0 for i in order]),
             nonlinearity_measured=all(sp.dof in masters for sp in rig.structure.nonlinear) if rig.structure.nonlinear else None,
+            nonlinear_sensors=tuple(rig.sensors[i].name for i in order if rig.sensors[i].dof in nl_dofs),
+            ranges=tuple(getattr(getattr(rig.sensors[i], "props", None), "range", None) for i in order),
+            sensitivities=_sensitivities(rig, order),
         )  # fmt: skip
+
+
+def _per_sensor(values: tuple | None, model: RigModel) -> tuple | None:
+    """A per-sensor tuple only if it has one value per sensor (a model cut down by hand keeps the checks it can)."""
+    return values if values is not None and len(values) == len(model.sensors) else None
+
+
+def _sensitivities(rig, order: list[int]) -> tuple[float, ...] | None:
+    s = [getattr(getattr(rig.sensors[i], "props", None), "sensitivity_mv_per_unit", None) for i in order]
+    return None if any(v is None for v in s) else tuple(float(v) for v in s)
 
 
 @dataclass
@@ -319,6 +340,11 @@ class AnalysisOperator:
         self._acc_cols = [channels.index(c) for c in model.sensors]
         self._ham_col = channels.index(model.hammer) if model.hammer in channels else None
         self.basis: ModalBasis = modal_basis(model.M, model.K, min(self.s.n_modes, len(model.sensors)))
+        self._guard = (None if self.s.health is None else
+                       HealthGuard(model.M, model.K, model.sensors, self.fs, self.basis.n_modes, self.s.health,
+                                   _per_sensor(model.ranges, model), _per_sensor(model.sensitivities, model),
+                                   model.nonlinear_sensors))  # fmt: skip
+        self._mf_cols = list(range(len(model.sensors)))  # the sensors (model order) the modal filter uses
         self.window_s = self.s.window_s if self.s.window_s is not None else 0.45 / float(self.basis.freqs_hz[0])
         self.n_keep = min(self.s.n_keep, len(model.sensors))
         self.emit = emit or (lambda topic, obj: None)
@@ -342,6 +368,8 @@ class AnalysisOperator:
                 self._finish_lanes()
                 self.stats.restarts += 1
                 self._warn("gap", f"data gap before sample {block.first_index}: analysis restarted after it", restart=True)
+                if self._guard is not None:
+                    self._guard.restart()
             self._start(block.first_index)
         self._next_index = block.first_index + n
         self.stats.blocks += 1
@@ -350,6 +378,7 @@ class AnalysisOperator:
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
+        switches = self._check_health(acc, inp) if self._guard is not None else None
         if self.s.seed_lane and self.pipelined:
             # the worker computes this block's seed numerics while this thread emits the previous
             # block's seed results and runs this block's modal lane, in the serial order (modal k−1, seed k−1,
@@ -359,17 +388,40 @@ class AnalysisOperator:
             planned = self._pool.submit(self._seed_compute, acc)
             self._drain()
             self._inflight = (planned, t_arrival)
-            self._modal_lane(acc, inp)
+            self._modal_lane(acc, inp, switches)
             return
         self._drain()
-        self._modal_lane(acc, inp)
+        self._modal_lane(acc, inp, switches)
         if self.s.seed_lane:
             self._seed_emit(self._seed_compute(acc), t_arrival)
 
-    def _modal_lane(self, acc: np.ndarray, inp: np.ndarray | None) -> None:
-        q, qd = self._tracker.feed(acc)
-        for w in self._windower.feed(q, qd, inp):
-            self._modal_window(w)
+    def _check_health(self, acc: np.ndarray, inp: np.ndarray | None) -> list:
+        """Sensor health on the block before the modal lane sees it (analysis/sensor_health.py): a channel judged bad
+        leaves the modal filter, whose basis is rebuilt on the rest with its filter state carried, at the stream
+        sample where it was judged; a warning each, and a "blind" one for the sensor at a nonlinear element (L69).
+        The seed lane keeps every sensor (its RQ needs the model's DOFs, assumption 7, L65)."""
+        assert self._guard is not None
+        switches = self._guard.feed(acc, inp)
+        for sw in switches:
+            for kind, key, message in sw.warnings:
+                self._warn(key, message, kind=kind)
+        return switches
+
+    def _modal_lane(self, acc: np.ndarray, inp: np.ndarray | None, switches: list | None = None) -> None:
+        if not np.isfinite(acc).all():
+            acc = np.where(np.isfinite(acc), acc, 0.0)  # a non-finite channel leaves at its span's end: no NaN in the filter
+        parts = [(0, acc.shape[0], None)] if not switches else self._guard.pieces(acc.shape[0], switches)
+        for a, b, sw in parts:
+            if b > a:
+                x = acc[a:b] if len(self._mf_cols) == acc.shape[1] else acc[a:b, self._mf_cols]
+                q, qd = self._tracker.feed(x)
+                for w in self._windower.feed(q, qd, None if inp is None else inp[a:b]):
+                    self._modal_window(w)
+            if sw is not None and sw.basis is not None:
+                self.basis = sw.basis
+                self._mf_cols = list(sw.keep)
+                self._tracker.set_basis(sw.basis)
+                self._windower.basis = sw.basis
 
     def _drain(self) -> None:
         """Emit the seed results of the block the worker is computing (pipelined feeds), waiting for it."""
@@ -576,8 +628,8 @@ class AnalysisOperator:
             self._warn("window", f"window {self.window_s:g} s is shorter than half a period of NNM1 even 50 % above "
                                  f"its linear {f1:.1f} Hz (L1371)")  # fmt: skip
 
-    def _warn(self, key: str, message: str, restart: bool = False) -> None:
+    def _warn(self, key: str, message: str, restart: bool = False, kind: str | None = None) -> None:
         if key in self._warned and not restart:
             return
         self._warned.add(key)
-        self.emit(WARNINGS_TOPIC, AnalysisWarning(key, message))
+        self.emit(WARNINGS_TOPIC, AnalysisWarning(kind or key, message))

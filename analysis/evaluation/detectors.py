@@ -7,6 +7,9 @@
   RQ ratio NNM2/NNM1 of the windows just before it (the seed reads the ratio off the curves, L1298).
 * ``modal_exchange_acc`` / ``modal_exchange_disp`` — gvtlink's detector (analysis/exchange.py) on the
   same data through the same streaming code a session runs (causal modal filter).
+  Sensor health runs in front of its modal filter as in a session (analysis/sensor_health.py's
+  :class:`HealthGuard`, the same object the operator uses, fed the record in DAQ-sized blocks):
+  :func:`modal_exchange_health` also returns the warnings a session would raise.
 * ``robust_rq_acc`` — the window-robust RQ spikes alone (analysis/rq_spikes.py), to show what the
   robustness costs and buys on the seed's own evidence.
 """
@@ -17,15 +20,19 @@ import numpy as np
 
 from analysis.evaluation.grid import CaseData, GridCase, case_rig
 from analysis.evaluation.score import DetectedEvent
-from analysis.exchange import ExchangeSettings, detect_exchanges, nearest_ratio
-from analysis.modal_filter import ModalBasis, ModalFilterSettings, modal_basis
+from analysis.exchange import ExchangeDetector, ExchangeSettings, ModalWindower, nearest_ratio
+from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.model.rig import Rig
 from analysis.operator import window_rq
 from analysis.preprocess import PreprocessSettings, acc_to_disp
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
 from analysis.seed_detector import seed_spikes
+from analysis.sensor_health import HealthGuard, HealthSettings
 
 WINDOW_S = 0.0216
+#: samples per block fed to the health check and the modal filter: the demo/simulated DAQ's block (daq/demo.py)
+BLOCK = 1024
+HEALTH = HealthSettings()
 
 
 _MODELS: dict[int, tuple[Rig, tuple]] = {}
@@ -78,23 +85,55 @@ def seed_literal_disp(case: CaseData, model_rig: Rig | None = None) -> list[Dete
     return _seed_events(case, case.disp_true.astype(np.float64), model_rig)
 
 
-def _exchange(case: CaseData, data: np.ndarray, quantity: str, model_rig: Rig | None = None) -> list:
-    _, _, basis = _model(case, model_rig)
+def modal_exchange_health(
+    case: CaseData, model_rig: Rig | None = None, quantity: str = "acceleration", health: HealthSettings | None = HEALTH
+) -> tuple[list, list[tuple[str, str, str]]]:
+    """gvtlink's detector on the case as a session runs it: sensor health, the (rebuilt) modal filter, windows,
+    exchange detection, block by block; returns the events and the health warnings ``(kind, key, message)``.
+    ``health=None``: every sensor trusted (the detector before issue 21)."""
+    M, K, basis = _model(case, model_rig)
+    data = (case.acc if quantity == "acceleration" else case.disp_true).astype(np.float64)
     inp = case.input_active()
     zeta = case.case.zeta
-    events, _ = detect_exchanges(
-        data.astype(np.float64), case.fs, basis, ExchangeSettings(window_s=WINDOW_S), ModalFilterSettings(quantity=quantity),
-        input_active=inp, damping=[zeta, zeta, case.case.zeta_rest, case.case.zeta_rest],
-    )  # fmt: skip
-    return events
+    s = ExchangeSettings(window_s=WINDOW_S)
+    fs = case.fs
+    c = case.case
+    nl_rig = model_rig if model_rig is not None else case_rig(GridCase(1.0, c.zeta, True, 0, c.rig))
+    nl_dofs = {sp.dof for sp in nl_rig.structure.nonlinear}
+    guard = None
+    if health is not None:
+        sensors = nl_rig.sensors
+        guard = HealthGuard(M, K, case.sensor_names, fs, basis.n_modes, health, [x.props.range for x in sensors],
+                            [x.props.sensitivity_mv_per_unit for x in sensors],
+                            [x.name for x in sensors if x.dof in nl_dofs])  # fmt: skip
+    tracker = ModalStateTracker(basis, fs, ModalFilterSettings(quantity=quantity))
+    windower = ModalWindower(basis, fs, round(s.window_s * fs), max(1, round(s.hop * fs)), 0,
+                             energy_bandpass=s.band_limited_energy)  # fmt: skip
+    det = ExchangeDetector(s, [zeta, zeta, c.zeta_rest, c.zeta_rest], basis.n_modes)
+    events, warns, cols = [], [], list(range(data.shape[1]))
+    for a in range(0, data.shape[0], BLOCK):
+        x, i = data[a : a + BLOCK], inp[a : a + BLOCK]
+        switches = guard.feed(x, i) if guard is not None else []
+        for lo, hi, sw in guard.pieces(x.shape[0], switches) if guard is not None else [(0, x.shape[0], None)]:
+            if hi > lo:
+                q, qd = tracker.feed(x[lo:hi, cols])
+                events += [ev for win in windower.feed(q, qd, i[lo:hi]) for ev in det.feed(win)]
+            if sw is not None:
+                warns += sw.warnings
+                if sw.basis is not None:
+                    tracker.set_basis(sw.basis)
+                    windower.basis = sw.basis
+                    cols = list(sw.keep)
+    events.extend(det.finish())
+    return events, warns
 
 
 def modal_exchange_acc(case: CaseData, model_rig: Rig | None = None) -> list:
-    return _exchange(case, case.acc, "acceleration", model_rig)
+    return modal_exchange_health(case, model_rig)[0]
 
 
 def modal_exchange_disp(case: CaseData, model_rig: Rig | None = None) -> list:
-    return _exchange(case, case.disp_true, "displacement", model_rig)
+    return modal_exchange_health(case, model_rig, "displacement")[0]
 
 
 def robust_rq_acc(case: CaseData, model_rig: Rig | None = None) -> list[DetectedEvent]:

@@ -1,0 +1,487 @@
+"""Sensor health from the data: which channels the modal filter may trust (issue 21, item 2).
+
+The modal filter ``q = Φᵀ M x`` (analysis/modal_filter.py) weighs every sensor: one dead channel leaks
+~3 % of mode 1's energy into mode 2, a dead attachment sensor 46 % (issue 21's diagnosis), which is
+enough to open false events and hide true ones. The seed assumes working sensors at the model's DOFs
+(assumptions 5-7, L63-L65) and one on the nonlinear element (assumption 11, L69); nothing in its chain
+checks either. :class:`SensorHealth` judges each channel from the stream itself, causally, block by
+block, and names the fault with its reason:
+
+* **dead** — non-finite samples; flat at zero; or a level far below the other channels' (a
+  disconnected IEPE input reads the ADC's own noise, ~1e-3 of a live sensor's);
+* **stuck** — the same value for ``stuck_s`` on end while the other channels move;
+* **clipping** — samples at the channel's stated range (when the rig states one) and none beyond it (a
+  saturated chain reads full scale, never more);
+* **drifting** — the mean of a ``drift_window_s`` window wandering from the first window's by more
+  than ``drift_factor`` × that window's own standard deviation (a vibration's partial-cycle mean over
+  >= 20 periods is < 1 % of its std; a ramp or an offset step is not);
+* **noisy** — before the first input (the quiet, pre-hit record), a noise level ``noisy_factor`` × the
+  median channel's, in volts when the sensitivities are known (a sensor's noise is an electrical
+  property: a less sensitive sensor legitimately shows more noise in m/s²);
+* **inconsistent** — during a hit, the channel's band-limited response against the model's expectation
+  from its neighbours: leave-one-out, the modes of the model condensed to the other healthy channels
+  predict this one (``x̂_k = Φ_k Φ_{-k}⁺ x_{-k}``); a residual beyond ``inconsistent`` of the channel's
+  level and ``inconsistent_over_median`` × the median channel's residual flags it. With one bad channel
+  among 14 the others' predictions use it too, so only the worst channel is judged at a time, removed,
+  and the rest judged again (the leave-one-out of the bad channel itself is clean).
+
+Thresholds, measured on the evaluation grid (analysis/evaluation, 24 + 24 hits of beam_ch4_exp and of
+beam_al_mid at 1-3 % noise and ±5 % sensitivity errors, docs/detection.md "Sensor health"):
+
+* healthy channels' level is >= 0.31 × the median's (the quietest sensor, near the clamp, over whole
+  records; >= 0.47 over the first 1024 samples); a dead channel is ~1e-5: ``dead_rel`` = 0.02 sits
+  15× below the quietest healthy channel and 2000× above a dead one;
+* the leave-one-out residual of a healthy channel (4 modes, 5 Hz to between modes 4 and 5) is <= 0.17
+  of its level, of a dead one 1.0: ``inconsistent`` = 0.5 is 3× above the healthy worst;
+* a drift of 3 window stds cannot come from vibration (< 0.02) or noise (~1/√N);
+* ``noisy_factor`` = 10: in the grid the noise is sized per channel (1 % of its RMS), so a healthy
+  channel's noise is within 3.2× of the median's.
+
+Pure and bounded: a few accumulators per channel, a (n, n) covariance for the hit check, ``drift``
+window means; verdicts are final (a bad channel stays bad for the stream).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.signal
+
+from analysis.modal_filter import ModalBasis, modal_basis
+
+Fault = Literal["dead", "stuck", "clipping", "drifting", "noisy", "inconsistent"]
+
+#: a sample at or above this fraction of the stated range counts as clipped (daq/hits.py's CLIP_FRACTION)
+CLIP_FRACTION = 0.999
+#: ... but a saturated channel never reads beyond its full scale: a value past this fraction of the stated range
+#: means the range is not where the chain saturates (a simulator, or a DAQ range wider than the sensor's rating),
+#: and the samples near it are signal, not clipping (the evaluation grid's hardest hits exceed the ±4905 m/s²
+#: rating of beam_ch4_exp's accelerometers unclipped)
+OVER_RANGE = 1.001
+
+
+@dataclass(frozen=True)
+class HealthSettings:
+    """Named thresholds (the module docstring says how each was chosen)."""
+
+    level_min_s: float = 0.015  # level, flat, stuck and clipping are judged on spans this long (256 samples at 16 kHz)
+    dead_rel: float = 0.02  # level below this fraction of the median channel's: dead
+    stuck_s: float = 0.02  # identical consecutive samples for this long (328 at 16 kHz) while others move: stuck
+    clip_samples: int = 2  # samples at the range within one judgement: clipping
+    drift_window_s: float = 1.0  # at least 20 periods of NNM1 for f1 >= 20 Hz
+    drift_factor: float = 3.0
+    noisy_factor: float = 10.0
+    quiet_min_s: float = 0.25  # pre-input data needed before the noise is judged
+    hit_settle_s: float = 0.03  # after the pulse: the band-pass and the impact's broadband kick settle
+    hit_span_s: float = 0.27  # response judged over this span
+    inconsistent: float = 0.5
+    inconsistent_over_median: float = 3.0
+    band_lo_hz: float = 5.0  # the modal filter's high-pass corner
+    max_excluded_per_hit: int = 2
+
+    def __post_init__(self) -> None:
+        if min(self.level_min_s, self.stuck_s, self.drift_window_s, self.hit_span_s) <= 0 or self.dead_rel <= 0:
+            raise ValueError("sensor health: spans and dead_rel must be > 0")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One channel judged bad: which, what, why, when (s on the stream's clock)."""
+
+    channel: str
+    fault: Fault
+    reason: str
+    t_s: float
+    index: int = 0  # the stream sample (counted from the first fed) at which it was judged: the filter switches there
+
+    def line(self) -> str:
+        return f"sensor {self.channel} {self.fault}: {self.reason}"
+
+
+def _median(a: np.ndarray) -> float:
+    """Median of a short vector (one per channel) without np.median's overhead; 0 for none."""
+    if a.size == 0:
+        return 0.0
+    b = np.sort(a)
+    h = b.size // 2
+    return float(b[h]) if b.size % 2 else 0.5 * float(b[h - 1] + b[h])
+
+
+def guyan_condense(M: np.ndarray, K: np.ndarray, keep: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Static (Guyan) condensation of ``(M, K)`` onto the DOFs ``keep`` (eqs. 2.19-2.22).
+
+    Condensing a Guyan model again is the Guyan model at the fewer DOFs (static condensation is exact
+    for statics and composes), so the modal filter without a sensor needs only the operator's matrices.
+    """
+    keep = list(keep)
+    drop = [i for i in range(M.shape[0]) if i not in keep]
+    if not drop:
+        return M.copy(), K.copy()
+    T = np.zeros((M.shape[0], len(keep)))
+    T[keep, np.arange(len(keep))] = 1.0
+    T[drop] = -np.linalg.solve(K[np.ix_(drop, drop)], K[np.ix_(drop, keep)])
+    return T.T @ M @ T, T.T @ K @ T
+
+
+def reduced_basis(M: np.ndarray, K: np.ndarray, keep: Sequence[int], n_modes: int, like: np.ndarray | None = None) -> ModalBasis:
+    """The modal basis of the model condensed to ``keep``. ``like``: the previous basis's shapes at the DOFs
+    ``keep`` (rows in ``keep``'s order); each new mode takes the sign that agrees with it, so that the modal
+    coordinates stay continuous when a filter swaps bases mid-stream."""
+    Mr, Kr = guyan_condense(M, K, keep)
+    b = modal_basis(Mr, Kr, min(n_modes, len(keep)))
+    if like is None or like.shape != (len(keep), b.n_modes):
+        return b
+    sign = np.where(np.sum(b.shapes * (Mr @ like), axis=0) < 0, -1.0, 1.0)
+    shapes = b.shapes * sign
+    return ModalBasis(omega=b.omega, shapes=shapes, projector=shapes.T @ Mr)
+
+
+def loo_residuals(S: np.ndarray, shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Leave-one-out: for each channel k, the RMS of ``x_k − Φ_k Φ_{-k}⁺ x_{-k}`` relative to the larger of the
+    channel's and the prediction's RMS, and the prediction's RMS over the channel's; from the channels'
+    (band-passed) covariance ``S`` alone."""
+    n = S.shape[0]
+    rel, pred_over = np.zeros(n), np.zeros(n)
+    for k in range(n):
+        m = np.arange(n) != k
+        u = np.zeros(n)
+        u[m] = shapes[k] @ np.linalg.pinv(shapes[m])
+        own, pred = float(S[k, k]), float(u @ S @ u)
+        v = -u
+        v[k] = 1.0
+        res = max(float(v @ S @ v), 0.0)
+        rel[k] = np.sqrt(res / max(own, pred, 1e-300))
+        pred_over[k] = np.sqrt(pred / max(own, 1e-300))
+    return rel, pred_over
+
+
+class SensorHealth:
+    """Feed blocks ``(n_samples, n_channels)`` of one stream in order (with the hammer's input mask, when known);
+    get the channels newly judged bad. ``M``, ``K``: the reduced model at the channels (their order) for the
+    hit check; ``ranges`` (SI, None: unknown) and ``sensitivities`` (mV per SI unit) per channel, optional."""
+
+    def __init__(
+        self, channels: Sequence[str], sample_rate: float, M: np.ndarray | None = None, K: np.ndarray | None = None,
+        n_modes: int = 4, ranges: Sequence[float | None] | None = None, sensitivities: Sequence[float] | None = None,
+        settings: HealthSettings | None = None,
+    ) -> None:  # fmt: skip
+        self.channels = tuple(channels)
+        n = len(self.channels)
+        self.fs = float(sample_rate)
+        self.s = settings or HealthSettings()
+        self.M, self.K, self.n_modes = M, K, int(n_modes)
+        self._range = np.array([np.inf if r is None else float(r) for r in (ranges or [None] * n)])
+        self._volts = np.ones(n) if sensitivities is None else np.asarray(sensitivities, float)
+        if self._range.shape != (n,) or self._volts.shape != (n,):
+            raise ValueError("sensor health: one range and one sensitivity per channel")
+        self.bad: dict[str, Verdict] = {}
+        self._index = 0  # samples seen
+        self._at = 0  # the sample a verdict being made is judged at
+        self._level_n = max(2, round(self.s.level_min_s * self.fs))
+        self._stuck_n = max(2, round(self.s.stuck_s * self.fs))
+        self._drift_n = max(2, round(self.s.drift_window_s * self.fs))
+        self._reset_level()
+        self._last = np.full(n, np.nan)
+        self._carry = np.zeros(n, np.int64)  # current run of identical samples, carried across blocks
+        self._drift = [0, np.zeros(n), np.zeros(n)]  # samples, Σx, Σx² of the current drift window
+        self._drift_ref: np.ndarray | None = None
+        self._quiet = [0, np.zeros(n)]  # pre-input samples and Σ(x − mean)² per channel (via level judgements)
+        self._seen_input = False
+        self._in_input = False
+        self._hit: list | None = None  # [start index, stop index, n, Σ xxᵀ] of the response being judged
+        self._sos: np.ndarray | None = None
+        self._zi: np.ndarray | None = None
+        if M is not None and K is not None:
+            b = modal_basis(M, K, min(self.n_modes + 1, n))
+            f = b.freqs_hz
+            hi = float(np.sqrt(f[self.n_modes - 1] * f[self.n_modes])) if f.size > self.n_modes else 1.5 * float(f[-1])
+            self._sos = scipy.signal.butter(4, (self.s.band_lo_hz, min(hi, 0.45 * self.fs)), "bandpass", fs=self.fs,
+                                            output="sos")  # fmt: skip
+            self._zi = np.zeros((self._sos.shape[0], 2, n))
+
+    # --- public ---------------------------------------------------------------------------------
+    @property
+    def good(self) -> list[int]:
+        """Indices of the channels not judged bad."""
+        return [i for i, c in enumerate(self.channels) if c not in self.bad]
+
+    def feed(self, block: np.ndarray, input_active: np.ndarray | None = None) -> list[Verdict]:
+        """The block's new verdicts, in stream order. Every check is judged at a fixed sample of the stream
+        (the end of a ``level_min_s`` span, of a drift window, of a hit's response span: ``Verdict.index``),
+        whatever the block split, so a filter that switches there gives the same numbers live and in replay."""
+        x = np.asarray(block, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != len(self.channels):
+            raise ValueError(f"sensor health: blocks of (n, {len(self.channels)}) samples, got {x.shape}")
+        out: list[Verdict] = []
+        if x.shape[0] == 0:
+            return out
+        finite = np.isfinite(x)
+        if not finite.all():
+            self._nonfinite += np.count_nonzero(~finite, axis=0)
+            x = np.where(finite, x, 0.0)
+        inp = None if input_active is None else np.asarray(input_active, bool)
+        i = 0
+        while i < x.shape[0]:  # level spans on the stream's lattice
+            take = min(x.shape[0] - i, self._level_n - self._level_acc[0])
+            seg = x[i : i + take]
+            self._level(seg)
+            self._stuck(seg)
+            self._clip(seg)
+            if inp is not None and inp[i : i + take].any():
+                self._seen_input = True
+            i += take
+            if self._level_acc[0] == self._level_n:
+                self._at = self._index + i
+                out += self._judge_level(inp is not None)
+        out += self._drift_feed(x)
+        if self._sos is not None and inp is not None:
+            out += self._hit_feed(x, inp)
+        self._index += x.shape[0]
+        return sorted(out, key=lambda v: v.index)
+
+    def restart(self) -> None:
+        """A gap in the stream: drop partial accumulations (verdicts stay)."""
+        self._reset_level()
+        self._carry[:] = 0
+        self._last[:] = np.nan
+        self._drift = [0, np.zeros(len(self.channels)), np.zeros(len(self.channels))]
+        self._hit = None
+        if self._zi is not None:
+            self._zi[:] = 0.0
+
+    # --- checks ---------------------------------------------------------------------------------
+    def _judge(self, k: int, fault: Fault, reason: str) -> list[Verdict]:
+        name = self.channels[k]
+        if name in self.bad:
+            return []
+        v = Verdict(name, fault, reason, round(self._at / self.fs, 4), self._at)
+        self.bad[name] = v
+        return [v]
+
+    def _reset_level(self) -> None:
+        n = len(self.channels)
+        self._level_acc = [0, np.zeros(n), np.zeros(n)]
+        self._run_max = np.zeros(n, np.int64)
+        self._run_val = np.zeros(n)
+        self._clips = np.zeros(n, np.int64)
+        self._beyond = np.zeros(n, np.int64)
+        self._nonfinite = np.zeros(n, np.int64)
+
+    def _level(self, x: np.ndarray) -> None:
+        a = self._level_acc
+        a[0] += x.shape[0]
+        a[1] += x.sum(axis=0)
+        a[2] += np.einsum("ij,ij->j", x, x)
+
+    def _stuck(self, x: np.ndarray) -> None:
+        """Longest run of identical consecutive samples per channel (counted in equal pairs), carried across blocks."""
+        same = np.concatenate([self._last[None], x])
+        same = same[1:] == same[:-1]
+        n = x.shape[0]
+        repeats = same.any(axis=0)
+        self._carry[~repeats] = 0  # every sample differs from the one before (live noise): no run, the fast path
+        for c in np.flatnonzero(repeats):
+            br = np.flatnonzero(~same[:, c])  # samples that differ from the one before: a run starts there
+            if br.size == 0:
+                self._carry[c] += n
+                run, val = int(self._carry[c]), x[0, c]
+            else:
+                starts = np.concatenate([br, [n]])
+                lengths = np.diff(starts) - 1  # equal pairs after each start
+                i = int(np.argmax(lengths))
+                run, val = int(lengths[i]), x[br[i], c]
+                if self._carry[c] + br[0] > run:
+                    run, val = int(self._carry[c] + br[0]), x[0, c]
+                self._carry[c] = lengths[-1]
+            if run > self._run_max[c]:
+                self._run_max[c], self._run_val[c] = run, val
+        self._last = x[-1].copy()
+
+    def _clip(self, x: np.ndarray) -> None:
+        if np.isfinite(self._range).any():
+            a = np.abs(x)
+            self._clips += np.count_nonzero(a >= CLIP_FRACTION * self._range, axis=0)
+            self._beyond += np.count_nonzero(a > OVER_RANGE * self._range, axis=0)
+
+    def _judge_level(self, hammer_known: bool) -> list[Verdict]:
+        n, s1, s2 = self._level_acc
+        std = np.sqrt(np.maximum(s2 / n - (s1 / n) ** 2, 0.0))
+        level = std * self._volts
+        good = self.good
+        out: list[Verdict] = []
+        med = _median(level[good])
+        # the median channel moves (is not itself stuck): only asked when some channel has a long run
+        moving = bool(good) and (int(self._run_max.max()) < self._stuck_n or _median(self._run_max[good]) < self._stuck_n)
+        for k in good:
+            if self._nonfinite[k]:
+                out += self._judge(k, "dead", f"{int(self._nonfinite[k])} non-finite samples")
+            elif self._clips[k] >= self.s.clip_samples and self._beyond[k] == 0:
+                out += self._judge(k, "clipping", f"{int(self._clips[k])} samples at its ±{self._range[k]:g} range")
+            elif moving and self._run_max[k] >= self._stuck_n:
+                v = float(self._run_val[k])
+                ms = 1e3 * self._run_max[k] / self.fs
+                out += (self._judge(k, "dead", f"flat at 0 for {ms:.0f} ms while the others move") if v == 0 else
+                        self._judge(k, "stuck", f"constant at {v:.4g} for {ms:.0f} ms while the others move"))  # fmt: skip
+            elif med > 0 and std[k] == 0 and s1[k] == 0:
+                out += self._judge(k, "dead", "flat at 0 while the others move")
+            elif med > 0 and level[k] < self.s.dead_rel * med:
+                out += self._judge(k, "dead", f"level {level[k] / med:.1e} of the median channel's (below {self.s.dead_rel:g})")
+        if hammer_known and not self._seen_input:
+            self._quiet[0] += n
+            self._quiet[1] += std**2 * n
+            if self._quiet[0] >= self.s.quiet_min_s * self.fs:
+                noise = np.sqrt(self._quiet[1] / self._quiet[0]) * self._volts
+                good = self.good
+                med_n = float(np.median(noise[good])) if good else 0.0
+                for k in good:
+                    if med_n > 0 and noise[k] > self.s.noisy_factor * med_n:
+                        out += self._judge(k, "noisy", f"pre-hit noise {noise[k] / med_n:.0f}x the median channel's")
+        self._reset_level()
+        return out
+
+    def _drift_feed(self, x: np.ndarray) -> list[Verdict]:
+        out: list[Verdict] = []
+        i = 0
+        while i < x.shape[0]:
+            d = self._drift
+            take = min(x.shape[0] - i, self._drift_n - d[0])
+            seg = x[i : i + take]
+            d[0] += take
+            d[1] += seg.sum(axis=0)
+            d[2] += np.einsum("ij,ij->j", seg, seg)
+            i += take
+            if d[0] < self._drift_n:
+                break
+            self._at = self._index + i
+            mean = d[1] / d[0]
+            std = np.sqrt(np.maximum(d[2] / d[0] - mean**2, 0.0))
+            if self._drift_ref is None:
+                self._drift_ref = mean
+            else:
+                for k in self.good:
+                    if std[k] > 0 and abs(mean[k] - self._drift_ref[k]) > self.s.drift_factor * std[k]:
+                        out += self._judge(k, "drifting", f"mean moved {abs(mean[k] - self._drift_ref[k]):.3g} "
+                                                          f"({abs(mean[k] - self._drift_ref[k]) / std[k]:.0f}x its std) "
+                                                          f"since the first {self.s.drift_window_s:g} s")  # fmt: skip
+            self._drift = [0, np.zeros(x.shape[1]), np.zeros(x.shape[1])]
+        return out
+
+    def _hit_feed(self, x: np.ndarray, inp: np.ndarray) -> list[Verdict]:
+        y, zi = scipy.signal.sosfilt(self._sos, x, axis=0, zi=self._zi)
+        self._zi = zi
+        out: list[Verdict] = []
+        on = np.flatnonzero(inp)
+        if on.size:
+            self._seen_input = True
+            last = self._index + int(on[-1]) + 1  # one past the input's last sample
+            settle = round(self.s.hit_settle_s * self.fs)
+            self._hit = [last + settle, last + settle + round(self.s.hit_span_s * self.fs), 0, np.zeros((x.shape[1],) * 2)]
+        h = self._hit
+        if h is None:
+            return out
+        a, b = max(h[0] - self._index, 0), min(h[1] - self._index, x.shape[0])
+        if b > a:
+            seg = y[a:b]
+            h[2] += b - a
+            h[3] += seg.T @ seg
+        if self._index + x.shape[0] >= h[1]:
+            self._at = h[1]
+            out += self._judge_hit(h[3] / max(h[2], 1))
+            self._hit = None
+        return out
+
+    def _judge_hit(self, S: np.ndarray) -> list[Verdict]:
+        assert self.M is not None and self.K is not None
+        out: list[Verdict] = []
+        for _ in range(self.s.max_excluded_per_hit):
+            good = self.good
+            if len(good) < self.n_modes + 3:
+                break
+            shapes = reduced_basis(self.M, self.K, good, self.n_modes).shapes
+            Sg = S[np.ix_(good, good)]
+            rel, pred_over = loo_residuals(Sg, shapes)
+            w = int(np.argmax(rel))
+            med = float(np.median(rel))
+            if not (rel[w] > self.s.inconsistent and rel[w] > self.s.inconsistent_over_median * med):
+                break
+            k = good[w]
+            if pred_over[w] > 1.0 / self.s.dead_rel:
+                out += self._judge(k, "dead", f"no response to the hit (the neighbours predict {pred_over[w]:.0f}x its level)")
+            else:
+                why = f"{rel[w]:.2f} of its level ({rel[w] / max(med, 1e-12):.0f}x the median channel's)"
+                out += self._judge(k, "inconsistent", f"hit response off the model's expectation from its neighbours by {why}")
+        return out
+
+
+@dataclass(frozen=True)
+class Switch:
+    """The modal filter changes ``offset`` samples into a block: new basis (None: kept) on the channels ``keep``."""
+
+    offset: int
+    warnings: list[tuple[str, str, str]]  # (kind, key, message)
+    basis: ModalBasis | None
+    keep: list[int]
+
+
+class HealthGuard:
+    """Sensor health in front of a modal filter: the channels judged bad leave it, and the basis is rebuilt on the
+    rest (Guyan at their DOFs, :func:`guyan_condense`). One object for a session's operator and the evaluation's
+    detectors, so that the grid measures what a session does.
+
+    ``feed`` each block *before* the modal filter sees it; it returns the :class:`Switch` es inside the block: the
+    filter runs the samples before each switch on the old basis and the rest on the new one (a dead channel
+    leaves at the end of the stream's first ``level_min_s`` span). Switching at stream samples, not at block
+    edges, keeps live and replay identical. ``keep`` are the channels the filter uses (indices into ``channels``).
+    ``nonlinear``: the channels on the nonlinear elements' DOFs, whose loss makes detection blind there (L69).
+    """
+
+    def __init__(
+        self, M: np.ndarray, K: np.ndarray, channels: Sequence[str], sample_rate: float, n_modes: int,
+        settings: HealthSettings | None = None, ranges: Sequence[float | None] | None = None,
+        sensitivities: Sequence[float] | None = None, nonlinear: Sequence[str] = (),
+    ) -> None:  # fmt: skip
+        self.M, self.K, self.n_modes = M, K, int(n_modes)
+        self.channels = tuple(channels)
+        self.nonlinear = tuple(nonlinear)
+        self.health = SensorHealth(channels, sample_rate, M, K, self.n_modes, ranges, sensitivities, settings)
+        self.keep = list(range(len(self.channels)))
+        self.basis = modal_basis(M, K, min(self.n_modes, len(self.channels)))
+        self.verdicts: list[Verdict] = []
+
+    def feed(self, block: np.ndarray, input_active: np.ndarray | None = None) -> list[Switch]:
+        """One block: where in it (sample offset) the modal filter changes, with the warnings to raise there."""
+        start = self.health._index
+        out: list[Switch] = []
+        for v in self.health.feed(block, input_active):
+            self.verdicts.append(v)
+            good = [i for i in self.keep if self.channels[i] != v.channel]
+            rebuilt = len(good) >= self.n_modes + 1
+            tail = (f"excluded from the modal filter (rebuilt on {len(good)} sensors)" if rebuilt else
+                    f"NOT excluded: {len(good)} healthy sensors cannot carry {self.n_modes} modes")  # fmt: skip
+            warns = [("sensor", f"sensor:{v.channel}", f"{v.line()} at {v.t_s:.3f} s; {tail}")]
+            if v.channel in self.nonlinear:
+                why = f"its sensor {v.channel} is {v.fault} (the seed's assumption 11, L69)"
+                warns.append(("blind", f"blind:{v.channel}", f"detection is blind at the nonlinear element: {why}"))
+            basis = None
+            if rebuilt:
+                pos = {c: i for i, c in enumerate(self.keep)}
+                like = self.basis.shapes[[pos[c] for c in good]]
+                self.basis = basis = reduced_basis(self.M, self.K, good, self.n_modes, like)
+                self.keep = good
+            out.append(Switch(min(max(v.index - start, 0), block.shape[0]), warns, basis, list(self.keep)))
+        return out
+
+    def pieces(self, n: int, switches: list[Switch]) -> list[tuple[int, int, Switch | None]]:
+        """The block's sample ranges ``[a, b)`` and the switch to apply after each (None after the last)."""
+        out, a = [], 0
+        for sw in switches:
+            out.append((a, sw.offset, sw))
+            a = sw.offset
+        out.append((a, n, None))
+        return out
+
+    def restart(self) -> None:
+        self.health.restart()

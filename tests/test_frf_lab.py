@@ -132,7 +132,8 @@ def check_lane_and_log(rig: Rig, res: SessionResult, out: Path, n_hits: int, out
     assert min(coh_lane) >= 0.99, coh_lane
     run = frf_from_log(out, rig, band_hz=band)
     frf = run.frf
-    assert frf is not None and int(frf.n_averages[0]) == final["averages"] == n_hits
+    why = [(h["hit"], h["verdict"], h["reason"]) for h in run.hits]
+    assert frf is not None and int(frf.n_averages[0]) == final["averages"] == n_hits, why
     assert tuple(frf.outputs) == outputs
     assert [float(f) for f in frf.freq[frf.peaks(6)]] == final["peaks_hz"]  # the same records, the same peaks
     err_log, coh_log = [], []

@@ -420,6 +420,30 @@ class UpdateSpec(_Strict):
     provenance: UpdateProvenance | None = None
 
 
+class NsiSpec(_Strict):
+    """``[nsi]``: the nonlinear attachment ``gvt identify`` characterises (seed §5.1, docs/nsi.md).
+
+    The attachment sits at ``x`` (beam, m) or ``dof`` (a DOF name); δ is its displacement minus the mean of
+    the ``relative_to`` points (eq. 5.13: positions on a beam, DOF names otherwise), or the attachment itself
+    when the list is empty (grounded). ``mass``: the attachment's mass in eq. 5.8 (default: the effective mass
+    1/φ_δ² of its mass-normalised linear mode); ``mode``: that linear mode, 1-based (default: the lowest mode
+    whose φ_δ² is at least half the largest); ``delta_highpass_hz``: the Butterworth high-pass on δ before δ̄
+    of measured data (Ch. 5 used 6 Hz, L1747; none by default)."""
+
+    x: float | None = None
+    dof: str | None = None
+    relative_to: list[float | str] = []
+    mass: Positive | None = Field(default=None, description="kg")
+    mode: Annotated[int, Field(ge=1)] | None = None
+    delta_highpass_hz: Positive | None = Field(default=None, description="Hz")
+
+    @model_validator(mode="after")
+    def _one_location(self) -> NsiSpec:
+        if (self.x is None) == (self.dof is None):
+            raise ValueError("give exactly one of 'x' (position along a beam, m) or 'dof' (a DOF name) for the attachment")
+        return self
+
+
 class RigConfig(_Strict):
     name: Annotated[str, Field(min_length=1)]
     description: str = ""
@@ -436,6 +460,7 @@ class RigConfig(_Strict):
     simulation: SimulationSpec = SimulationSpec()
     geometry: GeometrySpec | None = None
     update: UpdateSpec | None = None
+    nsi: NsiSpec | None = None
 
     @property
     def all_sensors(self) -> list[SensorSpec]:

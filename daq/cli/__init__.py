@@ -16,7 +16,7 @@ import sys
 import typer
 
 from analysis.errors import GvtError
-from daq.cli import analyze, confirm, demo, export, frf, modal, record, replay, report, simulate, sweep
+from daq.cli import analyze, confirm, demo, export, frf, identify, modal, record, replay, report, simulate, sweep
 from daq.cli.common import err
 from daq.cli.device import device_app
 from daq.cli.log import log_app
@@ -36,7 +36,7 @@ app.add_typer(model_app, name="model")
 app.add_typer(log_app, name="log")
 app.add_typer(device_app, name="device")
 for verb in (simulate.simulate, sweep.sweep, demo.demo, replay.replay, analyze.analyze, confirm.confirm, record.record,
-             report.report, export.export, frf.frf, modal.modal):  # fmt: skip
+             report.report, export.export, frf.frf, modal.modal, identify.identify):  # fmt: skip
     app.command()(verb)
 
 

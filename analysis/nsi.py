@@ -1,0 +1,516 @@
+"""Nonlinear system identification of a local attachment from the RQ frequency–displacement plot (seed §5.1).
+
+The seed's second half (L1471–L1505, digest method-nsi.md §1.7–1.10):
+
+1. **Characteristic displacement** of the relative displacement δ across the attachment over a window or a
+   whole run, ``δ̄ = (1/N) Σ |δ_n|`` (eq. 5.2, the discrete form of eq. 5.1). δ is the attachment minus the
+   mean of its connection points (eq. 5.13, with the "+" the physics needs; eq. 5.12 prints "−"), or the
+   attachment DOF itself for a grounded one. Measured data first gets the Ch. 5 extra 3rd-order 6 Hz
+   Butterworth high-pass (L1747) that removes a mode which never engages the attachment.
+2. **RQ-FDP**: per run/window the pair (δ̄, RQ frequency of the attachment's POM), the POM picked by MAC
+   against the attachment's linear mode (eq. 5.6); two POMs that both resemble that mode are the 1:1
+   capture signature ("similar POMs", L1555, L1566) and such points are marked and left out of the fit
+   (L1747). Pairs are sorted by δ̄ (L1573) and the fit is made to a *filtered* curve (L1608), whose filter
+   the seed does not name: here a centred running median over ``smooth_window`` points of the δ̄-sorted,
+   capture-free curve (robust to single-run outliers of the POD, which a Savitzky–Golay fit is not).
+3. **Law** ``f(δ̄) = (1/2π) sqrt(ω_n² + κ (α/m) δ̄^β)`` — eq. 5.8 with κ = 1 (the seed's secant substitution
+   of δ̄ for δ, L1503). ``kappa="hb"`` is the harmonic-balance alternative this module adds: a sinusoid of
+   amplitude A has δ̄ = 2A/π, and one harmonic of α|δ|^β δ gives the equivalent stiffness
+   α A^β (2/√π) Γ((β+3)/2)/Γ((β+4)/2), so κ(β) = (π/2)^β (2/√π) Γ((β+3)/2)/Γ((β+4)/2) (1.85 at β = 2).
+4. **Fit**: where the curve crosses a low-energy linear frequency f_i at δ̄_i (linear interpolation), α is
+   pinned by eq. 5.9 and β alone is fitted on eq. 5.10; otherwise α and β together (Ch. 6, L2120). The
+   objective is R² (L1608), maximised by ``scipy.optimize.differential_evolution`` (the seed used MATLAB's
+   GlobalSearch); the uncertainty is a pairs bootstrap of the capture-free points, each replicate refined
+   by a bounded local least-squares from the global optimum (a global search per replicate would cost
+   ~100x as much for the same answer on a unimodal problem).
+
+Pure numpy/scipy: arrays in, arrays or frozen dataclasses out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from analysis.errors import BadInput
+
+FloatArray = np.ndarray
+
+#: The Ch. 5 extra high-pass on the relative displacement before δ̄ (L1747): 3rd-order Butterworth, 6 Hz.
+SEED_DELTA_HIGHPASS_HZ = 6.0
+SEED_DELTA_HIGHPASS_ORDER = 3
+#: β bounds of the seed's fits (L1608, L2120) and its α range for the two-parameter fit (N/m^(β+1)).
+SEED_BETA_BOUNDS = (0.5, 3.5)
+SEED_ALPHA_BOUNDS = (1e3, 1e14)
+#: MAC above which a POM "resembles" the attachment's linear mode; two such POMs in one run/window are the
+#: seed's similar-POM (1:1 capture) signature (L1555, L1566). The seed gives no number; 0.6 is the MAC where
+#: the shape is more that mode than anything else.
+SIMILAR_MAC = 0.6
+
+
+# ------------------------------------------------------------------------------ characteristic displacement
+def relative_displacement(disp: FloatArray, attachment: int, relative_to: tuple[int, ...] = ()) -> FloatArray:
+    """δ(t) = x_attachment − mean of the connection points (eq. 5.13); the attachment itself when grounded.
+
+    ``disp`` is (n_samples, n_channels) or (runs, n_samples, n_channels); the indices are channel columns.
+    """
+    d = np.asarray(disp, dtype=float)
+    x = d[..., attachment]
+    if relative_to:
+        x = x - d[..., list(relative_to)].mean(axis=-1)
+    return x
+
+
+def highpass_delta(
+    delta: FloatArray, fs: float, corner_hz: float | None = SEED_DELTA_HIGHPASS_HZ, order: int = SEED_DELTA_HIGHPASS_ORDER
+) -> FloatArray:
+    """The Ch. 5 filter on δ before averaging (L1747): Butterworth high-pass, zero phase along the last axis.
+
+    Zero phase (``sosfiltfilt``) because δ̄ is a magnitude average and the seed states no phase (as for its
+    integration chain, method-nsi §1.11). ``corner_hz=None`` returns δ unchanged (the computational studies
+    used the raw simulated displacement, L1573)."""
+    if corner_hz is None:
+        return np.asarray(delta, dtype=float)
+    import scipy.signal
+
+    if not 0 < corner_hz < fs / 2:
+        raise BadInput(f"δ high-pass corner {corner_hz:g} Hz must lie in (0, fs/2 = {fs / 2:g} Hz)")
+    sos = scipy.signal.butter(order, corner_hz, btype="highpass", fs=fs, output="sos")
+    return scipy.signal.sosfiltfilt(sos, np.asarray(delta, dtype=float), axis=-1)
+
+
+def characteristic_displacement(delta: FloatArray, bounds: FloatArray | None = None) -> FloatArray:
+    """δ̄ = (1/N) Σ|δ_n| (eq. 5.2) over the whole last axis, or per window ``bounds`` (k, 2) ``[start, stop)``.
+
+    Whole record: returns δ̄ with the leading shape of ``delta`` (a float for a 1-D record). Windows: (k,) for
+    a 1-D record — the seed's one value per POD window (42 of them in Ch. 5, L1747)."""
+    d = np.abs(np.asarray(delta, dtype=float))
+    if bounds is None:
+        return d.mean(axis=-1)
+    b = np.asarray(bounds, dtype=np.int64).reshape(-1, 2)
+    if d.ndim != 1:
+        raise BadInput("per-window δ̄ needs one 1-D record")
+    if b.size and (b[:, 0].min() < 0 or b[:, 1].max() > d.size or np.any(b[:, 1] <= b[:, 0])):
+        raise BadInput(f"window bounds must lie in [0, {d.size}] with start < stop")
+    c = np.concatenate([[0.0], np.cumsum(d)])
+    return (c[b[:, 1]] - c[b[:, 0]]) / (b[:, 1] - b[:, 0])
+
+
+# ------------------------------------------------------------------------------------------------ RQ-FDP
+@dataclass(frozen=True)
+class AttachmentPick:
+    """Per run/window: the column of the attachment's POM, its MAC, and whether two POMs resemble the mode."""
+
+    index: np.ndarray  # (k,) POM column
+    mac: FloatArray  # (k,) MAC of that POM with the attachment's linear mode
+    capture: np.ndarray  # (k,) bool: a second POM with MAC >= similar_mac (1:1 capture, L1566)
+
+
+def pick_attachment_pom(mac_to_mode: FloatArray, similar_mac: float = SIMILAR_MAC) -> AttachmentPick:
+    """The POM with the highest MAC to the attachment's linear mode (eq. 5.6, L1551), per row of
+    ``mac_to_mode`` (k, n_poms); a row where two POMs both reach ``similar_mac`` is flagged as capture."""
+    m = np.atleast_2d(np.asarray(mac_to_mode, dtype=float))
+    idx = np.argmax(m, axis=1)
+    best = m[np.arange(m.shape[0]), idx]
+    capture = np.sum(m >= similar_mac, axis=1) >= 2
+    return AttachmentPick(index=idx, mac=best, capture=capture)
+
+
+def running_median(y: FloatArray, window: int) -> FloatArray:
+    """Centred running median, the window shrinking (still centred) at the ends (no end bias on a monotone
+    curve: at the first point the "median" is the point itself)."""
+    if window < 1 or window % 2 == 0:
+        raise BadInput(f"smoothing window must be a positive odd number of points, got {window}")
+    y = np.asarray(y, dtype=float)
+    h, n = window // 2, y.size
+    out = np.empty_like(y)
+    for i in range(n):
+        r = min(h, i, n - 1 - i)
+        out[i] = np.median(y[i - r : i + r + 1])
+    return out
+
+
+@dataclass(frozen=True)
+class RqFdp:
+    """The attachment's RQ frequency–displacement curve, sorted by δ̄ (L1573).
+
+    ``order`` maps the sorted points back to the input runs/windows; ``capture`` marks the 1:1 capture points
+    (excluded from fits, L1747); ``smooth`` is the running median of the capture-free points (NaN at capture
+    points), the "filtered" curve the seed fits (L1608)."""
+
+    dbar: FloatArray
+    freq_hz: FloatArray
+    capture: np.ndarray
+    mac: FloatArray
+    smooth: FloatArray
+    order: np.ndarray
+    smooth_window: int
+
+    @property
+    def fit_mask(self) -> np.ndarray:
+        return ~self.capture & np.isfinite(self.smooth) & (self.dbar > 0)
+
+    def to_dict(self) -> dict:
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
+
+
+def rq_fdp(
+    dbar: FloatArray,
+    freq_hz: FloatArray,
+    mac: FloatArray | None = None,
+    capture: np.ndarray | None = None,
+    smooth_window: int = 5,
+) -> RqFdp:
+    """Sort (δ̄, f) by δ̄, keep the capture marks, smooth the capture-free curve (see the module docstring)."""
+    d = np.asarray(dbar, dtype=float).ravel()
+    f = np.asarray(freq_hz, dtype=float).ravel()
+    if d.shape != f.shape or d.size == 0:
+        raise BadInput(f"δ̄ and frequency need the same non-zero length, got {d.size} and {f.size}")
+    if not (np.all(np.isfinite(d)) and np.all(d >= 0)):
+        raise BadInput("δ̄ must be finite and non-negative")
+    cap = np.zeros(d.size, bool) if capture is None else np.asarray(capture, bool).ravel()
+    mc = np.full(d.size, np.nan) if mac is None else np.asarray(mac, dtype=float).ravel()
+    cap = cap | ~np.isfinite(f)
+    order = np.argsort(d, kind="stable")
+    d, f, cap, mc = d[order], f[order], cap[order], mc[order]
+    smooth = np.full(d.size, np.nan)
+    keep = ~cap
+    if keep.any():
+        smooth[keep] = running_median(f[keep], min(smooth_window, _odd_at_most(int(keep.sum()))))
+    return RqFdp(dbar=d, freq_hz=f, capture=cap, mac=mc, smooth=smooth, order=order, smooth_window=smooth_window)
+
+
+def _odd_at_most(n: int) -> int:
+    return max(1, n if n % 2 else n - 1)
+
+
+# --------------------------------------------------------------------------------------------------- law
+def hb_factor(beta: float | FloatArray) -> FloatArray | float:
+    """κ(β) = (π/2)^β (2/√π) Γ((β+3)/2) / Γ((β+4)/2): the one-harmonic equivalent stiffness of α|δ|^β δ at the
+    amplitude A = π δ̄ / 2 of a sinusoid with mean |δ| = δ̄ (1 at β = 0, 1.8506 at β = 2)."""
+    from scipy.special import gammaln
+
+    b = np.asarray(beta, dtype=float)
+    k = (np.pi / 2) ** b * (2 / np.sqrt(np.pi)) * np.exp(gammaln((b + 3) / 2) - gammaln((b + 4) / 2))
+    return float(k) if k.ndim == 0 else k
+
+
+Kappa = Literal["seed", "hb"]
+
+
+def _kappa(kind: Kappa, beta: float | FloatArray) -> FloatArray | float:
+    if kind == "seed":
+        return 1.0
+    if kind == "hb":
+        return hb_factor(beta)
+    raise BadInput(f"law form must be 'seed' (eq. 5.8) or 'hb', got {kind!r}")
+
+
+def law_hz(dbar: FloatArray, omega_n: float, mass: float, alpha: float, beta: float, kappa: Kappa = "seed") -> FloatArray:
+    """Eq. 5.8: f(δ̄) = (1/2π) sqrt(ω_n² + κ (α/m) δ̄^β), ω_n in rad/s (κ = 1 for the seed's form)."""
+    d = np.asarray(dbar, dtype=float)
+    return np.sqrt(omega_n**2 + _kappa(kappa, beta) * (alpha / mass) * d**beta) / (2.0 * np.pi)
+
+
+def alpha_from_intersection(f_i: float, dbar_i: float, beta: float, mass: float, omega_n: float, kappa: Kappa = "seed") -> float:
+    """Eq. 5.9: α = (m / δ̄_i^β) ((2π f_i)² − ω_n²), the α that puts f(δ̄_i) on the linear frequency f_i."""
+    if dbar_i <= 0:
+        raise BadInput("the intersection's δ̄ must be positive")
+    return float(mass / dbar_i**beta * ((2.0 * np.pi * f_i) ** 2 - omega_n**2) / _kappa(kappa, beta))
+
+
+def law_hz_intersection(dbar: FloatArray, omega_n: float, f_i: float, dbar_i: float, beta: float) -> FloatArray:
+    """Eq. 5.10: f(δ̄) = (1/2π) sqrt(ω_n² + ((2π f_i)² − ω_n²)(δ̄/δ̄_i)^β), one parameter (β); the same for
+    either κ form, since κ is absorbed into α."""
+    d = np.asarray(dbar, dtype=float)
+    return np.sqrt(omega_n**2 + ((2.0 * np.pi * f_i) ** 2 - omega_n**2) * (d / dbar_i) ** beta) / (2.0 * np.pi)
+
+
+def find_intersection(dbar: FloatArray, freq_hz: FloatArray, f_linear: float) -> float | None:
+    """δ̄ where the (sorted, smoothed) curve first rises through ``f_linear``, by linear interpolation between
+    the bracketing points (L1592); None when it never crosses upward."""
+    d, f = np.asarray(dbar, float), np.asarray(freq_hz, float)
+    ok = np.isfinite(f)
+    d, f = d[ok], f[ok]
+    s = f - f_linear
+    up = np.flatnonzero((s[:-1] < 0) & (s[1:] >= 0))
+    if up.size == 0:
+        return None
+    i = int(up[0])
+    return float(d[i] + (d[i + 1] - d[i]) * (-s[i]) / (s[i + 1] - s[i]))
+
+
+def r_squared(y: FloatArray, yhat: FloatArray) -> float:
+    """R² = 1 − Σ(y − ŷ)² / Σ(y − ȳ)² (method-nsi §1.10)."""
+    y, yhat = np.asarray(y, float), np.asarray(yhat, float)
+    sst = float(np.sum((y - y.mean()) ** 2))
+    return 1.0 - float(np.sum((y - yhat) ** 2)) / sst if sst > 0 else float("nan")
+
+
+# --------------------------------------------------------------------------------------------------- fit
+@dataclass(frozen=True)
+class FitSettings:
+    """How :func:`fit_power_law` searches: bounds (the seed's, L1608/L2120), the κ form, the bootstrap."""
+
+    beta_bounds: tuple[float, float] = SEED_BETA_BOUNDS
+    alpha_bounds: tuple[float, float] = SEED_ALPHA_BOUNDS
+    kappa: Kappa = "seed"
+    use_intersection: bool = True
+    n_boot: int = 200
+    seed: int = 0
+    tol: float = 1e-10
+
+
+@dataclass(frozen=True)
+class PowerLawFit:
+    """An identified α|δ|^β δ law with its R², points, intersection (if used) and bootstrap uncertainty.
+
+    ``alpha_ci``/``beta_ci`` are the 2.5/97.5 % percentiles of the pairs bootstrap; ``*_sd`` its standard
+    deviations."""
+
+    alpha: float
+    beta: float
+    r2: float
+    n_points: int
+    omega_n: float
+    mass: float
+    kappa: str
+    mode: str  # "intersection" (eqs. 5.9–5.10) or "two-parameter"
+    intersection: dict | None = None
+    alpha_ci: tuple[float, float] = (math.nan, math.nan)
+    beta_ci: tuple[float, float] = (math.nan, math.nan)
+    alpha_sd: float = math.nan
+    beta_sd: float = math.nan
+    evaluations: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def predict_hz(self, dbar: FloatArray) -> FloatArray:
+        return law_hz(dbar, self.omega_n, self.mass, self.alpha, self.beta, self.kappa)  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _model(theta: FloatArray, d: FloatArray, omega_n: float, m: float, kappa: Kappa, inter: tuple[float, float] | None):
+    if inter is not None:
+        return law_hz_intersection(d, omega_n, inter[0], inter[1], theta[0])
+    return law_hz(d, omega_n, m, 10.0 ** theta[0], theta[1], kappa)
+
+
+def fit_power_law(
+    dbar: FloatArray,
+    freq_hz: FloatArray,
+    omega_n: float,
+    mass: float,
+    f_linear: tuple[float, ...] = (),
+    settings: FitSettings = FitSettings(),
+) -> PowerLawFit:
+    """Fit eq. 5.8 to (δ̄, f) points (already capture-free and smoothed) by maximising R².
+
+    ``f_linear``: low-energy linear frequencies (Hz) the curve may cross; the first one crossed upward pins α
+    (eqs. 5.9–5.10, L1505) unless ``settings.use_intersection`` is False. Otherwise log10 α and β are fitted
+    together (L2120). Global search: ``differential_evolution`` (seeded, deterministic); uncertainty: pairs
+    bootstrap of the points, each replicate a bounded local least-squares from the optimum."""
+    import scipy.optimize
+
+    d = np.asarray(dbar, float)
+    f = np.asarray(freq_hz, float)
+    ok = np.isfinite(d) & np.isfinite(f) & (d > 0)
+    d, f = d[ok], f[ok]
+    s = settings
+    if d.size < 4:
+        raise BadInput(f"the RQ-FDP has {d.size} usable points; a fit needs at least 4")
+    if mass <= 0 or omega_n < 0:
+        raise BadInput("the attachment's mass must be positive and ω_n non-negative")
+    inter = None
+    if s.use_intersection:
+        for fl in sorted(f_linear):
+            if fl > omega_n / (2 * np.pi) * (1 + 1e-9):
+                di = find_intersection(d, f, fl)
+                if di is not None:
+                    inter = (float(fl), di)
+                    break
+    if inter is not None:
+        bounds = [s.beta_bounds]
+    else:
+        bounds = [tuple(np.log10(s.alpha_bounds)), s.beta_bounds]
+
+    def sse(theta, dd=d, ff=f):
+        r = _model(np.asarray(theta), dd, omega_n, mass, s.kappa, inter) - ff
+        v = float(r @ r)
+        return v if np.isfinite(v) else 1e300
+
+    de = scipy.optimize.differential_evolution(sse, bounds, seed=s.seed, tol=s.tol, polish=True, maxiter=2000)
+    theta = np.asarray(de.x, float)
+    nfev = int(de.nfev)
+
+    def params(th: FloatArray) -> tuple[float, float]:
+        if inter is None:
+            return 10.0 ** th[0], float(th[1])
+        return alpha_from_intersection(inter[0], inter[1], float(th[0]), mass, omega_n, s.kappa), float(th[0])
+
+    alpha, beta = params(theta)
+    r2 = r_squared(f, _model(theta, d, omega_n, mass, s.kappa, inter))
+    boots = []
+    if s.n_boot > 0:
+        rng = np.random.default_rng(s.seed)
+        lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
+        for _ in range(s.n_boot):
+            k = rng.integers(0, d.size, d.size)
+            dd, ff = d[k], f[k]
+            bi = inter
+            if inter is not None:  # the intersection is re-located on the resampled curve
+                o = np.argsort(dd)
+                di = find_intersection(dd[o], ff[o], inter[0])
+                bi = (inter[0], di) if di is not None else inter
+            res = scipy.optimize.least_squares(
+                lambda th, dd=dd, ff=ff, bi=bi: _model(th, dd, omega_n, mass, s.kappa, bi) - ff,
+                np.clip(theta, lo, hi), bounds=(lo, hi), method="trf",
+            )  # fmt: skip
+            nfev += int(res.nfev)
+            th = res.x
+            if bi is None:
+                boots.append((10.0 ** th[0], th[1]))
+            else:
+                boots.append((alpha_from_intersection(bi[0], bi[1], float(th[0]), mass, omega_n, s.kappa), th[0]))
+    kw: dict = {}
+    if boots:
+        b = np.asarray(boots)
+        kw = {
+            "alpha_ci": tuple(float(x) for x in np.percentile(b[:, 0], [2.5, 97.5])),
+            "beta_ci": tuple(float(x) for x in np.percentile(b[:, 1], [2.5, 97.5])),
+            "alpha_sd": float(np.std(b[:, 0], ddof=1)),
+            "beta_sd": float(np.std(b[:, 1], ddof=1)),
+        }
+    return PowerLawFit(
+        alpha=float(alpha),
+        beta=float(beta),
+        r2=float(r2),
+        n_points=int(d.size),
+        omega_n=float(omega_n),
+        mass=float(mass),
+        kappa=s.kappa,
+        mode="intersection" if inter is not None else "two-parameter",
+        intersection=None if inter is None else {"f_hz": inter[0], "dbar_m": inter[1]},
+        evaluations=nfev,
+        **kw,
+    )
+
+
+def fit_rq_fdp(
+    fdp: RqFdp, omega_n: float, mass: float, f_linear: tuple[float, ...] = (), settings: FitSettings = FitSettings()
+) -> PowerLawFit:
+    """:func:`fit_power_law` on the smoothed, capture-free points of an RQ-FDP (L1608, L1747)."""
+    m = fdp.fit_mask
+    return fit_power_law(fdp.dbar[m], fdp.smooth[m], omega_n, mass, f_linear, settings)
+
+
+# ------------------------------------------------------------------------------------- the attachment
+@dataclass(frozen=True)
+class AttachmentModel:
+    """What eq. 5.8 needs of the attachment, from the linear model at the measured DOFs.
+
+    ``mode`` (0-based) is the linear mode the attachment's POM follows at low energy, ``shape`` its mass-
+    normalised shape at the DOFs (the MAC reference, eq. 5.6), ``omega_n`` its frequency (rad/s, the low-energy
+    linear frequency of L1575), ``mass`` the m of eq. 5.8 and ``f_linear_hz`` the other low-energy linear
+    frequencies an intersection may pin α at (eqs. 5.9–5.10)."""
+
+    mode: int
+    shape: FloatArray
+    omega_n: float
+    mass: float
+    mass_source: str
+    f_linear_hz: tuple[float, ...]
+    phi_delta: FloatArray  # δ of every mass-normalised mode kept
+
+
+def attachment_model(
+    M: FloatArray,
+    K: FloatArray,
+    attachment: int,
+    relative_to: tuple[int, ...] = (),
+    mode: int | None = None,
+    mass: float | None = None,
+    n_modes: int = 12,
+) -> AttachmentModel:
+    """The attachment's linear mode and effective mass from the (Guyan-reduced) M, K at the output DOFs.
+
+    With mass-normalised modes φ_r the relative displacement of mode r is φ_δ,r = φ_r[att] − mean φ_r[refs];
+    one mode's Galerkin projection of a spring k_e across the attachment adds k_e φ_δ,r² to ω_r², so
+    m = 1/φ_δ,r² is the mass eq. 5.8 divides by: the attachment's own mass for a light NES whose mode is all
+    NES, the modal mass at the DOF for a spring grounded on a structure (m_beam/4 at a cantilever's tip).
+    Default mode: the lowest whose φ_δ² is at least half the largest among the ``n_modes`` lowest."""
+    import scipy.linalg
+
+    n = M.shape[0]
+    k = min(n_modes, n)
+    w2, phi = scipy.linalg.eigh(K, M, subset_by_index=[0, k - 1])
+    pd = phi[attachment] - (phi[list(relative_to)].mean(axis=0) if relative_to else 0.0)
+    if mode is None:
+        p2 = pd**2
+        mode = int(np.flatnonzero(p2 >= 0.5 * p2.max())[0])
+    elif not 0 <= mode < k:
+        raise BadInput(f"[nsi] mode {mode + 1} is outside the {k} lowest modes at the outputs")
+    if pd[mode] ** 2 < 1e-12 * float(np.max(pd**2)):
+        raise BadInput(f"linear mode {mode + 1} does not move the attachment (a node of it); choose another [nsi] mode")
+    om = float(np.sqrt(max(w2[mode], 0.0)))
+    m_eff = 1.0 / float(pd[mode] ** 2)
+    f_lin = tuple(float(np.sqrt(max(w, 0.0)) / (2 * np.pi)) for w in w2[mode + 1 :])
+    return AttachmentModel(
+        mode=int(mode),
+        shape=phi[:, mode].copy(),
+        omega_n=om,
+        mass=float(mass) if mass is not None else m_eff,
+        mass_source="[nsi] mass" if mass is not None else "1/phi_delta^2 of the linear mode",
+        f_linear_hz=f_lin,
+        phi_delta=pd,
+    )
+
+
+# ------------------------------------------------------------------------------ frequency of a POM's motion
+def pom_frequency_hz(disp: FloatArray, pom: FloatArray, fs: float, trim: float = 0.05) -> float:
+    """Mean frequency of a POM's temporal coefficient a(t) = (x(t) − x̄)·ψ: the least-squares slope of the
+    unwrapped phase of its analytic signal over the record without ``trim`` at each end (Hilbert end effects).
+
+    Not the seed's estimator (the RQ of the POM's *shape*, eq. 2.18): the RQ uses the linear K, which has no
+    term for the nonlinear spring, so a POM's RQ moves only as its shape changes — to second order in the
+    spring's secant stiffness for a spring grounded on a structure DOF (docs/nsi.md). This is the frequency
+    the structure actually oscillates at in that POM, offered beside the RQ."""
+    import scipy.signal
+
+    x = np.asarray(disp, float)
+    a = (x - x.mean(axis=0)) @ np.asarray(pom, float)
+    ph = np.unwrap(np.angle(scipy.signal.hilbert(a)))
+    n = a.size
+    i0, i1 = int(trim * n), int((1 - trim) * n)
+    t = np.arange(i0, i1) / fs
+    slope = np.polyfit(t, ph[i0:i1], 1)[0]
+    return float(abs(slope) / (2 * np.pi))
+
+
+__all__ = [
+    "AttachmentModel",
+    "AttachmentPick",
+    "FitSettings",
+    "PowerLawFit",
+    "RqFdp",
+    "alpha_from_intersection",
+    "attachment_model",
+    "characteristic_displacement",
+    "find_intersection",
+    "fit_power_law",
+    "fit_rq_fdp",
+    "hb_factor",
+    "highpass_delta",
+    "law_hz",
+    "law_hz_intersection",
+    "pick_attachment_pom",
+    "pom_frequency_hz",
+    "r_squared",
+    "relative_displacement",
+    "rq_fdp",
+    "running_median",
+]

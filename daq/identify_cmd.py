@@ -1,0 +1,347 @@
+"""``gvt identify``: the seed's NSI (§5.1) on a force sweep of a rig — whole-run δ̄ and RQ-FDP, eq. 5.8 fit.
+
+A sweep directory written by ``gvt sweep`` holds each run's P, input energy and RQ frequencies but not δ̄ nor
+the POMs (``daq/sweep_cmd.py`` keeps moments only). The NSI needs both, so the sweep's runs (its rig, P grid,
+duration and outputs from ``sweep.json``) are re-simulated here, one at a time in bounded memory, each reduced
+to δ̄ (eq. 5.2), its whole-record POD (eq. 2.12–2.13), the attachment's POM by MAC (eq. 5.6), its RQ frequency
+(eq. 2.18) and the frequency of its temporal coefficient; the per-run table is written beside the sweep as
+``nsi.csv`` and read back on the next call instead of simulating again.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from analysis import nsi
+from analysis.errors import BadInput
+from analysis.model.rig import Rig
+
+NSI_CSV = "nsi.csv"
+COLUMNS = ("P_N", "input_energy_J", "dbar_m", "f_rq_hz", "f_pom_hz", "mac", "capture", "pom_index")
+
+
+@dataclass(frozen=True)
+class Target:
+    """The attachment at the simulator's outputs: its column, its connection points' columns, and the model."""
+
+    attachment: int
+    relative_to: tuple[int, ...]
+    model: nsi.AttachmentModel
+    description: str
+
+
+def _dof_of(rig: Rig, where: float | str, field: str) -> int:
+    s = rig.structure
+    if isinstance(where, str):
+        try:
+            return s.dof_index(where)
+        except KeyError:
+            raise BadInput(f"{rig.path}: {field}: unknown DOF {where!r}") from None
+    if s.mesh is None:
+        raise BadInput(f"{rig.path}: {field}: a position (m) needs a beam rig; give a DOF name")
+    node, _ = s.mesh.snap(float(where))
+    try:
+        return s.dof_index(f"w{node}")
+    except KeyError:
+        raise BadInput(f"{rig.path}: {field}: x = {where:g} m sits on a support") from None
+
+
+def resolve_target(rig: Rig, output_dofs: list[int], M: np.ndarray, K: np.ndarray) -> Target:
+    """The rig's ``[nsi]`` attachment, or (without one) the DOF of its first nonlinear spring, grounded."""
+    spec = rig.config.nsi
+    if spec is not None:
+        att = _dof_of(rig, spec.x if spec.x is not None else spec.dof, "nsi")  # type: ignore[arg-type]
+        refs = [_dof_of(rig, r, f"nsi.relative_to[{i}]") for i, r in enumerate(spec.relative_to)]
+        mode = None if spec.mode is None else spec.mode - 1
+        mass = spec.mass
+    elif rig.structure.nonlinear:
+        att, refs, mode, mass = rig.structure.nonlinear[0].dof, [], None, None
+    else:
+        raise BadInput(f"{rig.name}: no [nsi] table and no nonlinear spring; say where the attachment is ([nsi] x or dof)")
+    pos = {d: i for i, d in enumerate(output_dofs)}
+    missing = [rig.structure.dofs[d].name for d in [att, *refs] if d not in pos]
+    if missing:
+        raise BadInput(f"{rig.name}: the attachment's DOFs {missing} are not among the outputs; use --outputs translational")
+    ref_cols = tuple(pos[d] for d in refs)
+    model = nsi.attachment_model(M, K, pos[att], ref_cols, mode, mass)
+    names = [rig.structure.dofs[d].name for d in refs]
+    desc = rig.structure.dofs[att].name + (f" - mean({', '.join(names)})" if names else " (grounded)")
+    return Target(pos[att], ref_cols, model, desc)
+
+
+@dataclass
+class NsiRuns:
+    """Per run of a sweep: the columns of :data:`COLUMNS`."""
+
+    P: np.ndarray
+    energy: np.ndarray
+    dbar: np.ndarray
+    f_rq: np.ndarray
+    f_pom: np.ndarray
+    mac: np.ndarray
+    capture: np.ndarray
+    pom_index: np.ndarray
+    wall_s: float = 0.0
+
+
+def simulate_runs(
+    rig: Rig,
+    amplitudes: np.ndarray,
+    duration: float,
+    output_dofs: list[int],
+    target: Target,
+    M: np.ndarray,
+    K: np.ndarray,
+    order: int | None = None,
+    n_poms: int = 8,
+    progress: Callable[[str, float], None] | None = None,
+) -> NsiRuns:
+    """Simulate each amplitude (the sweep's own integrator, ``analysis.model.sweep._run_record``) and reduce it.
+
+    Everything is computed in the simulator's reduced coordinates q (x = P q at the outputs): the 1/n output
+    covariance P cov(q) Pᵀ (eq. 2.12) for the POD, δ = (row_att − mean rows_refs) q for δ̄, the POM's temporal
+    coefficient (q − q̄) Pᵀψ for its frequency. Memory: one run's q, q̇ (~6 MB for 1 s of beam_ch4_sim)."""
+    from analysis.model.sweep import _run_record
+    from analysis.pod import _normalise, mac, rq_hz
+    from daq.sweep_cmd import _simulator
+
+    t0 = time.perf_counter()
+    sim = _simulator(rig, output_dofs, order)
+    force = rig.hammer_force()
+    fs = rig.sample_rate
+    n, model, fdesc, stepping, amps = sim._prepare(force, duration, fs, amplitudes)
+    n_r = model[0].shape[0]
+    bufs = (np.empty((n, n_r)), np.empty((n, n_r)), np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n))
+    P = sim.reduced.rows(output_dofs)  # (n_out, n_r)
+    row = P[target.attachment] - (P[list(target.relative_to)].mean(axis=0) if target.relative_to else 0.0)
+    B = amps.size
+    out = {k: np.zeros(B) for k in ("energy", "dbar", "f_rq", "f_pom", "mac")}
+    cap = np.zeros(B, bool)
+    pidx = np.zeros(B, np.int64)
+    for b in range(B):
+        work, _, _, _ = _run_record(float(amps[b]), model, fdesc, stepping, *bufs)
+        q = bufs[0]
+        qm = q.mean(axis=0)
+        qc = q - qm
+        cov = P @ (qc.T @ qc / n) @ P.T
+        _lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+        poms = _normalise(vec[:, ::-1][:, :n_poms])
+        macs = mac(target.model.shape[:, None], poms)[0]
+        pick = nsi.pick_attachment_pom(macs[None])
+        j = int(pick.index[0])
+        out["energy"][b] = work
+        out["dbar"][b] = nsi.characteristic_displacement(q @ row)
+        out["f_rq"][b] = rq_hz(poms[:, j : j + 1], M, K)[0]
+        out["f_pom"][b] = nsi.pom_frequency_hz(qc, P.T @ poms[:, j], fs)
+        out["mac"][b] = pick.mac[0]
+        cap[b] = pick.capture[0]
+        pidx[b] = j
+        if progress:
+            progress("simulating the sweep's runs for δ̄", (b + 1) / B)
+    return NsiRuns(amps, out["energy"], out["dbar"], out["f_rq"], out["f_pom"], out["mac"], cap, pidx,
+                   time.perf_counter() - t0)  # fmt: skip
+
+
+def write_runs(runs: NsiRuns, path: Path) -> None:
+    tmp = path.with_suffix(".csv.part")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(COLUMNS)
+        for k in range(runs.P.size):
+            w.writerow([f"{runs.P[k]:.9g}", f"{runs.energy[k]:.9g}", f"{runs.dbar[k]:.9g}", f"{runs.f_rq[k]:.9g}",
+                        f"{runs.f_pom[k]:.9g}", f"{runs.mac[k]:.6f}", int(runs.capture[k]), int(runs.pom_index[k])])  # fmt: skip
+    tmp.replace(path)
+
+
+def read_runs(path: Path) -> NsiRuns:
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        if not rows or any(c not in rows[0] for c in COLUMNS):
+            raise ValueError(f"expected columns {', '.join(COLUMNS)}")
+        col = {c: np.array([float(r[c]) for r in rows]) for c in COLUMNS}
+    except (OSError, ValueError, KeyError) as exc:
+        raise BadInput(f"{path}: not an NSI run table ({exc})") from None
+    return NsiRuns(col["P_N"], col["input_energy_J"], col["dbar_m"], col["f_rq_hz"], col["f_pom_hz"], col["mac"],
+                   col["capture"] > 0, col["pom_index"].astype(np.int64))  # fmt: skip
+
+
+def read_sweep_spec(sweep_dir: Path) -> dict[str, Any]:
+    p = sweep_dir / "sweep.json"
+    try:
+        s = json.loads(p.read_text())
+        return {k: s[k] for k in ("rig", "runs", "pmin_N", "pmax_N", "duration_s", "outputs", "order")}
+    except FileNotFoundError:
+        raise BadInput(f"{sweep_dir}: no sweep.json; give a directory written by 'gvt sweep'") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BadInput(f"{p}: not a gvt sweep summary ({exc})") from None
+
+
+@dataclass
+class IdentifyOptions:
+    frequency: str = "rq"  # "rq" (the seed's, eq. 2.18) or "pom" (the POM's temporal coefficient)
+    law: str = "seed"  # eq. 5.8 as printed ("seed") or with the harmonic-balance factor ("hb")
+    max_ratio: float | None = None  # fit only points with f <= max_ratio * f_n (None: all)
+    smooth: int = 5
+    intersection: bool = True
+    n_boot: int = 200
+    seed: int = 0
+
+    def validate(self) -> None:
+        if self.frequency not in ("rq", "pom"):
+            raise BadInput(f"--frequency must be 'rq' or 'pom', got {self.frequency!r}")
+        if self.law not in ("seed", "hb"):
+            raise BadInput(f"--law must be 'seed' (eq. 5.8) or 'hb', got {self.law!r}")
+        if self.max_ratio is not None and not self.max_ratio > 1:
+            raise BadInput(f"--max-ratio must exceed 1 (a frequency above the linear one), got {self.max_ratio:g}")
+        if self.smooth < 1 or self.smooth % 2 == 0:
+            raise BadInput(f"--smooth must be a positive odd number of points, got {self.smooth}")
+        if self.n_boot < 0:
+            raise BadInput(f"--boot must be >= 0, got {self.n_boot}")
+
+
+@dataclass
+class Identification:
+    rig: str
+    target: Target
+    runs: NsiRuns
+    fdp: nsi.RqFdp
+    fit: nsi.PowerLawFit
+    options: IdentifyOptions
+    excluded_above: int
+    source: str
+
+    def summary(self) -> dict[str, Any]:
+        t = self.target
+        f = self.fit
+        return {
+            "rig": self.rig,
+            "source": self.source,
+            "attachment": t.description,
+            "linear_mode": t.model.mode + 1,
+            "f_n_hz": t.model.omega_n / (2 * np.pi),
+            "mass_kg": t.model.mass,
+            "mass_source": t.model.mass_source,
+            "frequency": self.options.frequency,
+            "law": "f = sqrt(w_n^2 + kappa (alpha/m) dbar^beta) / 2pi, kappa = "
+            + ("1 (seed eq. 5.8)" if self.options.law == "seed" else "HB factor"),
+            "smoothing": f"running median of {self.fdp.smooth_window} points on the dbar-sorted, capture-free curve",
+            "runs": int(self.runs.P.size),
+            "capture_runs": int(self.runs.capture.sum()),
+            "excluded_above_max_ratio": self.excluded_above,
+            "fit": f.to_dict(),
+        }
+
+
+def identify_runs(rig: Rig, target: Target, runs: NsiRuns, options: IdentifyOptions, source: str) -> Identification:
+    """RQ-FDP of the runs (capture marked) → eq. 5.8 fit (intersection when the curve crosses a linear mode)."""
+    options.validate()
+    freq = runs.f_rq if options.frequency == "rq" else runs.f_pom
+    fdp = nsi.rq_fdp(runs.dbar, freq, runs.mac, runs.capture, options.smooth)
+    keep = fdp.fit_mask
+    excluded = 0
+    if options.max_ratio is not None:
+        fmax = options.max_ratio * target.model.omega_n / (2 * np.pi)
+        above = keep & (fdp.smooth > fmax)
+        excluded = int(above.sum())
+        keep = keep & ~above
+    settings = nsi.FitSettings(kappa=options.law, use_intersection=options.intersection, n_boot=options.n_boot,  # type: ignore[arg-type]
+                               seed=options.seed)  # fmt: skip
+    fit = nsi.fit_power_law(fdp.dbar[keep], fdp.smooth[keep], target.model.omega_n, target.model.mass,
+                            target.model.f_linear_hz, settings)  # fmt: skip
+    return Identification(rig.name, target, runs, fdp, fit, options, excluded, source)
+
+
+def identify_sweep(
+    rig: Rig, sweep_dir: Path, options: IdentifyOptions, progress: Callable[[str, float], None] | None = None
+) -> Identification:
+    """``gvt identify SWEEP_DIR``: the sweep's runs (``nsi.csv`` if present, else simulated and cached)."""
+    from daq.sweep_cmd import output_dofs
+
+    spec = read_sweep_spec(sweep_dir)
+    if spec["rig"] != rig.name:
+        raise BadInput(f"{sweep_dir}: the sweep is of rig {spec['rig']!r}, not {rig.name!r}")
+    dofs = output_dofs(rig, spec["outputs"])
+    g = rig.guyan(dofs)
+    target = resolve_target(rig, dofs, g.M, g.K)
+    cache = sweep_dir / NSI_CSV
+    if cache.exists():
+        runs = read_runs(cache)
+        source = f"{cache} ({runs.P.size} runs)"
+    else:
+        amps = np.logspace(np.log10(spec["pmin_N"]), np.log10(spec["pmax_N"]), int(spec["runs"]))
+        runs = simulate_runs(rig, amps, float(spec["duration_s"]), dofs, target, g.M, g.K, spec["order"], progress=progress)
+        write_runs(runs, cache)
+        source = f"{sweep_dir}: {runs.P.size} runs re-simulated in {runs.wall_s:.1f} s, cached in {cache}"
+    return identify_runs(rig, target, runs, options, source)
+
+
+def plot_fdp(ident: Identification, path: Path) -> None:
+    """The RQ-FDP like seed Fig. 5.5: raw points (capture in gray), the smoothed curve, the fit."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from daq.outputs import atomic_output
+
+    fdp, fit = ident.fdp, ident.fit
+    fig, ax = plt.subplots(figsize=(7.5, 5), dpi=110)
+    c = fdp.capture
+    ax.plot(fdp.dbar[~c], fdp.freq_hz[~c], ".", color="k", ms=4, label="runs")
+    if c.any():
+        ax.plot(fdp.dbar[c], fdp.freq_hz[c], ".", color="0.6", ms=4, label="1:1 capture (excluded)")
+    ax.plot(fdp.dbar, fdp.smooth, "-", color="tab:blue", lw=1, label=f"running median ({fdp.smooth_window})")
+    d = np.geomspace(max(fdp.dbar[fdp.dbar > 0].min(), 1e-12), fdp.dbar.max(), 200)
+    ax.plot(d, fit.predict_hz(d), "-", color="tab:red", lw=1.5,
+            label=f"fit: α = {fit.alpha:.4g}, β = {fit.beta:.4f}, R² = {fit.r2:.4f}")  # fmt: skip
+    for f in ident.target.model.f_linear_hz[:2]:
+        ax.axhline(f, color="tab:green", ls="--", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_xlabel("characteristic displacement δ̄ [m]")
+    ax.set_ylabel(f"{'RQ' if ident.options.frequency == 'rq' else 'POM'} frequency [Hz]")
+    ax.set_title(f"{ident.rig}: RQ frequency–displacement plot, attachment {ident.target.description}", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def summary_json(ident: Identification) -> str:
+    def default(x: Any) -> Any:
+        if isinstance(x, np.generic):
+            return x.item()
+        if isinstance(x, np.ndarray):
+            return x.tolist()
+        raise TypeError(type(x).__name__)
+
+    return json.dumps(ident.summary(), default=default)
+
+
+def print_report(console, ident: Identification) -> None:
+    from rich.table import Table
+
+    f = ident.fit
+    m = ident.target.model
+    t = Table(title=f"{ident.rig}: identified attachment law α|δ|^β δ ({f.mode}, {f.n_points} points)")
+    for col in ("parameter", "value", "95 % bootstrap", "sd"):
+        t.add_column(col, justify="right")
+    t.add_row("α [N/m^(β+1)]", f"{f.alpha:.5g}", f"{f.alpha_ci[0]:.4g} – {f.alpha_ci[1]:.4g}", f"{f.alpha_sd:.3g}")
+    t.add_row("β", f"{f.beta:.5f}", f"{f.beta_ci[0]:.4f} – {f.beta_ci[1]:.4f}", f"{f.beta_sd:.3g}")
+    t.add_row("R²", f"{f.r2:.5f}", "", "")
+    console.print(t)
+    console.print(
+        f"attachment {ident.target.description}: linear mode {m.mode + 1}, f_n = {m.omega_n / (2 * np.pi):.4f} Hz, "
+        f"m = {m.mass:.5g} kg ({m.mass_source}); frequency: {ident.options.frequency}, law: {ident.options.law}; "
+        f"{int(ident.runs.capture.sum())} capture runs excluded; source {ident.source}",
+        markup=False,
+    )

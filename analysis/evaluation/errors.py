@@ -47,8 +47,7 @@ from analysis.evaluation.grid import (
     GridCase,
     _assemble,
     _code_hash,
-    _load,
-    _store,
+    cached_raws,
     case_rig,
     rig_data,
     rig_toml,
@@ -228,27 +227,15 @@ def simulate_offset_cases(
     cases = list(cases)
     off = np.asarray(offsets_m, dtype=float)
     cdir = None if cache_dir is None else Path(cache_dir)
-    raws: dict[int, dict[str, np.ndarray]] = {}
 
     def path(c: GridCase) -> Path:
         key = f"{c.force_n!r}|{c.zeta!r}|{c.cubic}|{duration!r}|{_code_hash(c.rig)}|{off.tobytes().hex()}|offsets"
         return cdir / f"{c.name}-pos-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"  # type: ignore[operator]
 
-    if cdir is not None:
-        for i, c in enumerate(cases):
-            if (p := path(c)).exists() and (r := _load(p)) is not None:
-                raws[i] = r
-    groups: dict[tuple[float, bool, str], list[int]] = {}
-    for i, c in enumerate(cases):
-        if i not in raws:
-            groups.setdefault((c.zeta, c.cubic, c.rig), []).append(i)
-    for idx in groups.values():
-        for k in range(0, len(idx), batch):
-            part = idx[k : k + batch]
-            for i, r in zip(part, _offset_simulate([cases[i] for i in part], duration, off), strict=True):
-                raws[i] = r
-                if cdir is not None:
-                    _store(path(cases[i]), r)
+    def simulate(group: list[GridCase]) -> tuple[list[dict[str, np.ndarray]], float]:
+        return _offset_simulate(group, duration, off), float("nan")
+
+    raws, _ = cached_raws(cases, None if cdir is None else path, simulate, batch)
     return [_assemble(c, raws[i], 0.01, window_s, float("nan"), True) for i, c in enumerate(cases)]
 
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -269,26 +269,41 @@ def simulate_cases(
     ``sim_seconds`` of a batched case is the batch's wall time divided by its size.
     """
     cases = list(cases)
+    cdir = None if cache_dir is None else Path(cache_dir)
+    path = None if cdir is None else (lambda c: _cache_path(cdir, c, duration))
+    raws, walls = cached_raws(cases, path, lambda group: _simulate_group(group, duration))
+    return [_assemble(c, raws[i], noise, window_s, walls.get(i, float("nan")), i not in walls) for i, c in enumerate(cases)]
+
+
+def cached_raws(
+    cases: Sequence[GridCase],
+    path: Callable[[GridCase], Path] | None,
+    simulate: Callable[[list[GridCase]], tuple[list[dict[str, np.ndarray]], float]],
+    batch: int | None = None,
+) -> tuple[dict[int, dict[str, np.ndarray]], dict[int, float]]:
+    """Each case's raw simulation, from the cache at ``path(case)`` or simulated: the uncached cases sharing damping,
+    cubic and rig in batches of ``batch`` (all at once if None) through ``simulate(group) -> (raws, wall)``, each
+    stored; returns the raws and, for the simulated ones, their share of the batch's wall time."""
     raws: dict[int, dict[str, np.ndarray]] = {}
     walls: dict[int, float] = {}
-    cdir = None if cache_dir is None else Path(cache_dir)
-    if cdir is not None:
+    if path is not None:
         for i, c in enumerate(cases):
-            p = _cache_path(cdir, c, duration)
-            if p.exists() and (r := _load(p)) is not None:
+            if (p := path(c)).exists() and (r := _load(p)) is not None:
                 raws[i] = r
     groups: dict[tuple[float, bool, str], list[int]] = {}
     for i, c in enumerate(cases):
         if i not in raws:
             groups.setdefault((c.zeta, c.cubic, c.rig), []).append(i)
     for idx in groups.values():
-        out, wall = _simulate_group([cases[i] for i in idx], duration)
-        for i, r in zip(idx, out, strict=True):
-            raws[i] = r
-            walls[i] = wall / len(idx)
-            if cdir is not None:
-                _store(_cache_path(cdir, cases[i], duration), r)
-    return [_assemble(c, raws[i], noise, window_s, walls.get(i, float("nan")), i not in walls) for i, c in enumerate(cases)]
+        step = batch or len(idx)
+        for k in range(0, len(idx), step):
+            part = idx[k : k + step]
+            out, wall = simulate([cases[i] for i in part])
+            for i, r in zip(part, out, strict=True):
+                raws[i], walls[i] = r, wall / len(part)
+                if path is not None:
+                    _store(path(cases[i]), r)
+    return raws, walls
 
 
 def simulate_case(

@@ -519,6 +519,39 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
     n_use = n_modes or spec.modes
     seed = spec.seed if seed is None else seed
     mac_weight = spec.mac_weight if mac_weight is None else mac_weight
+    _check_request(measured, params, objective, optimiser)
+    t0 = time.perf_counter()
+    model = ParametricModel(cfg, params)
+    rows = _measured_rows(measured, model.sensor_names) if measured.shapes is not None else None
+    n_fe = min(max(2 * n_use, n_use + 4), model.M0.shape[0])
+    p, pairs, prob, nominal_value, notes = _search(model, measured, params, n_use, n_fe, rows, objective, mac_weight,
+                                                   optimiser, seed, progress)  # fmt: skip
+    sigma = jacobian_sigma(prob, p)
+    box = Box(params)
+    at = np.abs(box.u(p) - 0.5) > 0.5 - 1e-6
+    for par, hit in zip(params, at, strict=True):
+        if hit:
+            notes.append(f"{par.name} ended on a bound of {list(par.bounds)}: widen the bounds or check the pairing")
+    res = prob.residuals(p)
+    fm, phi = model.modes(p, n_fe)
+    macs: list[float | None] = [q.mac for q in pairs]
+    if rows is not None and measured.shapes is not None and phi is not None:
+        from analysis.mac import mac
+
+        macs = [float(mac(measured.shapes[:, q.measured], phi[rows, q.fe])[0, 0]) for q in pairs]
+    if progress is not None:
+        progress("done", 1.0)
+    return UpdateResult(
+        params=list(params), nominal=model.p0, values=p, sigma=sigma, pairs=pairs,
+        measured_hz=np.array([measured.freq_hz[q.measured] for q in pairs]), model_hz=np.array([fm[q.fe] for q in pairs]),
+        residuals=res[: len(pairs)], macs=macs, objective=objective, objective_value=prob.value(p),
+        nominal_value=nominal_value, optimiser=optimiser, evaluations=model.evaluations,
+        seconds=time.perf_counter() - t0, affine=model.affine, notes=notes,
+    )  # fmt: skip
+
+
+def _check_request(measured: MeasuredModes, params: Sequence[UpdateParameter], objective: str, optimiser: str) -> None:
+    """One line for a request that cannot run: unknown objective or optimiser, nothing to update, MAC without shapes."""
     if objective not in OBJECTIVES:
         raise BadInput(f"--objective {objective}: use one of {', '.join(OBJECTIVES)}")
     if optimiser not in OPTIMISERS:
@@ -527,13 +560,17 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
         raise BadInput("no parameter to update: declare [[update.parameters]] in the rig or give --params")
     if objective == "eq45+mac" and measured.shapes is None:
         raise BadInput(f"{measured.source}: --objective eq45+mac needs mode shapes, and the modes file has none")
-    t0 = time.perf_counter()
-    model = ParametricModel(cfg, params)
-    rows = _measured_rows(measured, model.sensor_names) if measured.shapes is not None else None
-    n_fe = min(max(2 * n_use, n_use + 4), model.M0.shape[0])
+
+
+def _search(model: ParametricModel, measured: MeasuredModes, params: Sequence[UpdateParameter], n_use: int, n_fe: int,
+            rows, objective: str, mac_weight: float, optimiser: str, seed: int | None,
+            progress: Progress | None) -> tuple[np.ndarray, list, Problem, float, list[str]]:  # fmt: skip
+    """Global search then local refinement, repeated (at most 3 times) while the measured/FE mode pairs at the optimum
+    differ from those it was searched with: (values, pairs, problem, the objective at the nominal values, notes)."""
     box = Box(params)
     p = model.p0.copy()
     notes: list[str] = []
+    nominal_value = float("nan")
     for _round in range(3):
         f, phi = model.modes(p, n_fe)
         pairs = pair_modes(measured, f, phi, n_use, rows)
@@ -558,35 +595,13 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
             u = _search_multistart(ru, len(params), seed, progress)
         if progress is not None:
             progress("local refinement (least_squares, Nelder-Mead on eq. 4.5)", 0.0)
-        u = _refine(fu, ru, u)
-        p = box.p(u)
+        p = box.p(_refine(fu, ru, u))
         f, phi = model.modes(p, n_fe)
         again = pair_modes(measured, f, phi, n_use, rows)
         if [(q.measured, q.fe) for q in again] == [(q.measured, q.fe) for q in pairs]:
             break
         notes.append("the mode pairs changed at the optimum; searched again with the new pairs")
-    sigma = jacobian_sigma(prob, p)
-    at = np.abs(box.u(p) - 0.5) > 0.5 - 1e-6
-    for par, hit in zip(params, at, strict=True):
-        if hit:
-            notes.append(f"{par.name} ended on a bound of {list(par.bounds)}: widen the bounds or check the pairing")
-    res = prob.residuals(p)
-    fm, _ = model.modes(p, n_fe, shapes=False)
-    macs: list[float | None] = [q.mac for q in pairs]
-    if rows is not None and measured.shapes is not None and phi is not None:
-        from analysis.mac import mac
-
-        macs = [float(mac(measured.shapes[:, q.measured], phi[rows, q.fe])[0, 0]) for q in pairs]
-    n_pairs = len(pairs)
-    if progress is not None:
-        progress("done", 1.0)
-    return UpdateResult(
-        params=list(params), nominal=model.p0, values=p, sigma=sigma, pairs=pairs,
-        measured_hz=np.array([measured.freq_hz[q.measured] for q in pairs]), model_hz=np.array([fm[q.fe] for q in pairs]),
-        residuals=res[:n_pairs], macs=macs, objective=objective, objective_value=prob.value(p),
-        nominal_value=nominal_value, optimiser=optimiser, evaluations=model.evaluations,
-        seconds=time.perf_counter() - t0, affine=model.affine, notes=notes,
-    )  # fmt: skip
+    return p, pairs, prob, nominal_value, notes
 
 
 # --- the updated rig file -------------------------------------------------------------------------------

@@ -40,24 +40,12 @@ def modal(
             check_output(p, overwrite, what, inputs=[source])
     targets = load_targets(poles) if poles is not None else None
     r = open_rig(rig) if rig is not None else None
-    refused: list[dict] = []
-    driving = None
     if source.suffix == ".npz":
         if rrd is not None and r is None:
             fail("--rrd draws the modes on the rig's test geometry: give --rig (an FRF file carries none)")
-        frf = load_frf_source(source)
+        frf, driving, refused = load_frf_source(source), None, []
     else:
-        from daq.analyze import rig_from_log
-        from daq.frf_cmd import frf_from_log
-        from daq.log.reader import LogReader
-
-        r = r if r is not None else rig_from_log(LogReader(source))
-        with Progress(err if json_out else out) as report:
-            fr = frf_from_log(source, r, band_hz=band[1], progress=lambda f: report("hits", f))
-        refused = [h for h in fr.hits if h["verdict"] != "accepted"]
-        if fr.frf is None:
-            fail(f"{source}: no accepted hit to build FRFs from ({len(refused)} refused; `gvt frf {source}` says why)")
-        frf, driving = fr.frf, fr.driving
+        r, frf, driving, refused = _frfs_of_log(source, r, band[1], json_out)
     run = modal_from_frf(frf, r, band[0], band[1], targets, max_order, source=str(source), driving=driving)
     run.refused_hits = refused
     if modes_out is not None:
@@ -85,3 +73,19 @@ def modal(
     for p in (png, modes_out, rrd):
         if p is not None:
             out.print(f"wrote {p}", markup=False)
+
+
+def _frfs_of_log(source: Path, r, band_hi: float, json_out: bool) -> tuple:
+    """(rig, FRFs, driving points, refused hits) of a session log: its attached rig unless one was given, and
+    gvt frf's FRFs of the accepted hits (every hit point of a roving plan a reference); none accepted: exit 2."""
+    from daq.analyze import rig_from_log
+    from daq.frf_cmd import frf_from_log
+    from daq.log.reader import LogReader
+
+    r = r if r is not None else rig_from_log(LogReader(source))
+    with Progress(err if json_out else out) as report:
+        fr = frf_from_log(source, r, band_hz=band_hi, progress=lambda f: report("hits", f))
+    refused = [h for h in fr.hits if h["verdict"] != "accepted"]
+    if fr.frf is None:
+        fail(f"{source}: no accepted hit to build FRFs from ({len(refused)} refused; `gvt frf {source}` says why)")
+    return r, fr.frf, fr.driving, refused

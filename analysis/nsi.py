@@ -494,11 +494,13 @@ def pom_frequency_hz(disp: FloatArray, pom: FloatArray, fs: float, trim: float =
 __all__ = [
     "AttachmentModel",
     "AttachmentPick",
+    "CaptureTrack",
     "FitSettings",
     "PowerLawFit",
     "RqFdp",
     "alpha_from_intersection",
     "attachment_model",
+    "capture_track",
     "characteristic_displacement",
     "find_intersection",
     "fit_power_law",
@@ -513,4 +515,62 @@ __all__ = [
     "relative_displacement",
     "rq_fdp",
     "running_median",
+    "zero_crossing_hz",
 ]
+
+
+# ------------------------------------------------------------------------------ 1:1 capture over time
+def zero_crossing_hz(x: FloatArray, fs: float) -> float:
+    """Mean frequency of a record from its upward zero crossings (mean removed), each located by linear
+    interpolation: (crossings − 1) / (last − first). NaN with fewer than two crossings. Robust to the
+    record's amplitude decay and to the harmonics a hardening spring adds (they do not add zero crossings
+    while the fundamental dominates)."""
+    y = np.asarray(x, float) - float(np.mean(x))
+    i = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
+    if i.size < 2:
+        return math.nan
+    t = (i + (-y[i]) / (y[i + 1] - y[i])) / fs
+    return float((t.size - 1) / (t[-1] - t[0]))
+
+
+@dataclass(frozen=True)
+class CaptureTrack:
+    """Per window: the attachment's and the structure's frequencies (zero crossings), their ratio, and whether
+    the window is in 1:1 capture (|ratio − 1| <= tol). ``onset_s`` is the start of the first captured window
+    (NaN if none)."""
+
+    t_s: FloatArray
+    f_attachment_hz: FloatArray
+    f_structure_hz: FloatArray
+    ratio: FloatArray
+    amp_ratio: FloatArray
+    captured: np.ndarray
+    onset_s: float
+    tol: float
+
+
+def capture_track(
+    delta: FloatArray, x_structure: FloatArray, fs: float, window_s: float, tol: float = 0.05, min_amp_ratio: float = 0.0
+) -> CaptureTrack:
+    """When a 1:1 transient resonance capture holds (seed §6.2.2, L2006–L2009): per non-overlapping window the
+    frequency of the attachment's relative displacement δ over that of the structure DOF it is tied to. In
+    1:1 capture both oscillate at one frequency (the seed reads it from the beating in the two responses and
+    their wavelet spectra); out of it the attachment runs at its own, energy-dependent, frequency. ``tol``:
+    the ratio's half-width that counts as 1:1 (5 %: the seed gives no number). A linear attachment also
+    follows the structure's frequency (its forced response), so a window counts only if the RMS of δ is at
+    least ``min_amp_ratio`` times the structure's as well (the seed: store motion "an order of magnitude
+    larger" in capture, L2006; a caller passes e.g. twice the linear forced-response ratio)."""
+    d, x = np.asarray(delta, float), np.asarray(x_structure, float)
+    n = round(window_s * fs)
+    if n < 4 or d.shape != x.shape or d.size < n:
+        raise BadInput(f"capture windows need >= 4 samples and equal-length records of at least one window ({n})")
+    k = d.size // n
+    fa = np.array([zero_crossing_hz(d[j * n : (j + 1) * n], fs) for j in range(k)])
+    fx = np.array([zero_crossing_hz(x[j * n : (j + 1) * n], fs) for j in range(k)])
+    r = fa / fx
+    rms = lambda y: np.sqrt(np.mean(y[: k * n].reshape(k, n) ** 2, axis=1))  # noqa: E731
+    ar = rms(d - d.mean()) / rms(x - x.mean())
+    cap = (np.abs(r - 1.0) <= tol) & (ar >= min_amp_ratio)
+    t = np.arange(k) * n / fs
+    onset = float(t[np.flatnonzero(cap)[0]]) if cap.any() else math.nan
+    return CaptureTrack(t, fa, fx, r, ar, cap, onset, tol)

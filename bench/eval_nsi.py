@@ -29,7 +29,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=40)
     ap.add_argument("--pmax", type=float, default=3000.0)
+    ap.add_argument("--seed-rigs", action="store_true", help="the seed's own rigs (beam_nes_ch5, lo_store_ch6) instead")
     a = ap.parse_args()
+    if a.seed_rigs:
+        seed_rigs(a.runs)
+        return
     rig = open_rig("beam_ch4_sim")
     dofs = rig.structure.translational_dofs()
     g = rig.guyan(dofs)
@@ -64,6 +68,64 @@ def main() -> None:
     out = Path(__file__).parent / "results" / "eval_nsi.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({"runs": a.runs, "pmax_N": a.pmax, "simulate_s": sim_s, "fits": rows}, indent=2))
+    print(f"wrote {out}")
+
+
+def seed_rigs(n_runs: int) -> None:
+    """Computational NSI on the seed's identification rigs, every estimator/law, and the LO–store capture study.
+
+    beam_nes_ch5 (NES 0.25 kg, α 3e9, β 2; P 0.3–300 N) and lo_store_ch6 hit on the store (α 1.058e10, β 2;
+    P 0.1–20 N: up to where its frequency meets the LO's); whole-run δ̄ of 1 s runs. Then the impulse study of
+    seed §6.2.2 on the LO: capture onset per force (nsi.capture_track, 0.1 s windows, ratio within 5 %, RMS
+    of δ at least 3x the LO's). Writes bench/results/eval_nsi_seed_rigs.json."""
+    from analysis import nsi
+    from analysis.model.rig import build_rig
+
+    lo = open_rig("lo_store_ch6")
+    lo_store_hit = build_rig(lo.config.model_copy(update={"hammer": lo.config.hammer.model_copy(update={"dof": "store"})}))
+    cases = (("beam_nes_ch5", open_rig("beam_nes_ch5"), (0.3, 300.0), 3e9), ("lo_store_ch6 (hit on store)", lo_store_hit,
+             (0.1, 20.0), 1.058e10))  # fmt: skip
+    rows = []
+    for label, rig, (p0, p1), alpha in cases:
+        dofs = rig.structure.translational_dofs()
+        g = rig.guyan(dofs)
+        target = resolve_target(rig, dofs, g.M, g.K)
+        t0 = time.perf_counter()
+        runs = simulate_runs(rig, np.logspace(np.log10(p0), np.log10(p1), n_runs), 1.0, dofs, target, g.M, g.K)
+        sim_s = time.perf_counter() - t0
+        for fr in ("rq", "pom"):
+            for law in ("seed", "hb"):
+                f = identify_runs(rig, target, runs, IdentifyOptions(frequency=fr, law=law, n_boot=100), "bench").fit
+                rows.append({"rig": label, "frequency": fr, "law": law, "n": f.n_points, "mode": f.mode, "alpha": f.alpha,
+                             "beta": f.beta, "r2": f.r2, "alpha_err": f.alpha / alpha - 1, "beta_err": f.beta / 2 - 1,
+                             "alpha_ci": f.alpha_ci, "beta_ci": f.beta_ci, "simulate_s": sim_s,
+                             "rq_range_hz": [float(np.nanmin(runs.f_rq)), float(np.nanmax(runs.f_rq))],
+                             "pom_range_hz": [float(np.nanmin(runs.f_pom)), float(np.nanmax(runs.f_pom))]})  # fmt: skip
+    print(f"{n_runs} runs per rig, whole-run dbar, 1 s each")
+    print(f"{'rig':28} {'freq':4} {'law':4} {'n':>3} {'mode':13} {'alpha':>10} {'err':>8} {'beta':>7} {'err':>7} {'R2':>7}")
+    for r in rows:
+        print(f"{r['rig']:28} {r['frequency']:4} {r['law']:4} {r['n']:3d} {r['mode']:13} {r['alpha']:10.4g} "
+              f"{100 * r['alpha_err']:+7.1f}% {r['beta']:7.4f} {100 * r['beta_err']:+6.1f}% {r['r2']:7.4f}")  # fmt: skip
+    seed_onset = {100.0: None, 600.0: 0.0, 1000.0: 0.5, 3000.0: 1.0}
+    forces = [100.0, 300.0, 600.0, 1000.0, 2000.0, 3000.0]
+    res = lo.simulator.run(lo.hammer_force(), 3.0, lo.sample_rate, forces)
+    i_lo, i_s = res.output_names.index("lo"), res.output_names.index("store")
+    cap = []
+    print("LO-store impulse on the LO (0.6 ms half-sine): 1:1 capture onset")
+    for b, P in enumerate(forces):
+        x = res.displacement[b, :, i_lo]
+        d = res.displacement[b, :, i_s] - x
+        c = nsi.capture_track(d, x, lo.sample_rate, 0.1, 0.05, 3.0)
+        peak = float(np.abs(d).max() / np.abs(x).max())
+        cap.append({"P_N": P, "onset_s": c.onset_s, "captured_s": float(c.captured.sum() * 0.1),
+                    "seed_onset_s": seed_onset.get(P), "peak_store_over_lo": peak})  # fmt: skip
+        print(
+            f"  {P:6.0f} N: onset {c.onset_s:5.2f} s, captured {c.captured.sum() * 0.1:4.1f} s of 3 s, "
+            f"seed {seed_onset.get(P)!s:5}, peak |delta|/|x| {cap[-1]['peak_store_over_lo']:.1f}"
+        )
+    out = Path(__file__).parent / "results" / "eval_nsi_seed_rigs.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps({"runs": n_runs, "fits": rows, "capture": cap}, indent=2, default=float))
     print(f"wrote {out}")
 
 

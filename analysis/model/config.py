@@ -172,17 +172,32 @@ class LinearSpring(Located):
 
 
 class NonlinearSpringSpec(Located):
-    """Grounded nonlinear spring: ``cubic`` f = coefficient w^3, ``power`` f = coefficient |w|^exponent sign(w)."""
+    """Nonlinear spring: ``cubic`` f = coefficient w^3, ``power`` f = coefficient |w|^exponent sign(w).
+
+    Grounded by default (w = the DOF's displacement); with ``to`` (a position on a beam, m, or a DOF name) it
+    acts between the two, w = x(at) - x(to) — the seed's NES coupling (eq. 5.7) and LO–store flexure (eq. 6.4)."""
 
     law: Literal["cubic", "power"] = "cubic"
     coefficient: Positive = Field(description="N/m^3 (cubic) or N/m^exponent (power)")
     exponent: Positive = 3.0
+    to: float | str | None = None
 
     @model_validator(mode="after")
     def _cubic_is_three(self) -> NonlinearSpringSpec:
         if self.law == "cubic" and self.exponent != 3.0:
             raise ValueError("a cubic spring has exponent 3; use law = 'power' for other exponents")
         return self
+
+
+class OscillatorSpec(_Strict):
+    """``[[oscillators]]`` of a beam rig: a mass with its own translational DOF ``name``, tied to the beam at ``x``
+    by a linear spring ``k`` — an attachment such as the seed's NES on its wing (0.25 kg, 10 N/m; L1515).
+    Sensors, the hammer and nonlinear springs reach it by ``dof = name``."""
+
+    name: Annotated[str, Field(min_length=1)]
+    x: float = Field(description="m along the beam")
+    mass: Positive = Field(description="kg")
+    k: Positive = Field(description="N/m, to the beam")
 
 
 class DampingSpec(_Strict):
@@ -452,6 +467,7 @@ class RigConfig(_Strict):
     point_masses: list[PointMass] = []
     springs: list[LinearSpring] = []
     nonlinear_springs: list[NonlinearSpringSpec] = []
+    oscillators: list[OscillatorSpec] = []
     damping: DampingSpec = DampingSpec()
     sensors: list[SensorSpec] = []
     sensor_arrays: list[SensorArraySpec] = []
@@ -522,11 +538,26 @@ class RigConfig(_Strict):
         for a, arr in enumerate(self.sensor_arrays):
             for sensor in arr.expand():
                 located.append((f"sensor_arrays[{a}]", sensor))
+        if self.oscillators and not isinstance(s, BeamSpec):
+            raise ConfigFieldError("oscillators", "[[oscillators]] attach to a beam; a lumped rig lists the mass and its spring")
         if isinstance(s, BeamSpec):
             half = 0.5 * s.length / s.elements
+            osc = [o.name for o in self.oscillators]
+            if len(set(osc)) != len(osc):
+                raise ConfigFieldError("oscillators", "each oscillator needs its own name")
+            located += [(f"oscillators[{i}]", Located(x=o.x)) for i, o in enumerate(self.oscillators)]
+            for i, p in enumerate(self.nonlinear_springs):
+                if isinstance(p.to, str) and p.to not in osc:
+                    raise ConfigFieldError(f"nonlinear_springs[{i}].to", f"unknown oscillator {p.to!r}; this rig has {osc}")
+                if isinstance(p.to, float):
+                    located.append((f"nonlinear_springs[{i}].to", Located(x=p.to)))
             for path, item in located:
+                if item.dof is not None and item.dof in osc:
+                    continue  # on an oscillator's own DOF
                 if item.dof is not None:
-                    raise ConfigFieldError(f"{path}.dof", "a beam rig places things by 'x' (m), not by DOF name")
+                    raise ConfigFieldError(
+                        f"{path}.dof", f"a beam rig places things by 'x' (m), or by an oscillator's name {osc}, not by DOF name"
+                    )
                 if item.x is None:
                     raise ConfigFieldError(f"{path}.x", "a beam rig places things by 'x' (m along the beam)")
                 if item.x < -half or item.x > s.length + half:
@@ -549,6 +580,9 @@ class RigConfig(_Strict):
                     raise ConfigFieldError(f"{path}.x", "a lumped rig places things by 'dof' name, not by 'x'")
                 if item.dof not in names:
                     raise ConfigFieldError(f"{path}.dof", f"unknown DOF {item.dof!r}; this rig has {names}")
+            for i, p in enumerate(self.nonlinear_springs):
+                if p.to is not None and (not isinstance(p.to, str) or p.to not in names or p.to == p.dof):
+                    raise ConfigFieldError(f"nonlinear_springs[{i}].to", f"{p.to!r} is not another DOF of this rig ({names})")
             for i, sp in enumerate(s.springs):
                 for end in ("i", "j"):
                     v = getattr(sp, end)

@@ -340,7 +340,11 @@ def build_imported(cfg: RigConfig, base: Path, damping: ModalDamping) -> Structu
         K[j, j] += sp.k
     nl = tuple(
         NonlinearSpring(
-            dof=resolve_dof(dofs, f"nonlinear_springs[{i}]", p.dof), law=p.law, coefficient=p.coefficient, exponent=p.exponent
+            dof=resolve_dof(dofs, f"nonlinear_springs[{i}]", p.dof),
+            law=p.law,
+            coefficient=p.coefficient,
+            exponent=p.exponent,
+            ref=None if p.to is None else resolve_dof(dofs, f"nonlinear_springs[{i}].to", str(p.to)),
         )
         for i, p in enumerate(cfg.nonlinear_springs)
     )

@@ -1,4 +1,4 @@
-"""Grounded nonlinear springs: force laws, potentials and their codes for the compiled simulator.
+"""Nonlinear springs (grounded, or between two DOFs): force laws, potentials and their codes for the simulator.
 
 Two laws, both odd and hardening for positive coefficients:
 
@@ -7,6 +7,10 @@ Two laws, both odd and hardening for positive coefficients:
   offers for attachments that are not purely cubic (the seed's experimental wires, L1336).
 
 The potential is ``V(w) = alpha |w|^(beta+1) / (beta+1)`` (``k3 w^4 / 4`` for the cubic).
+
+``w`` is the spring's stretch: the DOF's displacement for a grounded spring, ``x[dof] - x[ref]`` for one
+between two DOFs (the seed's NES coupling, eq. 5.7, and its LO–store flexure, eq. 6.4). The simulator only
+ever sees the incidence row ``e_dof - e_ref`` (:func:`incidence`), so both kinds share one code path.
 """
 
 from __future__ import annotations
@@ -21,12 +25,13 @@ LAW_CODES = {"cubic": 0, "power": 1}
 
 @dataclass(frozen=True)
 class NonlinearSpring:
-    """A grounded nonlinear spring acting on one translational DOF of a structure."""
+    """A nonlinear spring on translational DOF ``dof``, to ground (``ref`` None) or to DOF ``ref``."""
 
     dof: int
     law: Literal["cubic", "power"]
     coefficient: float
     exponent: float = 3.0
+    ref: int | None = None
 
     @property
     def code(self) -> int:
@@ -50,5 +55,17 @@ class NonlinearSpring:
             return 3.0 * self.coefficient * w**2
         return self.coefficient * self.exponent * np.abs(w) ** (self.exponent - 1.0)
 
-    def moved_to(self, dof: int) -> NonlinearSpring:
-        return NonlinearSpring(dof=dof, law=self.law, coefficient=self.coefficient, exponent=self.exponent)
+    def moved_to(self, dof: int, ref: int | None = None) -> NonlinearSpring:
+        return NonlinearSpring(dof=dof, law=self.law, coefficient=self.coefficient, exponent=self.exponent, ref=ref)
+
+
+def incidence(springs: tuple[NonlinearSpring, ...] | list[NonlinearSpring], n_dof: int) -> np.ndarray:
+    """(n_springs, n_dof) map from displacements to stretches, ``w = E x``: +1 at ``dof``, -1 at ``ref``.
+
+    The generalised force of the springs is ``-E^T f(w)`` (equal and opposite on the two ends)."""
+    E = np.zeros((len(springs), n_dof))
+    for i, s in enumerate(springs):
+        E[i, s.dof] += 1.0
+        if s.ref is not None:
+            E[i, s.ref] -= 1.0
+    return E

@@ -71,7 +71,8 @@ def reduce_for_simulation(
     omega = [modes.omega[:n_keep]]
     damp = [coeff_all[:n_keep]]
     basis = [Phi_k]
-    dofs = list(dict.fromkeys([*load_dofs, *(s.dof for s in structure.nonlinear)]))
+    ends = [d for s in structure.nonlinear for d in (s.dof, s.ref) if d is not None]  # both ends of a relative spring
+    dofs = list(dict.fromkeys([*load_dofs, *ends]))
     if residual_vectors and dofs and n_keep < len(f):
         Phi_h = modes.shapes[:, n_keep:]
         om_h = modes.omega[n_keep:]

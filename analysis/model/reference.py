@@ -21,6 +21,7 @@ import scipy.linalg
 from analysis.model.beam import FloatArray
 from analysis.model.forces import HalfSine
 from analysis.model.modal import modal_damping_matrix, structure_modes
+from analysis.model.nonlinear import incidence
 from analysis.model.simulate import ImpactSimulator
 from analysis.model.structure import Structure
 
@@ -61,7 +62,7 @@ def reference_reduced(
     red = sim.reduced
     n_r = red.n_basis
     om2, c, phi_f = red.omega**2, red.damping, red.basis[sim.force_dof]
-    B = red.rows([s.dof for s in red.nonlinear]).reshape(len(red.nonlinear), n_r)
+    B = (incidence(red.nonlinear, red.basis.shape[0]) @ red.basis).reshape(len(red.nonlinear), n_r)
     springs = red.nonlinear
 
     def rhs(t, y):
@@ -105,19 +106,23 @@ def reference_full(
     MK, MD = Minv @ K, Minv @ D
     mf = Minv[:, force_dof]
     springs = structure.nonlinear
+    E = incidence(springs, n)  # stretches w = E x (grounded or between two DOFs)
+    ME = Minv @ E.T
 
     def rhs(t, y):
         x, v = y[:n], y[n:]
         acc = mf * float(force.peak * force.shape_at(t)) - MK @ x - MD @ v
-        for s in springs:
-            acc -= Minv[:, s.dof] * float(s.force(x[s.dof]))
+        if springs:
+            w = E @ x
+            acc -= ME @ np.array([float(s.force(w[i])) for i, s in enumerate(springs)])
         return np.concatenate([v, acc])
 
     def jac(t, y):
         x = y[:n]
         Kt = MK.copy()
-        for s in springs:
-            Kt[:, s.dof] += Minv[:, s.dof] * float(s.tangent_stiffness(x[s.dof]))
+        if springs:
+            w = E @ x
+            Kt += ME @ np.diag([float(s.tangent_stiffness(w[i])) for i, s in enumerate(springs)]) @ E
         return np.block([[np.zeros((n, n)), np.eye(n)], [-Kt, -MD]])
 
     t_eval = np.arange(max(2, round(duration * sample_rate))) / sample_rate

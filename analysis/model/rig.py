@@ -124,6 +124,8 @@ def _place(
         idx = resolve_dof(structure.dofs, field, dof, node, props.direction)
         d = structure.dofs[idx]
         return PlacedChannel(name, quantity, idx, d.name, None, d.x, props)
+    if isinstance(cfg.structure, BeamSpec) and dof is not None:  # an [[oscillators]] mass, by its name
+        return PlacedChannel(name, quantity, structure.dof_index(dof), dof, None, None, props)
     if isinstance(cfg.structure, BeamSpec):
         assert structure.mesh is not None and x is not None
         node, _ = structure.mesh.snap(x)
@@ -152,8 +154,11 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
             right=s.right,
             point_masses=[(p.x, p.mass) for p in cfg.point_masses],
             springs=[(p.x, p.k) for p in cfg.springs],
-            nonlinear_springs=[(p.x, p.law, p.coefficient, p.exponent) for p in cfg.nonlinear_springs],
+            nonlinear_springs=[
+                (p.x if p.dof is None else p.dof, p.law, p.coefficient, p.exponent, p.to) for p in cfg.nonlinear_springs
+            ],
             damping=damping,
+            oscillators=[(o.name, o.x, o.mass, o.k) for o in cfg.oscillators],
         )
     elif isinstance(s, MatricesSpec):  # matrices from an FE code, attachments added on top (imported.py)
         from analysis.model.imported import build_imported
@@ -170,7 +175,10 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
         structure = build_lumped(
             masses=masses,
             springs=springs,
-            nonlinear_springs=[(idx[p.dof], p.law, p.coefficient, p.exponent) for p in cfg.nonlinear_springs],
+            nonlinear_springs=[
+                (idx[p.dof], p.law, p.coefficient, p.exponent, None if p.to is None else idx[str(p.to)])
+                for p in cfg.nonlinear_springs
+            ],
             names=names,
             damping=damping,
         )

@@ -32,6 +32,7 @@ from analysis.model._integrator import integrate_batch_moments, integrate_batch_
 from analysis.model.beam import FloatArray
 from analysis.model.forces import Force, ForceSeries, HalfSine
 from analysis.model.modal import Modes, structure_modes
+from analysis.model.nonlinear import incidence
 from analysis.model.reduction import ReducedModel, reduce_for_simulation
 from analysis.model.structure import Structure
 
@@ -159,7 +160,7 @@ class ImpactSimulator:
         self._cdamp = np.ascontiguousarray(red.damping)
         self._phi_f = np.ascontiguousarray(red.basis[self.force_dof])
         nl = red.nonlinear
-        self._B = np.ascontiguousarray(red.rows([s.dof for s in nl]).reshape(len(nl), red.n_basis))
+        self._B = np.ascontiguousarray((incidence(nl, structure.n_dof) @ red.basis).reshape(len(nl), red.n_basis))
         self._law = np.array([s.code for s in nl], dtype=np.int64)
         self._kc = np.array([s.coefficient for s in nl], dtype=float)
         self._pe = np.array([s.exponent for s in nl], dtype=float)

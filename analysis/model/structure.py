@@ -102,12 +102,17 @@ class Structure:
     def without_dofs(self, removed: Sequence[int]) -> Structure:
         """The structure with the given DOFs held at zero (pinned) and removed.
 
-        Nonlinear springs on removed DOFs disappear (a pinned point carries no spring force).
+        Nonlinear springs on removed DOFs disappear (a pinned point carries no spring force); a spring between
+        two DOFs whose other end is removed becomes grounded (that end is pinned).
         """
         removed_set = set(int(i) for i in removed)
         keep = [i for i in range(self.n_dof) if i not in removed_set]
         new_index = {old: new for new, old in enumerate(keep)}
-        springs = tuple(s.moved_to(new_index[s.dof]) for s in self.nonlinear if s.dof in new_index)
+        springs = tuple(
+            s.moved_to(new_index[s.dof], None if s.ref is None else new_index.get(s.ref))
+            for s in self.nonlinear
+            if s.dof in new_index
+        )
         return replace(
             self,
             M=self.M[np.ix_(keep, keep)],
@@ -146,17 +151,42 @@ def build_beam(
     right: EndCondition = "free",
     point_masses: Sequence[tuple[float, float]] = (),
     springs: Sequence[tuple[float, float]] = (),
-    nonlinear_springs: Sequence[tuple[float, str, float, float]] = (),
+    nonlinear_springs: Sequence[tuple] = (),
     damping: ModalDamping | None = None,
+    oscillators: Sequence[tuple[str, float, float, float]] = (),
 ) -> Structure:
     """Assemble a uniform Euler–Bernoulli beam with attachments.
 
     ``point_masses`` are ``(x, mass_kg)``; ``springs`` are grounded linear springs ``(x, k_N_per_m)``;
-    ``nonlinear_springs`` are ``(x, law, coefficient, exponent)``. Every position is snapped to the
-    nearest node (an error beyond half an element off the beam).
+    ``nonlinear_springs`` are ``(at, law, coefficient, exponent[, to])``, ``at``/``to`` a position (m) or an
+    oscillator's name, ``to`` omitted or None for a grounded spring. ``oscillators`` are ``(name, x, mass_kg,
+    k_N_per_m)``: a mass with its own translational DOF (appended after the beam's), tied to the beam at ``x``
+    by a linear spring — the seed's NES on its wing (Ch. 5, L1515). Every position is snapped to the nearest
+    node (an error beyond half an element off the beam).
     """
     mesh = BeamMesh(length=length, n_elements=n_elements)
     M, K = assemble_beam(E, rho, width, height, mesh)
+    nb = M.shape[0]
+    if oscillators:
+        n_all = nb + len(oscillators)
+        M = np.pad(M, ((0, n_all - nb), (0, n_all - nb)))
+        K = np.pad(K, ((0, n_all - nb), (0, n_all - nb)))
+        for o, (_name, x, m, k) in enumerate(oscillators):
+            node, _ = mesh.snap(x)
+            i, j = nb + o, 2 * node
+            M[i, i] += m
+            K[i, i] += k
+            K[j, j] += k
+            K[i, j] -= k
+            K[j, i] -= k
+    osc_index = {name: nb + o for o, (name, *_rest) in enumerate(oscillators)}
+
+    def dof_at(where: float | str) -> int:
+        if isinstance(where, str):
+            return osc_index[where]
+        node, _ = mesh.snap(where)
+        return 2 * node
+
     for x, m in point_masses:
         node, _ = mesh.snap(x)
         M[2 * node, 2 * node] += m
@@ -168,14 +198,16 @@ def build_beam(
     for n in range(n_elements + 1):
         dofs.append(Dof(name=f"w{n}", kind="w", node=n, x=float(xs[n])))
         dofs.append(Dof(name=f"theta{n}", kind="theta", node=n, x=float(xs[n])))
+    for name, *_rest in oscillators:
+        dofs.append(Dof(name=name, kind="x"))  # not a beam point: no position
     nl = []
-    for x, law, coef, expo in nonlinear_springs:
-        node, _ = mesh.snap(x)
-        nl.append(NonlinearSpring(dof=2 * node, law=law, coefficient=coef, exponent=expo))  # type: ignore[arg-type]
+    for at, law, coef, expo, *to in nonlinear_springs:
+        ref = None if not to or to[0] is None else dof_at(to[0])
+        nl.append(NonlinearSpring(dof=dof_at(at), law=law, coefficient=coef, exponent=expo, ref=ref))  # type: ignore[arg-type]
     full = Structure(M=M, K=K, dofs=tuple(dofs), nonlinear=tuple(nl), damping=damping or ModalDamping(), mesh=mesh)
     removed = _end_dofs(left, 0) + _end_dofs(right, n_elements)
     for s in full.nonlinear:
-        if s.dof in removed:
+        if s.dof in removed or s.ref in removed:
             raise ValueError(f"a nonlinear spring sits on a constrained DOF ({full.dofs[s.dof].name})")
     return full.without_dofs(removed)
 
@@ -184,11 +216,13 @@ def build_lumped(
     *,
     masses: Sequence[float],
     springs: Sequence[tuple[int, int | None, float]],
-    nonlinear_springs: Sequence[tuple[int, str, float, float]] = (),
+    nonlinear_springs: Sequence[tuple] = (),
     names: Sequence[str] | None = None,
     damping: ModalDamping | None = None,
 ) -> Structure:
-    """A spring–mass system: ``springs`` are ``(i, j, k)`` between DOFs i and j, ``j=None`` to ground."""
+    """A spring–mass system: ``springs`` are ``(i, j, k)`` between DOFs i and j, ``j=None`` to ground;
+    ``nonlinear_springs`` are ``(i, law, coefficient, exponent[, j])``, between i and j (``j`` omitted or None:
+    to ground)."""
     n = len(masses)
     names = list(names) if names is not None else [f"x{i + 1}" for i in range(n)]
     M = np.diag(np.asarray(masses, dtype=float))
@@ -199,6 +233,9 @@ def build_lumped(
             K[j, j] += k
             K[i, j] -= k
             K[j, i] -= k
-    nl = tuple(NonlinearSpring(dof=i, law=law, coefficient=c, exponent=e) for i, law, c, e in nonlinear_springs)  # type: ignore[arg-type]
+    nl = tuple(
+        NonlinearSpring(dof=i, law=law, coefficient=c, exponent=e, ref=j[0] if j else None)  # type: ignore[arg-type]
+        for i, law, c, e, *j in nonlinear_springs
+    )
     dofs = tuple(Dof(name=nm, kind="x") for nm in names)
     return Structure(M=M, K=K, dofs=dofs, nonlinear=nl, damping=damping or ModalDamping())

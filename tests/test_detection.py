@@ -448,3 +448,57 @@ def test_energy_floor_lets_a_faint_exchange_through_and_not_a_fainter_one():
     assert ev.gain == pytest.approx(5.0) and (ev.m, ev.n) == (3, 1)
     assert run(5e-5, floor=1e-4) == []  # the old floor missed it
     assert run(1e-5) == []
+
+
+def test_detector_labels_by_the_slowest_slow_phase_not_the_nearest_ratio():
+    """Issue 21, docs/detection.md §8: the event's m:n is the candidate whose slow phase ``m θ1 − n θ2`` (eq. 4.2)
+    turns slowest, ``argmin n |r − m/n|``. Oracle: the rate of each slow phase written out, ``|n f2 − m f1|``. At
+    f2/f1 = 3.29 (mode 2 beating at 68.4 Hz against the cubic's 3 f1 = 62.4 Hz) the 3:1 phase turns at 6.0 Hz and the
+    7:2 phase at 8.7 Hz: 3:1, where the nearest m/n (3.5) said 7:2. The 1:1 | 2:1 boundary stays 1.5."""
+    from analysis.exchange import ExchangeDetector, WindowFeatures, nearest_ratio, slowest_phase_ratio
+
+    f1 = 20.8
+    for r in (1.2, 1.51, 2.2, 2.34, 2.6, 2.7, 3.0, 3.29, 3.32, 3.34, 3.6, 3.66, 3.68, 4.3):
+        rates = {mn: abs(mn[1] * r * f1 - mn[0] * f1) for mn in ((1, 1), (2, 1), (5, 2), (3, 1), (7, 2), (4, 1))}
+        assert slowest_phase_ratio(r) == min(rates, key=rates.get), r
+    assert slowest_phase_ratio(3.29) == (3, 1) and nearest_ratio(3.29) == (7, 2)
+    assert slowest_phase_ratio(3.34) == (7, 2) and slowest_phase_ratio(1.5) == (1, 1) and slowest_phase_ratio(1.51) == (2, 1)
+    with pytest.raises(ValueError):
+        slowest_phase_ratio(float("nan"))
+    f = np.array([f1, 3.29 * f1])
+    det = ExchangeDetector(ExchangeSettings(min_confidence=0.0))
+    ev = det.feed(WindowFeatures(0, 0, 354, 0.0, 0.0216, np.array([1.0, 1.0]), f, True))
+    for k, e in enumerate([1e-3] * 5 + list(np.geomspace(1e-3, 5e-3, 6)) + [2e-3] * 5, 1):
+        ev += det.feed(WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([1.0, e]), f))
+    (e,) = ev + det.finish()
+    assert (e.m, e.n) == (3, 1)  # (its lock score is 0: 3.29 is 9.7 % from 3, outside lock_tolerance; the phase turns)
+
+
+def test_detector_labels_the_m_n_locked_to_the_giving_phase_where_the_mean_ratio_misleads():
+    """Issue 21 (docs/detection.md §8): the event's m:n is the candidate whose component of the receiving mode is
+    phase-locked to the giving mode (:func:`analysis.exchange.lock_fit` over the last 0.3 s of band-passed states,
+    the truth's test). Oracle: the construction. Mode 2's free oscillation at 2.6 f1 dominates a weaker response locked
+    at 3 θ1 (beam_ch4_exp's strong hits, where the exchanges recur at 1/|f2 − 3 f1|): the mean ratio 2.6 says 5:2 by
+    either rounding rule, the lock says 3:1; without the samples (or ``lock_label`` off) the ratio rule stands."""
+    from analysis.exchange import ExchangeDetector, WindowFeatures, lock_fit
+
+    f1, hop = 26.0, 0.0108
+    ts = np.arange(0, 0.6, 1 / 1024)
+    th1 = 2 * np.pi * f1 * ts
+    q2 = np.cos(2 * np.pi * 2.6 * f1 * ts) + 0.3 * np.cos(3 * th1 + 1.0)
+    assert lock_fit(ts[-300:], q2[-300:], th1[-300:], f1, ((2, 1), (5, 2), (3, 1), (7, 2), (4, 1))) == (3, 1)
+    f = np.array([f1, 2.6 * f1])
+
+    def run(lock: bool, samples: bool = True) -> tuple[int, int]:
+        det = ExchangeDetector(ExchangeSettings(min_confidence=0.0, lock_label=lock))
+        ev = det.feed(WindowFeatures(0, 0, 354, 0.0, 0.0216, np.array([1.0, 1.0]), f, True))
+        for k, e in enumerate([1e-3] * 30 + list(np.geomspace(1e-3, 5e-3, 6)) + [2e-3] * 5, 1):
+            m = (ts >= k * hop) & (ts < (k + 1) * hop)
+            lk = (ts[m], np.column_stack([th1[m], np.zeros(m.sum())]), np.column_stack([np.zeros(m.sum()), q2[m]]))
+            ev += det.feed(WindowFeatures(k, k * 177, k * 177 + 354, k * hop, k * hop + 0.0216, np.array([1.0, e]), f,
+                                          lock=lk if samples else None))  # fmt: skip
+        (e,) = ev + det.finish()
+        return e.m, e.n
+
+    assert run(True) == (3, 1)
+    assert run(False) == (5, 2) and run(True, samples=False) == (5, 2)

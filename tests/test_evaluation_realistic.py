@@ -184,3 +184,40 @@ def test_session_truth_attributes_each_exchange_to_the_hit_before_it():
     grid = session_grid(1, 5, zetas=(0.005,))
     gaps = np.diff(grid[0].hit_times_s)
     assert len(grid) == 2 and not grid[1].cubic and np.all((gaps >= 2.0) & (gaps <= 6.0))
+
+
+def _beat(locked: float, free_ratio: float, fs: float = 4096.0, dur: float = 1.5):
+    """Exact modal coordinates of a detuned internal resonance as measured on both grid rigs (docs/evaluation.md §8):
+    mode 1 at f1 drifting 21.5 -> 20.5 Hz; q2 = a component locked at ``locked`` θ1 + mode 2's free oscillation at
+    ``free_ratio`` x 21 Hz of comparable amplitude + the cubic's off-resonant f1 response. E2 beats at their difference."""
+    t = np.arange(int(dur * fs)) / fs
+    th1 = 2 * np.pi * (21.5 * t - 0.5 * t**2 / dur)
+    q1 = 1e-2 * np.cos(th1)
+    th2f = 2 * np.pi * free_ratio * 21.0 * t
+    q2 = 1e-4 * (0.8 * np.cos(locked * th1 + 0.3) + np.cos(th2f) + 0.3 * np.cos(th1))
+    w = 2 * np.pi * np.array([18.8, 64.2])
+    v = np.gradient(np.column_stack([q1, q2]), 1 / fs, axis=0)
+    q = np.column_stack([q1, q2])
+    return t, q, 0.5 * (v**2 + w**2 * q**2), fs
+
+
+def test_truth_labels_the_component_locked_to_mode_1_not_the_beats_mean_frequency():
+    """Issue 21 (docs/evaluation.md §8): the truth's m:n is the candidate whose component of exact q2 is phase-locked
+    to θ1 (:func:`locked_ratio`, eq. 4.2), not f2/f1 of the beat rounded. Oracle: the construction. A 3 f1 component
+    beating against a free oscillation at 3.29 f1 (the beam_al_mid exchanges' make-up) is 3:1 in every exchange, while
+    issue 6's zero crossings read ratios spread across the 3.25 boundary; a 3.5 f1 component is 7:2; a free
+    oscillation alone (nothing locked) gets no lock label and falls back to the zero-crossing rule."""
+    from analysis.evaluation.truth import giving_phase, locked_ratio, major_exchanges
+
+    t, q, E, fs = _beat(3.0, 3.29)
+    ex = major_exchanges(q, E, fs, 0.05)
+    assert len(ex) >= 4 and all(e.label == "3:1" for e in ex)
+    zc = major_exchanges(q, E, fs, 0.05, label_rule="zero_crossing")
+    assert [e.label for e in zc] == [e.zc_label for e in ex] and {e.zc_label for e in ex} != {"3:1"}
+    th = giving_phase(q[:, 0])
+    _, q7, _, _ = _beat(3.5, 3.2)
+    assert locked_ratio(q7[:, 1], th, fs, 0.75, 21.0) == (7, 2)
+    free = 1e-4 * (np.cos(2 * np.pi * 69.0 * t) + 0.3 * np.cos(th))
+    assert locked_ratio(free, th, fs, 0.75, 21.0) is None
+    with pytest.raises(ValueError):
+        major_exchanges(q, E, fs, 0.05, label_rule="nearest")

@@ -32,15 +32,23 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+import scipy.signal
 from scipy.ndimage import uniform_filter1d
 
-from analysis.exchange import DEFAULT_RATIOS, nearest_ratio
+from analysis.exchange import DEFAULT_RATIOS, lock_fit, nearest_ratio
 from analysis.model.beam import FloatArray
 from analysis.model.truth import zero_crossing_frequency
 
 DEFAULT_WINDOW_S = 354 / 16384.0  # the seed's 0.0216 s window (354 samples at 16384 Hz)
 DEFAULT_FLOOR_REL = 1e-6
 DEFAULT_HYSTERESIS = 1.25
+#: the span of the phase-lock test around an exchange's centre: long enough that the giving mode's candidate harmonics
+#: (0.5 f1 apart, ~10 Hz) and the free mode-2 oscillation (4-7 Hz from 3 f1 on both rigs) are resolved
+DEFAULT_LOCK_SPAN_S = 0.3
+#: the lock test's label needs its best candidate's model to leave at most 1 - this of the residual without it ...
+LOCK_MIN_IMPROVEMENT = 0.2
+#: ... and its locked component to explain at least this fraction of q2's energy over the span
+LOCK_MIN_SHARE = 0.02
 
 
 @dataclass(frozen=True)
@@ -56,6 +64,7 @@ class Exchange:
     f2_hz: float
     e2_end_rel: float = float("nan")  # smoothed E2 at the end / input work: how large the exchange is
     e2_over_e1: float = float("nan")  # smoothed E2 / E1 at the end: how visible mode 2 is then
+    zc_label: str = ""  # issue 6's label, f2/f1 from zero crossings rounded (kept to compare; the label is the lock test's)
 
     @property
     def ratio(self) -> float:
@@ -78,9 +87,7 @@ def modal_energy_smoothed(E: FloatArray, fs: float, window_s: float) -> FloatArr
     return uniform_filter1d(E, nw, axis=0, mode="nearest")
 
 
-def instantaneous_frequencies(
-    modal_q: FloatArray, fs: float, t_centres: FloatArray, half_width: float = 0.05
-) -> FloatArray:
+def instantaneous_frequencies(modal_q: FloatArray, fs: float, t_centres: FloatArray, half_width: float = 0.05) -> FloatArray:
     """Zero-crossing frequency (Hz) of each modal coordinate around each centre, shape (n_centres, modes).
 
     Reuses :func:`analysis.model.truth.zero_crossing_frequency` (interpolated crossings); NaN where a
@@ -92,6 +99,47 @@ def instantaneous_frequencies(
     t = np.arange(q.shape[0]) / fs
     c = np.atleast_1d(np.asarray(t_centres, dtype=float))
     return np.stack([zero_crossing_frequency(q[:, r], t, c, half_width) for r in range(q.shape[1])], axis=1)
+
+
+def giving_phase(q1: FloatArray) -> FloatArray:
+    """Unwrapped phase (rad) of the giving mode's exact coordinate, from its analytic signal (non-causal: a truth)."""
+    return np.unwrap(np.angle(scipy.signal.hilbert(np.asarray(q1, dtype=float))))
+
+
+def locked_ratio(
+    q2: FloatArray,
+    theta1: FloatArray,
+    fs: float,
+    centre_s: float,
+    f1_hz: float,
+    ratios: Sequence[tuple[int, int]] = DEFAULT_RATIOS,
+    span_s: float = DEFAULT_LOCK_SPAN_S,
+    bounds_s: tuple[float, float] | None = None,
+    step_hz: float = 0.25,
+) -> tuple[int, int] | None:
+    """The m:n whose component of mode 2 is **phase-locked** to mode 1 around ``centre_s``; None if none stands out.
+
+    Why (docs/evaluation.md §8): an internal resonance is the slow phase ``m θ1 − n θ2`` staying constant (the seed's
+    eq. 4.2, L1275). Measured on both grid rigs, the exact q2 during an exchange holds two oscillations: the response the
+    cubic spring drives at exactly 3 f1 (locked to θ1) and mode 2's free oscillation at its own, amplitude-shifted
+    frequency f2' (3.1-3.4 f1); E2 rises where they come into phase (the exchanges recur at 1/|f2' − 3 f1|). Issue 6's
+    f2/f1 reads a mixture of the two, which straddles the 3.25 rounding boundary. Here each candidate ``ρ = m/n`` is
+    tried as ``q2 ≈ a cos(ρ θ1) + b sin(ρ θ1) + c cos(2π f t) + d sin(2π f t)`` (least squares over ``centre ± span/2``,
+    the free frequency ``f`` searched in ``[1.25, 4.75] f1`` on a ``step_hz`` grid), always with a component locked at
+    θ1 itself as a nuisance (the cubic force's f1 part drives mode 2 off resonance, far below it: not an m:n resonance,
+    and 1:1 is not a candidate); the candidate with the smallest residual wins, provided it leaves at most
+    ``1 − LOCK_MIN_IMPROVEMENT`` of the residual without it (f1 component + one free sinusoid) and explains at least
+    ``LOCK_MIN_SHARE`` of q2's energy (else nothing is locked that a free oscillation does not explain: None). ``theta1`` is
+    :func:`giving_phase` of q1 over the same samples as ``q2``; ``bounds_s`` clips the span (pulse end, record end).
+    """
+    q2 = np.asarray(q2, dtype=float)
+    lo, hi = centre_s - 0.5 * span_s, centre_s + 0.5 * span_s
+    if bounds_s is not None:
+        lo, hi = max(lo, bounds_s[0]), min(hi, bounds_s[1])
+    stride = max(1, int(fs // 1024))  # q2's content here is below ~5 f1 < 200 Hz: 1 kHz samples resolve it
+    idx = np.arange(max(0, int(np.ceil(lo * fs))), min(q2.size, int(np.floor(hi * fs)) + 1), stride)
+    th = np.asarray(theta1, dtype=float)[idx]
+    return lock_fit(idx / fs, q2[idx], th, f1_hz, ratios, LOCK_MIN_IMPROVEMENT, LOCK_MIN_SHARE, step_hz)
 
 
 def zigzag(x: FloatArray, hysteresis: float = DEFAULT_HYSTERESIS) -> list[tuple[int, int]]:
@@ -153,13 +201,18 @@ def major_exchanges(
     input_work: float | None = None,
     floor_rel: float = DEFAULT_FLOOR_REL,
     hysteresis: float = DEFAULT_HYSTERESIS,
+    label_rule: str = "lock",
 ) -> list[Exchange]:
     """Major exchanges into mode 2 (column 1) of one record; see the module docstring for the rules.
 
     ``modal_q`` (N, >= 2) and ``modal_energy`` (N, >= 2) are the simulator's linear modal coordinates
     and energies (``SimulationResult.modal_q[b]``, ``.modal_energy[b]``). ``input_work`` (J) sets the
-    floor; when omitted, the total modal energy at the first usable sample stands in for it.
+    floor; when omitted, the total modal energy at the first usable sample stands in for it. ``label_rule``
+    "lock" (default since issue 21): m:n from :func:`locked_ratio`, falling back to the rounded zero-crossing f2/f1
+    where no candidate is locked; "zero_crossing": issue 6's rounded f2/f1 only (``Exchange.zc_label`` either way).
     """
+    if label_rule not in ("lock", "zero_crossing"):
+        raise ValueError("label_rule must be 'lock' or 'zero_crossing'")
     q = np.asarray(modal_q, dtype=float)
     E = np.asarray(modal_energy, dtype=float)
     if q.ndim != 2 or q.shape[1] < 2 or E.shape[0] != q.shape[0] or E.shape[1] < 2:
@@ -179,6 +232,7 @@ def major_exchanges(
     floor = floor_rel * work
     ext = zigzag(np.maximum(e2, np.finfo(float).tiny), hysteresis)
     out: list[Exchange] = []
+    theta1: FloatArray | None = None
     for (ia, ka), (ib, kb) in pairwise(ext):
         if ka != -1 or kb != 1:
             continue
@@ -191,6 +245,11 @@ def major_exchanges(
         f = instantaneous_frequencies(q[:, :2], fs, [centre], hw)[0]
         f1, f2 = float(f[0]), float(f[1])
         m, nn = nearest_ratio(f2 / f1, ratios) if np.isfinite(f1) and np.isfinite(f2) and f1 > 0 else (0, 0)
+        zc = f"{m}:{nn}"
+        if label_rule == "lock":
+            theta1 = giving_phase(q[:, 0]) if theta1 is None else theta1
+            locked = locked_ratio(q[:, 1], theta1, fs, centre, f1, ratios, bounds_s=(pulse_end_s, (n - 1) / fs))
+            m, nn = locked if locked is not None else (m, nn)
         rel = float(e2[ib] / work) if work > 0 else float("nan")
-        out.append(Exchange(ts, te, float(gain), m, nn, f1, f2, rel, float(e2[ib] / e1[ib]) if e1[ib] > 0 else float("inf")))
+        out.append(Exchange(ts, te, float(gain), m, nn, f1, f2, rel, float(e2[ib] / e1[ib]) if e1[ib] > 0 else float("inf"), zc))
     return out

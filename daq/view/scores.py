@@ -35,8 +35,8 @@ class DetectorScore:
 # bench/calibrate_confidence.py ("pooled": every event at the default min_confidence over the 27 classes of the
 # realistic grid, nonlinear cases; bench/results/calibrate_confidence.json), 2026-11-26, commit c397a79 + this work
 MODAL_EXCHANGE = DetectorScore(
-    "internal-resonance events (modal exchange)", "detector", 2380, 25, 391, 0.76,
-    "realistic grid, 27 error classes (bench/calibrate_confidence.py, 2026-11-26, after the energy floor and sensor health)",
+    "internal-resonance events (modal exchange)", "detector", 2372, 25, 399, 0.99,
+    "realistic grid, 27 error classes (bench/calibrate_confidence.py, 2026-11-26, after the phase-lock labels)",
 )  # fmt: skip
 # docs/detection.md §4 (bench/eval_detection.py): the spikes alone on the issue-6 grid, 24 nonlinear hits, 63 exchanges
 ROBUST_RQ_SPIKES = DetectorScore(

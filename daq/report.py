@@ -90,7 +90,7 @@ def _envelope(t: np.ndarray, y: np.ndarray, n: int = 2000) -> tuple[np.ndarray, 
 
 
 def build_report(
-    log: str | Path, out: str | Path, rig=None, frf_channel: str | None = None, band_hz: float = 1000.0
+    log: str | Path, out: str | Path, rig=None, frf_channel: str | None = None, band_hz: float | None = None
 ) -> ReportSummary:
     """Write the report for ``log`` to ``out`` (.html); ``rig`` defaults to the one attached to the log.
 

@@ -36,7 +36,7 @@ class FRFSection:
     absent: str | None = None
 
 
-def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band_hz: float = 1000.0,
+def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band_hz: float | None = None,
                 rig_note: str | None = None) -> FRFSection:  # fmt: skip
     """The section for ``log``; ``table(title, cols, rows, empty)`` renders HTML tables (report's ``_table``)."""
     if rig is None:
@@ -58,7 +58,7 @@ def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band
     else:
         shown = shown_outputs(run.frf.outputs, run.driving.get(run.frf.references[0]), channel)
         sec.figures += [("FRF magnitude and phase", frf_figure(run, shown)), ("coherence", coherence_figure(run, shown))]
-        sec.tables.append(_modal_table(run.frf, rig, band_hz, table, run.driving))
+        sec.tables.append(_modal_table(run.frf, rig, run.band_hz, table, run.driving))
     if run.spectra:
         sec.figures.append(("hammer spectra", spectra_figure(run)))
     return sec

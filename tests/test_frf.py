@@ -139,6 +139,23 @@ def test_window_damping_is_removed_exactly():
     assert choose_tau(10.0, 2.0, 1e-3) is None  # a structure that decays alone gets no window
 
 
+def accumulate_hits(rig: Rig, log: Path) -> tuple[FRFAccumulator, float, list[str], list[np.ndarray]]:
+    """Every hit of ``log`` into one accumulator (2 s records from 10 ms before each hit, the rig's tau): the
+    accumulator, tau, the responses and each hit's raw force record."""
+    fs, n, pre = rig.sample_rate, round(2.0 * rig.sample_rate), round(PRE_TRIGGER_S * rig.sample_rate)
+    tau = choose_tau(lowest_decay_rate(rig), 2.0)
+    reader = LogReader(log)
+    outs = [s.name for s in rig.sensors]
+    acc = FRFAccumulator(fs, n, outs, "hammer", tau=tau, t0=pre / fs, f_max=1000.0)
+    raw = []
+    for h in reader.json_messages(HITS_TOPIC):
+        i0 = h["index"] - pre
+        d = reader.read_stream("dev0", start=i0 / fs, end=(i0 + n) / fs).data.astype(float)
+        acc.add(d[:, 0], d[:, 1:])
+        raw.append(d[:, 0])
+    return acc, tau, outs, raw
+
+
 def test_ten_percent_response_noise_biases_h2_up_not_h1(tmp_path):
     """Theory (Bendat & Piersol §9.2): noise on the response only leaves H1 unbiased and makes
     ``|H2| = |H1| / gamma^2`` too high. Where the response noise matters (coherence < 0.9: near
@@ -146,15 +163,7 @@ def test_ten_percent_response_noise_biases_h2_up_not_h1(tmp_path):
     at the peaks the coherence is >= 0.99 even at 10 % noise, so there the bias (< 1 %) is smaller than H1's
     random error with 5 averages (up to 4 % measured), and H1 can land on either side of the model."""
     rig, log = session(tmp_path, 0.10, 0.0, (FORCE,) * 5)
-    fs, n, pre = rig.sample_rate, round(2.0 * rig.sample_rate), round(PRE_TRIGGER_S * rig.sample_rate)
-    tau = choose_tau(lowest_decay_rate(rig), 2.0)
-    reader = LogReader(log)
-    outs = [s.name for s in rig.sensors]
-    acc = FRFAccumulator(fs, n, outs, "hammer", tau=tau, t0=pre / fs, f_max=1000.0)
-    for h in reader.json_messages(HITS_TOPIC):
-        i0 = h["index"] - pre
-        d = reader.read_stream("dev0", start=i0 / fs, end=(i0 + n) / fs).data.astype(float)
-        acc.add(d[:, 0], d[:, 1:])
+    acc, tau, outs, _ = accumulate_hits(rig, log)
     H1, H2 = acc.frf("H1"), acc.frf("H2")
     ha = analytic_accelerance(rig, H1.freq, outs, 1 / tau)
     g = H1.coherence[:, 0]
@@ -174,17 +183,8 @@ def test_force_noise_is_cut_by_the_force_window(tmp_path):
     the hammer acts (~2 ms of the 2 s), so force noise at 100 % of the record's force rms hardly reaches the spectra:
     measured median coherence 0.999, H1 within 0.3 % of the model; without the window that noise would dominate."""
     rig, log = session(tmp_path, 0.0, 1.0, (FORCE,) * 5)
-    fs, n, pre = rig.sample_rate, round(2.0 * rig.sample_rate), round(PRE_TRIGGER_S * rig.sample_rate)
-    tau = choose_tau(lowest_decay_rate(rig), 2.0)
-    reader = LogReader(log)
-    outs = [s.name for s in rig.sensors]
-    acc = FRFAccumulator(fs, n, outs, "hammer", tau=tau, t0=pre / fs, f_max=1000.0)
-    raw = []
-    for h in reader.json_messages(HITS_TOPIC):
-        i0 = h["index"] - pre
-        d = reader.read_stream("dev0", start=i0 / fs, end=(i0 + n) / fs).data.astype(float)
-        acc.add(d[:, 0], d[:, 1:])
-        raw.append(d[:, 0])
+    fs = rig.sample_rate
+    acc, tau, outs, raw = accumulate_hits(rig, log)
     H1, H2 = acc.frf("H1"), acc.frf("H2")
     ha = analytic_accelerance(rig, H1.freq, outs, 1 / tau)
     g = H1.coherence[:, 0]

@@ -133,6 +133,7 @@ def check_lane_and_log(rig: Rig, res: SessionResult, out: Path, n_hits: int, out
         coh_lane.append(final["min_coherence"][j])
     assert min(coh_lane) >= 0.99, coh_lane
     run = frf_from_log(out, rig, band_hz=band)
+    assert frf_from_log(out, rig).band_hz == band  # gvt frf's default band at this rate is the lane's
     frf = run.frf
     why = [(h["hit"], h["verdict"], h["reason"]) for h in run.hits]
     assert frf is not None and int(frf.n_averages[0]) == final["averages"] == n_hits, why

@@ -20,8 +20,9 @@ def frf(
     show: Annotated[str | None, typer.Option(help="Response drawn beside the first one in --plot (default: the last).")] = None,
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
     band: Annotated[
-        float, typer.Option(min=1.0, help="Band of interest, Hz (FRFs up to it; a hit's -10 dB must reach it).")
-    ] = 1000.0,
+        float | None,
+        typer.Option(min=1.0, help="Band of interest, Hz (a hit's -10 dB must reach it); default 1000 or fs/2.56."),
+    ] = None,
     kind: Annotated[str, typer.Option(help="Estimator: H1, H2 or Hv.")] = "H1",
     quantity: Annotated[str, typer.Option(help="accelerance, mobility or receptance.")] = "accelerance",
     peaks: Annotated[int, typer.Option(min=1, max=50, help="Peaks in the table.")] = 6,

@@ -13,7 +13,9 @@ from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open
 def modal(
     source: Annotated[Path, typer.Argument(help="Session log (.mcap), or FRFs written by `gvt frf --out` (.npz).")],
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
-    band: Annotated[tuple[float, float], typer.Option(help="Band to identify in, Hz: LOW HIGH.")] = (2.0, 1000.0),
+    band: Annotated[
+        tuple[float, float] | None, typer.Option(help="Band to identify in, Hz: LOW HIGH (default 2 Hz to the FRFs' band).")
+    ] = None,
     poles: Annotated[
         Path | None, typer.Option("--poles", help="Pick these poles ([[poles]] freq_hz, tol) instead of the automatic rule.")
     ] = None,
@@ -45,7 +47,8 @@ def modal(
             fail("--rrd draws the modes on the rig's test geometry: give --rig (an FRF file carries none)")
         frf, driving, refused = load_frf_source(source), None, []
     else:
-        r, frf, driving, refused = _frfs_of_log(source, r, band[1], json_out)
+        r, frf, driving, refused = _frfs_of_log(source, r, None if band is None else band[1], json_out)
+    band = band or (2.0, min(1000.0, float(frf.freq[-1])))
     run = modal_from_frf(frf, r, band[0], band[1], targets, max_order, source=str(source), driving=driving)
     run.refused_hits = refused
     if modes_out is not None:
@@ -75,7 +78,7 @@ def modal(
             out.print(f"wrote {p}", markup=False)
 
 
-def _frfs_of_log(source: Path, r, band_hi: float, json_out: bool) -> tuple:
+def _frfs_of_log(source: Path, r, band_hi: float | None, json_out: bool) -> tuple:
     """(rig, FRFs, driving points, refused hits) of a session log: its attached rig unless one was given, and
     gvt frf's FRFs of the accepted hits (every hit point of a roving plan a reference); none accepted: exit 2."""
     from daq.analyze import rig_from_log

@@ -18,8 +18,9 @@ def report(
         str | None, typer.Option(help="Response drawn beside the driving point in the FRF figures (default: the last).")
     ] = None,
     band: Annotated[
-        float, typer.Option(min=1.0, help="Band of interest of the FRFs, Hz (a hit's -10 dB must reach it).")
-    ] = 1000.0,
+        float | None,
+        typer.Option(min=1.0, help="Band of interest of the FRFs, Hz (a hit's -10 dB must reach it); default 1000 or fs/2.56."),
+    ] = None,
     overwrite: OverwriteOpt = False,
 ) -> None:
     """A static HTML report of a session: hits, verdicts, loss, RQ-FEP, IR events, confirmations, FRFs and modes."""

@@ -44,7 +44,7 @@ from analysis.frf import FRFAccumulator, FRFSet, choose_tau, stack_references
 from analysis.hammer import check_hit, force_spectrum, level_db
 from analysis.records import FRF_TOPIC, PLAN_TOPIC, FRFUpdate, PlanRecord
 from daq.fanout import END, FanOut, Subscription
-from daq.frf_cmd import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
+from daq.frf_cmd import PRE_TRIGGER_S, default_band, force_full_scale, lowest_decay_rate
 from daq.lanes import Sink
 from daq.log import layout
 from daq.roving import PlanTracker
@@ -53,7 +53,6 @@ from drivers.blocks import SampleBlock
 #: the view's topic for the curves of one update (in-process only: never written to a log)
 FRF_CURVES = "frf/curves"
 N_PEAKS = 6  # peaks in each update, as gvt frf's table
-DEFAULT_BAND_HZ = 1000.0  # gvt frf's default band of interest
 #: the log attachment holding a roving-hammer session's FRF matrix (analysis.frf.FRFSet.to_npz)
 MATRIX_ATTACHMENT = "frf/matrix.npz"
 
@@ -89,13 +88,6 @@ class FRFPlan:
             taken.update(cols)
             out.append((stream, [chans.index(c) for c in cols]))
         return out
-
-
-def default_band(fs: float) -> float:
-    """gvt frf's 1000 Hz band, or fs / 2.56 when that is lower: the usable band below Nyquist (an analyser's
-    anti-alias convention). Why: at 2048 Hz a 1000 Hz band is above what the hammer spectrum can show — every
-    hit was refused as 'bandwidth below band: -10 dB at 827 Hz < 1000 Hz'."""
-    return min(DEFAULT_BAND_HZ, fs / 2.56)
 
 
 def frf_plan(rig, streams: dict[str, tuple[str, ...]], fs: float, band_hz: float | None = None, end_level: float = 1e-3,

@@ -25,8 +25,15 @@ _TINY = 1e-300
 
 
 @njit(cache=True, inline="always")
-def _dg(law: int, k: float, p: float, w0: float, w1: float) -> tuple[float, float]:
-    """Discrete gradient g(w0, w1) of one spring's potential and dg/dw1."""
+def _dg(law: int, k: float, p: float, w0: float, w1: float, dt: float) -> tuple[float, float]:
+    """Discrete gradient g(w0, w1) of one spring's potential and dg/dw1; for a damper row (law 2 viscous, 3
+    Coulomb with ``p = v_eps``) its force at the stage's mean stretch rate ``(w1 - w0) / dt`` and its slope, so
+    that ``g (w1 - w0) >= 0`` is the work it dissipates over the stage."""
+    if law == 2:
+        return k * (w1 - w0) / dt, k / dt
+    if law == 3:
+        th = np.tanh((w1 - w0) / (dt * p))
+        return k * th, k * (1.0 - th * th) / (dt * p)
     if law == 0:  # cubic, V = k w^4 / 4
         g = 0.25 * k * (w1 * w1 * w1 + w1 * w1 * w0 + w1 * w0 * w0 + w0 * w0 * w0)
         dg = 0.25 * k * (3.0 * w1 * w1 + 2.0 * w1 * w0 + w0 * w0)
@@ -51,10 +58,10 @@ def _dg(law: int, k: float, p: float, w0: float, w1: float) -> tuple[float, floa
 
 
 @njit(cache=True)
-def _solve_scalar(S: float, a: float, w0: float, guess: float, law: int, k: float, p: float) -> tuple[float, float]:
+def _solve_scalar(S: float, a: float, w0: float, guess: float, law: int, k: float, p: float, dt: float) -> tuple[float, float]:
     """Root of h(w1) = w1 + S g(w0, w1) - a (h' >= 1): returns (w1, g)."""
     x = guess
-    g, dg = _dg(law, k, p, w0, x)
+    g, dg = _dg(law, k, p, w0, x, dt)
     h = x + S * g - a
     # h' >= 1 puts the root within |h| of x: a bracket for free.
     if h > 0.0:
@@ -69,7 +76,7 @@ def _solve_scalar(S: float, a: float, w0: float, guess: float, law: int, k: floa
             xn = 0.5 * (lo + hi)
         delta = abs(xn - x)
         x = xn
-        g, dg = _dg(law, k, p, w0, x)
+        g, dg = _dg(law, k, p, w0, x, dt)
         h = x + S * g - a
         if h > 0.0:
             hi = x
@@ -82,14 +89,14 @@ def _solve_scalar(S: float, a: float, w0: float, guess: float, law: int, k: floa
 
 
 @njit(cache=True)
-def _solve_vector(S, a, w0, guess, law, k, p):  # pragma: no cover - exercised via s > 1 rigs
+def _solve_vector(S, a, w0, guess, law, k, p, dt):  # pragma: no cover - exercised via s > 1 rigs
     s = a.shape[0]
     x = guess.copy()
     g = np.empty(s)
     dg = np.empty(s)
     for _ in range(100):
         for i in range(s):
-            g[i], dg[i] = _dg(law[i], k[i], p[i], w0[i], x[i])
+            g[i], dg[i] = _dg(law[i], k[i], p[i], w0[i], x[i], dt)
         h = x + S @ g - a
         J = np.eye(s) + S * dg[None, :]
         dx = np.linalg.solve(J, h)
@@ -97,15 +104,20 @@ def _solve_vector(S, a, w0, guess, law, k, p):  # pragma: no cover - exercised v
         if np.max(np.abs(dx)) <= 1e-15 * (np.max(np.abs(x)) + np.max(np.abs(w0))) + _TINY:
             break
     for i in range(s):
-        g[i], dg[i] = _dg(law[i], k[i], p[i], w0[i], x[i])
+        g[i], dg[i] = _dg(law[i], k[i], p[i], w0[i], x[i], dt)
     return x, g
 
 
 @njit(cache=True)
-def _force_nl(law, k, p, w):
+def _force_nl(law, k, p, w, wdot):
+    """Each row's force at displacement ``w`` and stretch rate ``wdot`` (a sample instant)."""
     out = np.empty(w.shape[0])
     for i in range(w.shape[0]):
-        if law[i] == 0:
+        if law[i] == 2:
+            out[i] = k[i] * wdot[i]
+        elif law[i] == 3:
+            out[i] = k[i] * np.tanh(wdot[i] / p[i])
+        elif law[i] == 0:
             out[i] = k[i] * w[i] ** 3
         else:
             out[i] = k[i] * abs(w[i]) ** p[i] * np.sign(w[i])
@@ -131,6 +143,8 @@ def _antiderivative(kind, start, duration, tt, ff, cum, t):
 
 @njit(cache=True)
 def _tangent(law, k, p, w):
+    if law >= 2:
+        return 0.0  # a damper row adds no stiffness
     aw = abs(w)
     if law == 0:
         return 3.0 * k * aw * aw
@@ -253,11 +267,11 @@ def _integrate(
                         a = w + B @ u
                         guess = w + (w - w_prev) * (dt / dts[j - 1] if j > 0 else dt / dts[n_stage - 1])
                         if s == 1:
-                            _w1, g1 = _solve_scalar(S_all[j, 0, 0], a[0], w[0], guess[0], law[0], kc[0], pe[0])
+                            _w1, g1 = _solve_scalar(S_all[j, 0, 0], a[0], w[0], guess[0], law[0], kc[0], pe[0], dt)
                             g = np.empty(1)
                             g[0] = g1
                         else:
-                            _wn, g = _solve_vector(S_all[j], a, w, guess, law, kc, pe)
+                            _wn, g = _solve_vector(S_all[j], a, w, guess, law, kc, pe, dt)
                         corr = B.T @ g
                         for i in range(n_r):
                             u[i] -= dinv[i] * corr[i]
@@ -265,6 +279,9 @@ def _integrate(
                         w = B @ (q + u)  # recomputed from q to stay consistent with the state
                     w_in = 0.0
                     dd = 0.0
+                    for i in range(s):
+                        if law[i] >= 2:  # a damper row dissipates g (w1 - w0) over the stage (_dg)
+                            dd += g[i] * (w[i] - w_prev[i]) * dt
                     for i in range(n_r):
                         w_in += phi_f[i] * u[i]
                         dd += cdamp[i] * u[i] * u[i]
@@ -278,7 +295,7 @@ def _integrate(
                 q_out[m, i] = q[i]
                 v_out[m, i] = v[i]
             if s > 0:
-                gn = _force_nl(law, kc, pe, w)
+                gn = _force_nl(law, kc, pe, w, B @ v)
                 for i in range(s):
                     g_out[m, i] = gn[i]
             work_out[m] = work

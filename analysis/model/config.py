@@ -189,6 +189,26 @@ class NonlinearSpringSpec(Located):
         return self
 
 
+class DamperSpec(Located):
+    """``[[dampers]]``: a local viscous damper and Coulomb friction at a DOF, to ground or (``to``) between two — the
+    seed's grounded NES on its rails, eq. 5.11: ``d_r x' + mu_r m g sgn(x')`` (L1642).
+
+    ``coulomb`` is the friction force in N (``mu m g``: the normal force is the rig's business, e.g. the NES's
+    weight on its rails, 0.032 x 0.0908 kg x 9.81 m/s^2 = 0.0285 N). The sign is regularised, ``tanh(v / v_eps)``
+    (analysis/model/nonlinear.py Damper; v_eps 1e-4 m/s by default, justified in docs/rfs.md)."""
+
+    viscous: NonNegative = Field(default=0.0, description="N s/m")
+    coulomb: NonNegative = Field(default=0.0, description="N, the friction force (mu m g)")
+    v_eps: Positive = Field(default=1e-4, description="m/s, the sign's regularisation tanh(v / v_eps)")
+    to: float | str | None = None
+
+    @model_validator(mode="after")
+    def _something(self) -> DamperSpec:
+        if self.viscous == 0 and self.coulomb == 0:
+            raise ValueError("a damper needs 'viscous' (N s/m) or 'coulomb' (N) above zero")
+        return self
+
+
 class OscillatorSpec(_Strict):
     """``[[oscillators]]`` of a beam rig: a mass with its own translational DOF ``name``, tied to the beam at ``x``
     by a linear spring ``k`` — an attachment such as the seed's NES on its wing (0.25 kg, 10 N/m; L1515).
@@ -467,6 +487,7 @@ class RigConfig(_Strict):
     point_masses: list[PointMass] = []
     springs: list[LinearSpring] = []
     nonlinear_springs: list[NonlinearSpringSpec] = []
+    dampers: list[DamperSpec] = []
     oscillators: list[OscillatorSpec] = []
     damping: DampingSpec = DampingSpec()
     sensors: list[SensorSpec] = []
@@ -497,7 +518,11 @@ class RigConfig(_Strict):
             node = min(max(round(item.x / le), 0), s.elements)
             end = fixed.get(node)
             if end in ("clamped", "pinned"):
-                what = {"hammer": "the hammer"}.get(path) or getattr(item, "name", None) or "the nonlinear spring"
+                what = (
+                    {"hammer": "the hammer"}.get(path)
+                    or getattr(item, "name", None)
+                    or ("the damper" if path.startswith("dampers") else "the nonlinear spring")
+                )
                 raise ConfigFieldError(
                     f"{path}.x",
                     f"{what} at x = {item.x:g} m snaps to node {node}, a constrained DOF of the {end} support; "
@@ -532,6 +557,7 @@ class RigConfig(_Strict):
             *((f"point_masses[{i}]", p) for i, p in enumerate(self.point_masses)),
             *((f"springs[{i}]", p) for i, p in enumerate(self.springs)),
             *((f"nonlinear_springs[{i}]", p) for i, p in enumerate(self.nonlinear_springs)),
+            *((f"dampers[{i}]", p) for i, p in enumerate(self.dampers)),
             *((f"sensors[{i}]", p) for i, p in enumerate(self.sensors)),
             ("hammer", self.hammer),
         ]
@@ -546,11 +572,12 @@ class RigConfig(_Strict):
             if len(set(osc)) != len(osc):
                 raise ConfigFieldError("oscillators", "each oscillator needs its own name")
             located += [(f"oscillators[{i}]", Located(x=o.x)) for i, o in enumerate(self.oscillators)]
-            for i, p in enumerate(self.nonlinear_springs):
-                if isinstance(p.to, str) and p.to not in osc:
-                    raise ConfigFieldError(f"nonlinear_springs[{i}].to", f"unknown oscillator {p.to!r}; this rig has {osc}")
-                if isinstance(p.to, float):
-                    located.append((f"nonlinear_springs[{i}].to", Located(x=p.to)))
+            for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
+                for i, p in enumerate(items):
+                    if isinstance(p.to, str) and p.to not in osc:
+                        raise ConfigFieldError(f"{kind}[{i}].to", f"unknown oscillator {p.to!r}; this rig has {osc}")
+                    if isinstance(p.to, float):
+                        located.append((f"{kind}[{i}].to", Located(x=p.to)))
             for path, item in located:
                 if item.dof is not None and item.dof in osc:
                     continue  # on an oscillator's own DOF
@@ -580,9 +607,10 @@ class RigConfig(_Strict):
                     raise ConfigFieldError(f"{path}.x", "a lumped rig places things by 'dof' name, not by 'x'")
                 if item.dof not in names:
                     raise ConfigFieldError(f"{path}.dof", f"unknown DOF {item.dof!r}; this rig has {names}")
-            for i, p in enumerate(self.nonlinear_springs):
-                if p.to is not None and (not isinstance(p.to, str) or p.to not in names or p.to == p.dof):
-                    raise ConfigFieldError(f"nonlinear_springs[{i}].to", f"{p.to!r} is not another DOF of this rig ({names})")
+            for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
+                for i, p in enumerate(items):
+                    if p.to is not None and (not isinstance(p.to, str) or p.to not in names or p.to == p.dof):
+                        raise ConfigFieldError(f"{kind}[{i}].to", f"{p.to!r} is not another DOF of this rig ({names})")
             for i, sp in enumerate(s.springs):
                 for end in ("i", "j"):
                     v = getattr(sp, end)

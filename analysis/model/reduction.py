@@ -23,7 +23,7 @@ import scipy.linalg
 
 from analysis.model.beam import FloatArray
 from analysis.model.modal import Modes, structure_modes
-from analysis.model.nonlinear import NonlinearSpring
+from analysis.model.nonlinear import Damper, NonlinearSpring
 from analysis.model.structure import Structure
 
 
@@ -41,6 +41,7 @@ class ReducedModel:
     n_modes: int
     cutoff_hz: float
     nonlinear: tuple[NonlinearSpring, ...]
+    dampers: tuple[Damper, ...] = ()
 
     @property
     def n_basis(self) -> int:
@@ -71,7 +72,8 @@ def reduce_for_simulation(
     omega = [modes.omega[:n_keep]]
     damp = [coeff_all[:n_keep]]
     basis = [Phi_k]
-    ends = [d for s in structure.nonlinear for d in (s.dof, s.ref) if d is not None]  # both ends of a relative spring
+    local = (*structure.nonlinear, *structure.dampers)
+    ends = [d for s in local for d in (s.dof, s.ref) if d is not None]  # both ends of a relative spring or damper
     dofs = list(dict.fromkeys([*load_dofs, *ends]))
     if residual_vectors and dofs and n_keep < len(f):
         Phi_h = modes.shapes[:, n_keep:]
@@ -92,4 +94,5 @@ def reduce_for_simulation(
         n_modes=n_keep,
         cutoff_hz=float(cutoff_hz),
         nonlinear=structure.nonlinear,
+        dampers=structure.dampers,
     )

@@ -6,7 +6,7 @@ Building a rig needs numpy and the config only; the modes and Guyan reduction (s
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,6 +16,7 @@ import numpy as np
 from analysis.model.config import BeamSpec, MatricesSpec, RigConfig, SensorProps
 from analysis.model.forces import HalfSine
 from analysis.model.loader import load_config
+from analysis.model.nonlinear import Damper
 from analysis.model.structure import ModalDamping, Structure, build_beam, build_lumped
 
 if TYPE_CHECKING:  # scipy (modes, Guyan) and numba (the simulator) load when a rig first needs them
@@ -139,6 +140,21 @@ def _place(
     return PlacedChannel(name, quantity, structure.dof_index(dof), dof, None, None, props)
 
 
+def _damper(structure: Structure, cfg: RigConfig, i: int) -> Damper:
+    """``[[dampers]]`` entry ``i`` on the built structure's DOFs (placed as a sensor is: ``x``, a DOF name or an
+    imported rig's ``"<node>:<direction>"``; ``to`` likewise)."""
+    from analysis.model.nonlinear import Damper
+
+    d = cfg.dampers[i]
+    props = SensorProps(quantity="force", sensitivity_mv_per_unit=1.0)
+    at = _place(structure, cfg, "damper", "force", d.x, d.dof, props, None, f"dampers[{i}]").dof
+    ref = None
+    if d.to is not None:
+        x_to, dof_to = (float(d.to), None) if isinstance(d.to, int | float) else (None, d.to)
+        ref = _place(structure, cfg, "damper", "force", x_to, dof_to, props, None, f"dampers[{i}].to").dof
+    return Damper(dof=at, viscous=d.viscous, coulomb=d.coulomb, v_eps=d.v_eps, ref=ref)
+
+
 def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
     damping = ModalDamping(zeta=tuple(cfg.damping.zeta), zeta_rest=cfg.damping.zeta_rest, factor2=cfg.damping.factor2)
     s = cfg.structure
@@ -182,6 +198,8 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
             names=names,
             damping=damping,
         )
+    if cfg.dampers:
+        structure = replace(structure, dampers=tuple(_damper(structure, cfg, i) for i in range(len(cfg.dampers))))
     n_listed = len(cfg.sensors)
 
     def where(i: int) -> str:

@@ -50,7 +50,8 @@ class EnergyBudget:
     """Energies (J) at every output sample, shape (batch, n_samples).
 
     ``input_work - dissipated == kinetic + potential_linear + potential_nonlinear`` holds to rounding
-    for the discrete scheme (see ``_integrator``).
+    for the discrete scheme (see ``_integrator``); ``dissipated`` counts the modal damping and the rig's
+    ``[[dampers]]`` (viscous and Coulomb work, eq. 5.11).
     """
 
     kinetic: FloatArray
@@ -160,10 +161,15 @@ class ImpactSimulator:
         self._cdamp = np.ascontiguousarray(red.damping)
         self._phi_f = np.ascontiguousarray(red.basis[self.force_dof])
         nl = red.nonlinear
-        self._B = np.ascontiguousarray((incidence(nl, structure.n_dof) @ red.basis).reshape(len(nl), red.n_basis))
-        self._law = np.array([s.code for s in nl], dtype=np.int64)
-        self._kc = np.array([s.coefficient for s in nl], dtype=float)
-        self._pe = np.array([s.exponent for s in nl], dtype=float)
+        # The integrator's local-force rows: the springs, then each damper's viscous and Coulomb rows (same
+        # incidence; a row's force depends on its stretch over the step, nonlinear._dg), so damping and friction
+        # enter the midpoint step exactly where the spring forces do.
+        damp_rows = [(d, row) for d in red.dampers for row in d.rows()]
+        ends = [*nl, *(d for d, _ in damp_rows)]
+        self._B = np.ascontiguousarray((incidence(ends, structure.n_dof) @ red.basis).reshape(len(ends), red.n_basis))
+        self._law = np.array([s.code for s in nl] + [r[0] for _, r in damp_rows], dtype=np.int64)
+        self._kc = np.array([s.coefficient for s in nl] + [r[1] for _, r in damp_rows], dtype=float)
+        self._pe = np.array([s.exponent for s in nl] + [r[2] for _, r in damp_rows], dtype=float)
         self._phi_out = red.rows(self.output_dofs)
 
     @property
@@ -247,7 +253,7 @@ class ImpactSimulator:
         pe_nl = np.zeros_like(work)
         if self._B.shape[0]:
             w = q @ self._B.T
-            for i, spring in enumerate(self.reduced.nonlinear):
+            for i, spring in enumerate(self.reduced.nonlinear):  # the damper rows after them store no energy
                 pe_nl += spring.potential(w[..., i])
         energy = EnergyBudget(
             kinetic=0.5 * np.sum(v**2, axis=-1),

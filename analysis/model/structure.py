@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 
 from analysis.model.beam import BeamMesh, FloatArray, assemble_beam
-from analysis.model.nonlinear import NonlinearSpring
+from analysis.model.nonlinear import Damper, NonlinearSpring
 
 EndCondition = Literal["clamped", "pinned", "free"]
 
@@ -85,6 +85,7 @@ class Structure:
     damping: ModalDamping = field(default_factory=ModalDamping)
     mesh: BeamMesh | None = None
     K_parts: tuple[StiffnessPart, ...] = ()
+    dampers: tuple[Damper, ...] = ()  # local viscous + Coulomb forces (rig ``[[dampers]]``, eq. 5.11)
 
     @property
     def n_dof(self) -> int:
@@ -113,12 +114,18 @@ class Structure:
             for s in self.nonlinear
             if s.dof in new_index
         )
+        dampers = tuple(
+            d.moved_to(new_index[d.dof], None if d.ref is None else new_index.get(d.ref))
+            for d in self.dampers
+            if d.dof in new_index
+        )
         return replace(
             self,
             M=self.M[np.ix_(keep, keep)],
             K=self.K[np.ix_(keep, keep)],
             dofs=tuple(self.dofs[i] for i in keep),
             nonlinear=springs,
+            dampers=dampers,
             K_parts=tuple(replace(p, matrix=p.matrix[np.ix_(keep, keep)]) for p in self.K_parts),
         )
 

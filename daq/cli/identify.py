@@ -19,11 +19,19 @@ def identify(
     smooth: Annotated[int, typer.Option(help="Running-median window (points, odd) of the RQ-FDP.")] = 5,
     boot: Annotated[int, typer.Option(help="Bootstrap replicates for the uncertainty (0: none).")] = 200,
     no_intersection: Annotated[bool, typer.Option("--no-intersection", help="Fit α and β together (no eq. 5.9).")] = False,
+    method: Annotated[str, typer.Option(help="nsi: the RQ-FDP fit; rfs: eq. 5.11 of a grounded attachment from a LOG.")] = "nsi",
+    hit: Annotated[int | None, typer.Option(help="rfs: the identification hit (default: the first accepted).")] = None,
+    validate: Annotated[str | None, typer.Option(help="rfs: validation hits, e.g. 1,2,3 (default: the others).")] = None,
+    out_toml: Annotated[Path | None, typer.Option("--out", help="rfs: write the rig with the identified values.")] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write the RQ-FDP with the fit as PNG.")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the JSON summary instead of tables.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
     """Identify α|δ|^β δ of the rig's attachment from a force sweep: whole-run δ̄, RQ-FDP, eq. 5.8 fit."""
+    if method != "nsi":  # --method rfs: the grounded attachment's eq. 5.11 from a session log (daq/rfs_cmd.py)
+        from daq.rfs_cmd import cli_rfs
+
+        return cli_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite)
     from daq.identify_cmd import IdentifyOptions
 
     opts = IdentifyOptions(frequency=frequency, law=law, max_ratio=max_ratio, smooth=smooth, n_boot=boot,

@@ -1,0 +1,331 @@
+"""``gvt identify LOG --rig RIG --method rfs``: RFS + time-series identification of a grounded attachment (eq. 5.11).
+
+The seed's grounded-NES procedure (§5.3.2, L1633–1660; the kernels are ``analysis/rfs.py``) on a session log: one
+hit (``--hit``, default the first accepted) identifies k, alpha, beta, d and mu of eq. 5.11; the other accepted hits
+(``--validate``, default all) are re-simulated with the identified model under their measured force and compared by
+R² of the displacement (the quantity the seed compared, Fig. 5.10). The rig names the DOF (the hammer's), its mass
+(eq. 5.11's m; one DOF: a grounded attachment) and the accelerometer on it; ``--out`` writes the rig with the
+identified values (its comments kept), which ``gvt simulate`` runs.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from analysis import rfs
+from analysis.errors import BadInput
+from analysis.model.rig import Rig
+from analysis.records import HITS_TOPIC, Hit
+
+#: Record read before each hit's trigger index: the pulse's rising edge, and the quiet the noise floor is taken from
+#: (analysis.rfs.noise_floor; ``gvt simulate`` starts its first hit 0.1 s into the session).
+PRE_TRIGGER_S = 0.1
+
+
+@dataclass
+class RfsRun:
+    """What ``gvt identify --method rfs`` found: the RFS estimate, the optimised model, the hits' comparisons."""
+
+    log: str
+    rig: str
+    dof: str
+    mass: float
+    channels: tuple[str, str]
+    id_hit: int
+    estimate: rfs.RfsEstimate
+    processed: rfs.Processed
+    result: rfs.TimeSeriesResult
+    validation: list[tuple[int, rfs.Comparison]] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        m = self.mass
+        est, res = self.estimate.params, self.result.params
+        sig = self.result.sigma
+        rows = []
+        for name in ("k", "alpha", "beta", "d", "mu"):
+            s = None
+            if sig is not None:
+                s = sig["fc"] / (m * rfs.G) if name == "mu" else sig[name]
+            rows.append({"parameter": name, "rfs": est.as_dict(m)[name], "optimised": res.as_dict(m)[name], "sigma": s})
+        idc = self.result.identification
+        return {
+            "log": self.log, "rig": self.rig, "dof": self.dof, "mass_kg": m, "force_channel": self.channels[0],
+            "acceleration_channel": self.channels[1], "identification_hit": self.id_hit, "peak_force_N": idc.peak_force,
+            "parameters": rows, "fc_N": res.fc,
+            "rfs_slices": {"stiffness_points": int(self.estimate.stiffness_idx.size), "damping_points":
+                           int(self.estimate.damping_idx.size), "r2_stiffness": self.estimate.r2_stiffness,
+                           "r2_damping": self.estimate.r2_damping},
+            "identification": {"hit": self.id_hit, "peak_force_N": idc.peak_force, "r2": idc.r2, "tail_ratio": idc.tail_ratio},
+            "validation": [{"hit": h, "peak_force_N": c.peak_force, "r2": c.r2, "tail_ratio": c.tail_ratio}
+                           for h, c in self.validation],
+            "optimiser": {"model_runs": self.result.n_runs, "seconds": self.result.elapsed_s, "message": self.result.message},
+            "sigma_note": "1-sigma from the Jacobian with white residuals: a lower bound (the residuals are correlated)",
+            "elapsed_s": self.elapsed_s,
+        }  # fmt: skip
+
+
+def _channels(rig: Rig) -> tuple[int, str, str, float]:
+    """The grounded DOF (the hammer's), its force and acceleration channels and its mass."""
+    s = rig.structure
+    if s.n_dof != 1:
+        raise BadInput(f"{rig.name}: --method rfs models one grounded DOF (eq. 5.11); this rig has {s.n_dof} DOFs")
+    dof = rig.hammer.dof
+    acc = next((c.name for c in rig.sensors if c.dof == dof and c.quantity == "acceleration"), None)
+    if acc is None:
+        raise BadInput(f"{rig.name}: no accelerometer on the hammer's DOF {rig.hammer.dof_name!r}; the RFS needs one")
+    return dof, rig.hammer.name, acc, float(s.M[dof, dof])
+
+
+def _parse_hits(text: str | None, what: str) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        out = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise BadInput(f"{what} {text!r}: expected comma-separated hit numbers, e.g. 1,2,3") from None
+    if not out or min(out) < 0:
+        raise BadInput(f"{what}: give at least one hit number >= 0")
+    return out
+
+
+def read_hits(path: Path, rig: Rig) -> tuple[dict[int, rfs.HitRecord], tuple[str, str], float]:
+    """Every accepted hit of the log as a :class:`~analysis.rfs.HitRecord` (force, acceleration), from
+    ``PRE_TRIGGER_S`` before its trigger for the rig's record length (shortened to the next hit's pre-trigger)."""
+    from daq.log.reader import LogReader, LogReadError
+
+    _dof, fname, aname, mass = _channels(rig)
+    try:
+        reader = LogReader(path)
+        infos = reader.streams()
+    except LogReadError as exc:
+        raise BadInput(str(exc)) from None
+    stream = next((s for s, i in infos.items() if fname in i.channels and aname in i.channels), None)
+    if stream is None:
+        raise BadInput(f"{path}: no stream carries both {fname!r} and {aname!r} (the rig's hammer and accelerometer)")
+    fs = infos[stream].sample_rate
+    hits = [Hit.from_json(h) for h in reader.json_messages(HITS_TOPIC)]
+    hits = sorted((h for h in hits if h.verdict == "accepted"), key=lambda h: h.index)
+    if not hits:
+        raise BadInput(f"{path}: the log has no accepted hits ({HITS_TOPIC}); record or simulate a session with hits")
+    pre, n_rec = round(PRE_TRIGGER_S * fs), round(rig.config.daq.record_length * fs)
+    out: dict[int, rfs.HitRecord] = {}
+    for k, h in enumerate(hits):
+        j0 = max(0, h.index - pre)
+        n = n_rec + (h.index - j0)
+        if k + 1 < len(hits):
+            n = min(n, hits[k + 1].index - pre - j0)
+        d = reader.read_stream(stream, [fname, aname], start=j0 / fs, end=(j0 + n) / fs, on_damage="skip")
+        if d.data.shape[0] < n // 2 or d.gaps or d.damaged:
+            continue  # an incomplete record (end of log, gap, damage): not usable
+        data = np.asarray(d.data, dtype=float)
+        out[h.hit] = rfs.HitRecord(fs, data[:, 0], data[:, 1], mass, label=f"hit {h.hit}")
+    if not out:
+        raise BadInput(f"{path}: no accepted hit has a complete record of {fname!r} and {aname!r}")
+    return out, (fname, aname), fs
+
+
+def identify_rfs(path: Path, rig: Rig, hit: int | None = None, validate: Sequence[int] | None = None,
+                 settings: rfs.TimeSeriesSettings | None = None,
+                 progress: Callable[[str, float], None] | None = None) -> RfsRun:  # fmt: skip
+    """RFS estimate + time-series optimisation on hit ``hit`` of the log, validation on the others."""
+    t0 = time.perf_counter()
+    records, chans, _fs = read_hits(path, rig)
+    available = sorted(records)
+    hit = available[0] if hit is None else hit
+    if hit not in records:
+        raise BadInput(f"--hit {hit}: not an accepted hit with a complete record; the log has {available}")
+    vals = [h for h in available if h != hit] if validate is None else list(validate)
+    bad = [h for h in vals if h not in records]
+    if bad:
+        raise BadInput(f"--validate {bad}: not accepted hits with a complete record; the log has {available}")
+    if progress:
+        progress("restoring-force surface", 0.0)
+    p = rfs.process(records[hit])
+    est = rfs.rfs_estimate(p)
+    settings = settings or rfs.TimeSeriesSettings()
+    res = rfs.optimise(p, est.params, settings, progress=progress)
+    run = RfsRun(str(path), rig.name, rig.hammer.dof_name, records[hit].mass, chans, hit, est, p, res)
+    for k, h in enumerate(vals):
+        run.validation.append((h, rfs.validate(rfs.process(records[h]), res.params, settings)))
+        if progress:
+            progress("validation", (k + 1) / len(vals))
+    run.elapsed_s = time.perf_counter() - t0
+    return run
+
+
+def print_report(console, run: RfsRun) -> None:
+    from rich.table import Table
+
+    s = run.summary()
+    t = Table(title=f"{run.rig}: eq. 5.11 from {Path(run.log).name} hit {run.id_hit} ({s['peak_force_N']:.1f} N), "
+                    f"m = {run.mass:g} kg at {run.dof}")  # fmt: skip
+    for c in ("parameter", "RFS estimate", "optimised", "1-sigma (Jacobian)"):
+        t.add_column(c, justify="right")
+    units = {"k": "N/m", "alpha": "N/m^(β+1)", "beta": "", "d": "N·s/m", "mu": ""}
+    for r in s["parameters"]:
+        sig = "-" if r["sigma"] is None else f"{r['sigma']:.3g}"
+        t.add_row(f"{r['parameter']} {units[r['parameter']]}".strip(), f"{r['rfs']:.5g}", f"{r['optimised']:.5g}", sig)
+    console.print(t)
+    v = Table(title="displacement R² (measured chain vs model)")
+    for c in ("hit", "use", "peak force N", "R²", "tail amplitude ratio"):
+        v.add_column(c, justify="right")
+    i = s["identification"]
+    v.add_row(str(i["hit"]), "identification", f"{i['peak_force_N']:.1f}", f"{i['r2']:.4f}", f"{i['tail_ratio']:.2f}")
+    for r in s["validation"]:
+        v.add_row(str(r["hit"]), "validation", f"{r['peak_force_N']:.1f}", f"{r['r2']:.4f}", f"{r['tail_ratio']:.2f}")
+    console.print(v)
+    o, sl = s["optimiser"], s["rfs_slices"]
+    console.print(f"RFS slices: {sl['stiffness_points']} stiffness points (R² {sl['r2_stiffness']:.3f}), "
+                  f"{sl['damping_points']} damping points (R² {sl['r2_damping']:.3f}); "
+                  f"optimiser: {o['model_runs']} model runs in {o['seconds']:.1f} s ({o['message']})", markup=False)  # fmt: skip
+
+
+def summary_json(run: RfsRun) -> str:
+    return json.dumps(run.summary(), default=lambda x: x.item() if isinstance(x, np.generic) else str(x))
+
+
+def plot(run: RfsRun, path: Path) -> None:
+    """RFS slices with the fits (seed Fig. 5.9e/f) and the hits' displacements, measured and model (Fig. 5.10)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from daq.outputs import atomic_output
+
+    p, est, res = run.processed, run.estimate, run.result.params
+    comps = [("identification", run.id_hit, run.result.identification), *(("validation", h, c) for h, c in run.validation[:3])]
+    fig = plt.figure(figsize=(9, 3.2 + 1.7 * len(comps)), dpi=100)
+    gs = fig.add_gridspec(1 + len(comps), 2, height_ratios=[2.0] + [1.0] * len(comps))
+    ax = fig.add_subplot(gs[0, 0])
+    si, di = est.stiffness_idx, est.damping_idx
+    ax.plot(p.disp[si], p.restoring[si], ".", ms=1.5, color="0.5", label=f"|ẋ| small ({si.size})")
+    xs = np.linspace(p.disp[si].min(), p.disp[si].max(), 200)
+    ax.plot(xs, est.params.stiffness_force(xs), "-", color="tab:blue", lw=1, label="RFS fit")
+    ax.plot(xs, res.stiffness_force(xs), "--", color="tab:red", lw=1, label="optimised")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("r = F − m ẍ [N]")
+    ax.set_title("stiffness slice", fontsize=9)
+    ax.legend(fontsize=7)
+    ax = fig.add_subplot(gs[0, 1])
+    ax.plot(p.vel[di], p.restoring[di] - est.params.stiffness_force(p.disp[di]), ".", ms=1.5, color="0.5",
+            label=f"|x| small ({di.size}), stiffness removed")  # fmt: skip
+    vs = np.linspace(p.vel[di].min(), p.vel[di].max(), 400)
+    ax.plot(vs, est.params.damping_force(vs), "-", color="tab:blue", lw=1, label="RFS fit")
+    ax.plot(vs, res.damping_force(vs), "--", color="tab:red", lw=1, label="optimised")
+    ax.set_xlabel("ẋ [m/s]")
+    ax.set_title("damping slice", fontsize=9)
+    ax.legend(fontsize=7)
+    for row, (use, h, c) in enumerate(comps, start=1):
+        ax = fig.add_subplot(gs[row, :])
+        ax.plot(c.t, 1e3 * c.measured, "-", color="k", lw=0.7, label="measured (chain)")
+        ax.plot(c.t, 1e3 * c.simulated, "-", color="tab:red", lw=0.7, alpha=0.8, label="model")
+        ax.set_ylabel("x [mm]")
+        ax.set_title(f"hit {h} ({use}), {c.peak_force:.1f} N: R² = {c.r2:.4f}", fontsize=8)
+        if row == 1:
+            ax.legend(fontsize=7, loc="upper right")
+    ax.set_xlabel("t [s] (record)")
+    fig.suptitle(f"{run.rig}: restoring-force surface and time-series identification (eq. 5.11)", fontsize=9)
+    fig.tight_layout()
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _entry(aot: Any, dof: str) -> Any | None:
+    """The first grounded entry (no ``to``) of an array of tables at ``dof``."""
+    for t in aot or []:
+        if t.get("dof") == dof and t.get("to") is None:
+            return t
+    return None
+
+
+def identified_toml(text: str, run: RfsRun) -> str:
+    """The rig's TOML with eq. 5.11's identified values at the DOF (comments and layout kept, tomlkit): the grounded
+    linear spring (``structure.springs`` ``i = dof`` or ``[[springs]]``), the power-law spring (exponent beta + 1),
+    the damper (viscous d, Coulomb F_c = mu m g); entries the rig lacks are added."""
+    import tomlkit
+
+    doc = tomlkit.parse(text)
+    p, dof = run.result.params, run.dof
+    lumped = doc.get("structure", {}).get("springs", []) or []
+    spring = next((sp for sp in lumped if sp.get("i") == dof and sp.get("j") is None), None)
+    spring = spring if spring is not None else _entry(doc.get("springs"), dof)
+    if spring is not None:
+        spring["k"] = float(f"{p.k:.6g}")
+    else:
+        doc.setdefault("springs", tomlkit.aot()).append(tomlkit.item({"dof": dof, "k": float(f"{p.k:.6g}")}))
+    nl = _entry(doc.get("nonlinear_springs"), dof)
+    vals = {"law": "power", "coefficient": float(f"{p.alpha:.6g}"), "exponent": float(f"{p.beta + 1.0:.6g}")}
+    if nl is not None:
+        nl.update(vals)
+    else:
+        doc.setdefault("nonlinear_springs", tomlkit.aot()).append(tomlkit.item({"dof": dof, **vals}))
+    dmp = _entry(doc.get("dampers"), dof)
+    vals = {"viscous": float(f"{p.d:.6g}"), "coulomb": float(f"{p.fc:.6g}")}
+    if dmp is not None:
+        dmp.update(vals)
+    else:
+        doc.setdefault("dampers", tomlkit.aot()).append(tomlkit.item({"dof": dof, **vals}))
+    doc["name"] = f"{doc.get('name', run.rig)}_identified"
+    i = run.result.identification
+    head = (f"# Identified by 'gvt identify --method rfs' (eq. 5.11) from {Path(run.log).name} hit {run.id_hit} "
+            f"({i.peak_force:.1f} N): k {p.k:.5g} N/m, alpha {p.alpha:.5g}, beta {p.beta:.5g}, d {p.d:.5g} N s/m, "
+            f"mu {p.mu(run.mass):.4g} (F_c {p.fc:.4g} N); displacement R² {i.r2:.4f}.\n")  # fmt: skip
+    return head + tomlkit.dumps(doc)
+
+
+def write_identified(run: RfsRun, rig: Rig, out: Path) -> None:
+    """Write the identified rig, then load it back: it must be a rig ``gvt simulate`` runs."""
+    from analysis.model.rig import load_rig
+    from daq.outputs import atomic_output
+
+    text = identified_toml(Path(rig.path).read_text(), run)
+    with atomic_output(out) as tmp:
+        tmp.write_text(text)
+    load_rig(out)
+
+
+def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate: str | None, png: Path | None,
+            out_toml: Path | None, json_out: bool, overwrite: bool) -> None:  # fmt: skip
+    """The ``gvt identify --method rfs`` verb body (daq/cli/identify.py branches here)."""
+    from daq.cli.common import Progress, check_output, err, fail, open_rig, out
+
+    if method != "rfs":
+        fail(f"--method {method!r}: use 'nsi' (RQ-FDP fit of a sweep) or 'rfs' (eq. 5.11 from a session log)")
+    if not source.exists():
+        fail(f"{source}: no such file")
+    if source.is_dir():
+        fail(f"{source}: --method rfs reads a session LOG (.mcap), not a directory")
+    vals = _parse_hits(validate, "--validate")
+    if hit is not None and hit < 0:
+        fail(f"--hit {hit}: hit numbers start at 0")
+    for path, what in ((png, "--png"), (out_toml, "--out")):
+        if path is not None:
+            check_output(path, overwrite, what, inputs=[source])
+    if png is not None and out_toml is not None and png.resolve() == out_toml.resolve():
+        fail("--png and --out name the same file")
+    r = open_rig(rig_name)
+    if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
+        fail(f"--out {out_toml}: is the rig itself; give a new file name")
+    with Progress(err if json_out else out) as report:
+        run = identify_rfs(source, r, hit, vals, progress=report)
+    if png is not None:
+        plot(run, png)
+    if out_toml is not None:
+        write_identified(run, r, out_toml)
+    if json_out:
+        out.print_json(summary_json(run))
+    else:
+        print_report(out, run)
+        for path, what in ((png, "plot"), (out_toml, "identified rig")):
+            if path is not None:
+                out.print(f"wrote {what}: {path}", markup=False)

@@ -30,9 +30,18 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=40)
     ap.add_argument("--pmax", type=float, default=3000.0)
     ap.add_argument("--seed-rigs", action="store_true", help="the seed's own rigs (beam_nes_ch5, lo_store_ch6) instead")
+    ap.add_argument("--table", action="store_true", help="issue 22's three rigs: frequency x law x fit, errors, R2, time")
+    ap.add_argument("--speed", type=int, default=0, metavar="N",
+                    help="gvt identify on an N-run sweep's recorded columns against the re-simulating path")  # fmt: skip
     a = ap.parse_args()
     if a.seed_rigs:
         seed_rigs(a.runs)
+        return
+    if a.table:
+        table(a.runs)
+        return
+    if a.speed:
+        speed(a.speed)
         return
     rig = open_rig("beam_ch4_sim")
     dofs = rig.structure.translational_dofs()
@@ -126,6 +135,100 @@ def seed_rigs(n_runs: int) -> None:
     out = Path(__file__).parent / "results" / "eval_nsi_seed_rigs.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({"runs": n_runs, "fits": rows, "capture": cap}, indent=2, default=float))
+    print(f"wrote {out}")
+
+
+RIGS = (  # label, rig (or the LO-store hit on the store), P range [N], true alpha, max f/f_n of the fit (None: all), run s
+    ("beam_nes_ch5", "beam_nes_ch5", (0.3, 300.0), 3e9, None, 1.0),
+    ("beam_nes_ch5, 4 s runs", "beam_nes_ch5", (0.3, 300.0), 3e9, None, 4.0),
+    ("lo_store_ch6 (hit on store)", "lo_store_hit", (0.1, 20.0), 1.058e10, None, 1.0),
+    ("beam_ch4_sim", "beam_ch4_sim", (10.0, 3000.0), 5e8, None, 1.0),
+    ("beam_ch4_sim, f <= 1.8 f_n", "beam_ch4_sim", (10.0, 3000.0), 5e8, 1.8, 1.0),
+)
+
+
+def _rig(name: str):
+    from analysis.model.rig import build_rig
+
+    if name == "lo_store_hit":
+        lo = open_rig("lo_store_ch6")
+        return build_rig(lo.config.model_copy(update={"hammer": lo.config.hammer.model_copy(update={"dof": "store"})}))
+    return open_rig(name)
+
+
+def table(n_runs: int) -> None:
+    """Issue 22's acceptance table: per rig, frequency (seed RQ / POM) x law (seed eq. 5.8 / HB / exact backbone)
+    x fit (intersection eqs. 5.9-5.10 / two-parameter), whole-run dbar of 1 s runs (and 4 s on the NES: ~4 cycles of
+    its 1 Hz mode instead of 1); alpha/beta errors, R2, fit time. Writes bench/results/eval_nsi_table_RUNS.json."""
+    rows, sims = [], {}
+    for label, name, (p0, p1), alpha, mr, dur in RIGS:
+        rig = _rig(name)
+        dofs = rig.structure.translational_dofs()
+        g = rig.guyan(dofs)
+        target = resolve_target(rig, dofs, g.M, g.K)
+        if (name, dur) not in sims:
+            t0 = time.perf_counter()
+            sims[name, dur] = (simulate_runs(rig, np.logspace(np.log10(p0), np.log10(p1), n_runs), dur, dofs, target, g.M,
+                                             g.K), time.perf_counter() - t0)  # fmt: skip
+        runs, sim_s = sims[name, dur]
+        for fr in ("rq", "pom"):
+            for law in ("seed", "hb", "exact"):
+                for inter in (True, False):
+                    t = time.perf_counter()
+                    opts = IdentifyOptions(frequency=fr, law=law, intersection=inter, n_boot=100 if fr == "pom" else 0,
+                                           max_ratio=mr)  # fmt: skip
+                    try:
+                        f = identify_runs(rig, target, runs, opts, "bench").fit
+                    except Exception as exc:  # a failed fit is a table entry
+                        rows.append({"rig": label, "frequency": fr, "law": law, "fit": "error", "error": str(exc)})
+                        continue
+                    if inter and f.mode != "intersection":
+                        continue  # no crossing: the same as the two-parameter row
+                    rows.append({"rig": label, "frequency": fr, "law": law, "fit": f.mode, "n": f.n_points, "alpha": f.alpha,
+                                 "beta": f.beta, "alpha_err": f.alpha / alpha - 1, "beta_err": f.beta / 2 - 1, "r2": f.r2,
+                                 "fit_s": time.perf_counter() - t, "simulate_s": sim_s, "runs": n_runs, "run_s": dur,
+                                 "alpha_ci": f.alpha_ci, "beta_ci": f.beta_ci})  # fmt: skip
+    print(f"{n_runs} runs per rig, whole-run dbar; truth beta = 2")
+    print(f"{'rig':30} {'freq':4} {'law':5} {'fit':13} {'n':>3} {'alpha err':>10} {'beta err':>9} {'R2':>7} {'fit s':>6}")
+    for r in rows:
+        if r["fit"] == "error":
+            print(f"{r['rig']:30} {r['frequency']:4} {r['law']:5} error: {r['error']}")
+            continue
+        print(f"{r['rig']:30} {r['frequency']:4} {r['law']:5} {r['fit']:13} {r['n']:3d} {100 * r['alpha_err']:+9.1f}% "
+              f"{100 * r['beta_err']:+8.2f}% {r['r2']:7.4f} {r['fit_s']:6.2f}")  # fmt: skip
+    out = Path(__file__).parent / "results" / f"eval_nsi_table_{n_runs}.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps({"runs": n_runs, "rows": rows}, indent=2, default=float))
+    print(f"wrote {out}")
+
+
+def speed(n_runs: int) -> None:
+    """``gvt identify SWEEP_DIR`` on an ``n_runs`` sweep of beam_nes_ch5 (P 0.3-300 N, 1 s) whose nsi.csv the sweep
+    wrote, against the re-simulating path (no nsi.csv, as an old sweep) on a 40-run sweep in the same process.
+    Writes bench/results/eval_nsi_speed.json."""
+    import os
+    import subprocess
+    import tempfile
+
+    gvt = str(Path(__file__).resolve().parents[1] / ".venv" / "bin" / "gvt")
+    res: dict = {"runs": n_runs, "cores": os.cpu_count()}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n, key in ((n_runs, "big"), (40, "small")):
+            d = Path(tmp) / key
+            t0 = time.perf_counter()
+            subprocess.run([gvt, "sweep", "beam_nes_ch5", "--out", str(d), "--n", str(n), "--pmin", "0.3", "--pmax", "300"],
+                           check=True, capture_output=True)  # fmt: skip
+            res[f"{key}_sweep_s"] = time.perf_counter() - t0
+            if key == "small":
+                (d / "nsi.csv").unlink()  # an old sweep: identify re-simulates
+            t0 = time.perf_counter()
+            p = subprocess.run([gvt, "identify", str(d), "--rig", "beam_nes_ch5", "--frequency", "pom", "--law", "exact",
+                                "--json"], check=True, capture_output=True, text=True)  # fmt: skip
+            res[f"{key}_identify_s"] = time.perf_counter() - t0
+            res[f"{key}_source"] = json.loads(p.stdout)["source"]
+    print(json.dumps(res, indent=2))
+    out = Path(__file__).parent / "results" / "eval_nsi_speed.json"
+    out.write_text(json.dumps(res, indent=2))
     print(f"wrote {out}")
 
 

@@ -109,8 +109,7 @@ def simulate_runs(
     Everything is computed in the simulator's reduced coordinates q (x = P q at the outputs): the 1/n output
     covariance P cov(q) Pᵀ (eq. 2.12) for the POD, δ = (row_att − mean rows_refs) q for δ̄, the POM's temporal
     coefficient (q − q̄) Pᵀψ for its frequency. Memory: one run's q, q̇ (~6 MB for 1 s of beam_ch4_sim)."""
-    from analysis.model.sweep import _run_record
-    from analysis.pod import _normalise, mac, rq_hz
+    from analysis.model.sweep import NsiProbe, _run_record
     from daq.sweep_cmd import _simulator
 
     t0 = time.perf_counter()
@@ -120,30 +119,18 @@ def simulate_runs(
     n, model, fdesc, stepping, amps = sim._prepare(force, duration, fs, amplitudes)
     n_r = model[0].shape[0]
     bufs = (np.empty((n, n_r)), np.empty((n, n_r)), np.empty((n, model[3].shape[0])), np.empty(n), np.empty(n))
-    P = sim.reduced.rows(output_dofs)  # (n_out, n_r)
-    row = P[target.attachment] - (P[list(target.relative_to)].mean(axis=0) if target.relative_to else 0.0)
+    probe = NsiProbe.build(sim, target.attachment, target.relative_to, target.model.shape, M, K, n_poms)
     B = amps.size
     out = {k: np.zeros(B) for k in ("energy", "dbar", "f_rq", "f_pom", "mac")}
     cap = np.zeros(B, bool)
     pidx = np.zeros(B, np.int64)
     for b in range(B):
         work, _, _, _ = _run_record(float(amps[b]), model, fdesc, stepping, *bufs)
-        q = bufs[0]
-        qm = q.mean(axis=0)
-        qc = q - qm
-        cov = P @ (qc.T @ qc / n) @ P.T
-        _lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-        poms = _normalise(vec[:, ::-1][:, :n_poms])
-        macs = mac(target.model.shape[:, None], poms)[0]
-        pick = nsi.pick_attachment_pom(macs[None])
-        j = int(pick.index[0])
+        r = probe.reduce(bufs[0], fs)  # the sweep's own reduction (analysis.model.sweep.NSI_FIELDS)
         out["energy"][b] = work
-        out["dbar"][b] = nsi.characteristic_displacement(q @ row)
-        out["f_rq"][b] = rq_hz(poms[:, j : j + 1], M, K)[0]
-        out["f_pom"][b] = nsi.pom_frequency_hz(qc, P.T @ poms[:, j], fs)
-        out["mac"][b] = pick.mac[0]
-        cap[b] = pick.capture[0]
-        pidx[b] = j
+        out["dbar"][b], out["f_rq"][b], out["f_pom"][b], out["mac"][b] = r[0], r[1], r[2], r[3]
+        cap[b] = r[4] > 0
+        pidx[b] = int(r[5])
         if progress:
             progress("simulating the sweep's runs for δ̄", (b + 1) / B)
     return NsiRuns(amps, out["energy"], out["dbar"], out["f_rq"], out["f_pom"], out["mac"], cap, pidx,
@@ -188,7 +175,7 @@ def read_sweep_spec(sweep_dir: Path) -> dict[str, Any]:
 @dataclass
 class IdentifyOptions:
     frequency: str = "rq"  # "rq" (the seed's, eq. 2.18) or "pom" (the POM's temporal coefficient)
-    law: str = "seed"  # eq. 5.8 as printed ("seed") or with the harmonic-balance factor ("hb")
+    law: str = "seed"  # eq. 5.8 as printed ("seed"), with the harmonic-balance factor ("hb"), the exact backbone ("exact")
     max_ratio: float | None = None  # fit only points with f <= max_ratio * f_n (None: all)
     smooth: int = 5
     intersection: bool = True
@@ -198,8 +185,8 @@ class IdentifyOptions:
     def validate(self) -> None:
         if self.frequency not in ("rq", "pom"):
             raise BadInput(f"--frequency must be 'rq' or 'pom', got {self.frequency!r}")
-        if self.law not in ("seed", "hb"):
-            raise BadInput(f"--law must be 'seed' (eq. 5.8) or 'hb', got {self.law!r}")
+        if self.law not in ("seed", "hb", "exact"):
+            raise BadInput(f"--law must be 'seed' (eq. 5.8), 'hb' or 'exact', got {self.law!r}")
         if self.max_ratio is not None and not self.max_ratio > 1:
             raise BadInput(f"--max-ratio must exceed 1 (a frequency above the linear one), got {self.max_ratio:g}")
         if self.smooth < 1 or self.smooth % 2 == 0:
@@ -232,7 +219,7 @@ class Identification:
             "mass_source": t.model.mass_source,
             "frequency": self.options.frequency,
             "law": "f = sqrt(w_n^2 + kappa (alpha/m) dbar^beta) / 2pi, kappa = "
-            + ("1 (seed eq. 5.8)" if self.options.law == "seed" else "HB factor"),
+            + {"seed": "1 (seed eq. 5.8)", "hb": "HB factor"}.get(self.options.law, "exact one-DOF backbone (no kappa)"),
             "smoothing": f"running median of {self.fdp.smooth_window} points on the dbar-sorted, capture-free curve",
             "runs": int(self.runs.P.size),
             "capture_runs": int(self.runs.capture.sum()),
@@ -296,7 +283,7 @@ def plot_fdp(ident: Identification, path: Path) -> None:
     fdp, fit = ident.fdp, ident.fit
     fig, ax = plt.subplots(figsize=(7.5, 5), dpi=110)
     c = fdp.capture
-    ax.plot(fdp.dbar[~c], fdp.freq_hz[~c], ".", color="k", ms=4, label="runs")
+    ax.plot(fdp.dbar[~c], fdp.freq_hz[~c], ".", color="k", ms=4, label="runs or windows")
     if c.any():
         ax.plot(fdp.dbar[c], fdp.freq_hz[c], ".", color="0.6", ms=4, label="1:1 capture (excluded)")
     ax.plot(fdp.dbar, fdp.smooth, "-", color="tab:blue", lw=1, label=f"running median ({fdp.smooth_window})")

@@ -41,6 +41,7 @@ from analysis.model.simulate import ImpactSimulator, MomentResult
 from analysis.model.sweep import (
     MODAL_WINDOW_NAMES,
     ModalProbe,
+    NsiProbe,
     SweepMoments,
     run_modal_phases,
     run_with_modal_phase,
@@ -236,10 +237,11 @@ def run_sweep(
     force = rig.hammer_force()
     g = rig.guyan(dofs)
     probe = ModalProbe.from_guyan(g.M, g.K, 2)  # linear modes 1–2 at the outputs (eq. 2.15)
+    nsi_probe = _nsi_probe(rig, sim, dofs, g)
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # distributed's "port 8787 in use" for a dashboard we do not use
         warnings.filterwarnings("ignore", message="Port .* is already in use")
-        res = _sweep(sim, force, spec, rig.sample_rate, progress, probe)
+        res = _sweep(sim, force, spec, rig.sample_rate, progress, probe, nsi_probe)
     poms, _ = pod_from_covariance(res.covariance)
     freqs = rq_fep(poms, g.M, g.K, N_KEEP)
     mratio = _modal_ratio(res)
@@ -284,7 +286,21 @@ def _modal_ratio(res: MomentResult) -> np.ndarray | None:
     return None if m is None else m[:, 0, 1] / m[:, 0, 0]
 
 
-def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress, probe: ModalProbe | None = None) -> SweepMoments:
+def _nsi_probe(rig: Rig, sim: ImpactSimulator, dofs: list[int], g) -> NsiProbe | None:
+    """The per-run NSI reduction ``gvt identify`` reads (nsi.csv) when the rig has an attachment ([nsi] or a
+    nonlinear spring at the outputs); None otherwise (the sweep is then as before)."""
+    from analysis.errors import BadInput
+    from daq.identify_cmd import resolve_target
+
+    try:
+        t = resolve_target(rig, dofs, g.M, g.K)
+    except BadInput:
+        return None
+    return NsiProbe.build(sim, t.attachment, t.relative_to, t.model.shape, g.M, g.K)
+
+
+def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress, probe: ModalProbe | None = None,
+           nsi_probe: NsiProbe | None = None) -> SweepMoments:  # fmt: skip
     return sweep_moments(
         sim,
         force,
@@ -296,6 +312,7 @@ def _sweep(sim: ImpactSimulator, force, spec: SweepSpec, fs: float, progress, pr
         chunk_size=max(1, min(20, spec.n // (4 * spec.workers))),
         progress=(lambda d, t: progress("simulating", d / t)) if progress else None,
         probe=probe,
+        nsi_probe=nsi_probe,
     )
 
 
@@ -339,10 +356,18 @@ def summary_json(rep: SweepReport) -> str:
 
 
 def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
-    """DIR/rqfep.csv, DIR/rqfep.png, DIR/sweep.json (each written to a .part file, then renamed)."""
+    """DIR/rqfep.csv, DIR/rqfep.png, DIR/sweep.json (each written to a .part file, then renamed), and DIR/nsi.csv
+    (the per-run NSI columns ``gvt identify`` reads instead of re-simulating) when the rig has an attachment."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "rqfep.csv", "png": out_dir / "rqfep.png", "json": out_dir / "sweep.json"}
     res = rep.result
+    cols = getattr(res, "nsi", None)
+    if cols is not None:
+        from daq.identify_cmd import NSI_CSV, NsiRuns, write_runs
+
+        paths["nsi"] = out_dir / NSI_CSV
+        write_runs(NsiRuns(res.amplitudes, res.input_work, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3], cols[:, 4] > 0,
+                           cols[:, 5].astype(np.int64)), paths["nsi"])  # fmt: skip
     tmp = paths["csv"].with_suffix(".csv.part")
     mod, mratio = rep.modal_hz, rep.modal_ratio
     mcols = [] if mod is None else [f"f{j + 1}_modal{'' if w == 'whole' else '_' + w}_hz"

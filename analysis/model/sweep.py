@@ -80,6 +80,56 @@ class SweepMoments(MomentResult):
 
     modal_freq_hz: FloatArray | None = None
     modal_windows_s: tuple[tuple[float, float], ...] = ()
+    nsi: FloatArray | None = None  # (B, len(NSI_FIELDS)) with an NsiProbe, else None
+
+
+#: What :class:`NsiProbe` keeps per run, in this order (``gvt identify`` reads them back, daq/identify_cmd.py).
+NSI_FIELDS: tuple[str, ...] = ("dbar_m", "f_rq_hz", "f_pom_hz", "mac", "capture", "pom_index")
+
+
+@dataclass(frozen=True)
+class NsiProbe:
+    """What the seed's NSI (§5.1) needs of one run, reduced from the run's reduced record q (x = rows q).
+
+    The whole-record POD (eqs. 2.12–2.13) of the outputs, the attachment's POM by MAC against its linear mode
+    ``shape`` (eq. 5.6, 1:1 capture flagged by two similar POMs), the POM's RQ with the linear M, K (eq. 2.18),
+    its temporal coefficient's frequency (``nsi.pom_frequency_hz``) and the whole-run δ̄ (eq. 5.2) of
+    δ = ``delta_row`` q. The sweep keeps these six numbers per run so ``gvt identify SWEEP_DIR`` need not
+    re-simulate (issue 22: a 1000-run sweep identified within 60 s); ``daq.identify_cmd.simulate_runs`` calls the
+    same :meth:`reduce`, so both paths give the same table."""
+
+    rows: FloatArray  # (n_out, n_r)
+    delta_row: FloatArray  # (n_r,)
+    shape: FloatArray  # (n_out,)
+    M: FloatArray
+    K: FloatArray
+    n_poms: int = 8
+
+    @classmethod
+    def build(cls, sim: ImpactSimulator, attachment: int, relative_to: tuple[int, ...], shape: FloatArray,
+              M: FloatArray, K: FloatArray, n_poms: int = 8) -> NsiProbe:  # fmt: skip
+        """``attachment``/``relative_to`` are output columns (eq. 5.13: δ = x_att − mean x_refs)."""
+        P = np.ascontiguousarray(sim.reduced.rows(sim.output_dofs))
+        row = P[attachment] - (P[list(relative_to)].mean(axis=0) if relative_to else 0.0)
+        return cls(P, np.ascontiguousarray(row), np.asarray(shape, float), np.asarray(M, float), np.asarray(K, float), n_poms)
+
+    def reduce(self, q: FloatArray, sample_rate: float) -> FloatArray:
+        from analysis import nsi
+        from analysis.pod import _normalise, mac, rq_hz
+
+        n = q.shape[0]
+        qc = q - q.mean(axis=0)
+        cov = self.rows @ (qc.T @ qc / n) @ self.rows.T
+        _lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+        poms = _normalise(vec[:, ::-1][:, : self.n_poms])
+        pick = nsi.pick_attachment_pom(mac(self.shape[:, None], poms)[0][None])
+        j = int(pick.index[0])
+        return np.array([
+            float(nsi.characteristic_displacement(q @ self.delta_row)),
+            float(rq_hz(poms[:, j : j + 1], self.M, self.K)[0]),
+            nsi.pom_frequency_hz(qc, self.rows.T @ poms[:, j], sample_rate),
+            float(pick.mac[0]), float(pick.capture[0]), float(j),
+        ])  # fmt: skip
 
 
 @njit(cache=True)
@@ -155,7 +205,13 @@ def _record_buffers(sim: ImpactSimulator, probe: ModalProbe, n: int, model: tupl
 
 
 def run_with_modal_phase(
-    sim: ImpactSimulator, force: Force, duration: float, sample_rate: float, amps: np.ndarray, probe: ModalProbe
+    sim: ImpactSimulator,
+    force: Force,
+    duration: float,
+    sample_rate: float,
+    amps: np.ndarray,
+    probe: ModalProbe,
+    nsi_probe: NsiProbe | None = None,
 ) -> SweepMoments:
     """``sim.run_moments`` (same moments, bit for bit) plus each run's mean modal frequencies per window.
 
@@ -174,14 +230,20 @@ def run_with_modal_phase(
     work, diss = np.zeros(B), np.zeros(B)
     steps, capped = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
     fmod = np.full((B, len(probe.windows_s), probe.omega.size), np.nan)
+    nsi_cols = None if nsi_probe is None else np.full((B, len(NSI_FIELDS)), np.nan)
     for b in range(B):
         work[b], diss[b], steps[b], capped[b] = _run_record(float(amps[b]), model, fdesc, stepping, *bufs)
         sq[b], sqq[b], at = _moments_and_phase(q, v, A, probe.omega, marks)
+        if nsi_probe is not None:
+            nsi_cols[b] = nsi_probe.reduce(q, sample_rate)  # type: ignore[index]
         for k, (i0, i1) in enumerate(marks):
             if i0 >= 0:
                 fmod[b, k] = (at[k, 1] - at[k, 0]) * sample_rate / (2.0 * math.pi * (i1 - i0))
     return SweepMoments(
-        **sim.moment_fields(amps, n, sq, sqq, work, diss, steps, capped), modal_freq_hz=fmod, modal_windows_s=probe.windows_s
+        **sim.moment_fields(amps, n, sq, sqq, work, diss, steps, capped),
+        modal_freq_hz=fmod,
+        modal_windows_s=probe.windows_s,
+        nsi=nsi_cols,
     )
 
 
@@ -212,17 +274,19 @@ def _run_chunk(
     amps: np.ndarray,
     threads: int,
     probe: ModalProbe | None = None,
+    nsi_probe: NsiProbe | None = None,
 ) -> MomentResult:
     import numba
 
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     if probe is not None:
-        return run_with_modal_phase(sim, force, duration, sample_rate, amps, probe)
+        return run_with_modal_phase(sim, force, duration, sample_rate, amps, probe, nsi_probe)
     return sim.run_moments(force, duration, sample_rate, amps)
 
 
 def _concat(parts: Sequence[MomentResult]) -> MomentResult:
     modal = all(isinstance(p, SweepMoments) and p.modal_freq_hz is not None for p in parts)
+    with_nsi = all(getattr(p, "nsi", None) is not None for p in parts)
     return SweepMoments(
         amplitudes=np.concatenate([p.amplitudes for p in parts]),
         mean=np.concatenate([p.mean for p in parts]),
@@ -235,6 +299,7 @@ def _concat(parts: Sequence[MomentResult]) -> MomentResult:
         substep_cap_hits=np.concatenate([p.substep_cap_hits for p in parts]),
         modal_freq_hz=np.concatenate([p.modal_freq_hz for p in parts]) if modal else None,  # type: ignore[attr-defined]
         modal_windows_s=parts[0].modal_windows_s if modal else (),  # type: ignore[attr-defined]
+        nsi=np.concatenate([p.nsi for p in parts]) if with_nsi else None,  # type: ignore[attr-defined]
     )
 
 
@@ -250,8 +315,11 @@ def sweep_moments(
     chunk_size: int = 20,
     progress: Callable[[int, int], None] | None = None,
     probe: ModalProbe | None = None,
+    nsi_probe: NsiProbe | None = None,
 ) -> SweepMoments:
     """Run every amplitude; results come back in the order of ``amplitudes``.
+
+    With ``nsi_probe`` (and ``probe``) each run also yields its NSI reduction (``SweepMoments.nsi``, :class:`NsiProbe`).
 
     With ``probe`` each run also yields its mean modal frequencies (``SweepMoments.modal_freq_hz``,
     :func:`run_with_modal_phase`); without, ``modal_freq_hz`` is None.
@@ -277,7 +345,7 @@ def sweep_moments(
     try:
         sim_f = client.scatter(sim, broadcast=True)
         futures = {
-            client.submit(_run_chunk, sim_f, force, duration, sample_rate, c, 1, probe, pure=False): i
+            client.submit(_run_chunk, sim_f, force, duration, sample_rate, c, 1, probe, nsi_probe, pure=False): i
             for i, c in enumerate(chunks)
         }
         parts: dict[int, MomentResult] = {}

@@ -11,10 +11,12 @@ from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open
 
 
 def identify(
-    source: Annotated[Path, typer.Argument(help="A 'gvt sweep' output directory (a session LOG is not supported yet).")],
+    source: Annotated[Path, typer.Argument(help="A 'gvt sweep' output directory, or a session LOG (.mcap) with hits.")],
     rig: Annotated[str, typer.Option("--rig", help="Rig TOML file or name in configs/rigs (the sweep's rig).")],
     frequency: Annotated[str, typer.Option(help="rq: the POM's RQ (seed eq. 2.18); pom: its temporal frequency.")] = "rq",
-    law: Annotated[str, typer.Option(help="seed: eq. 5.8 as printed; hb: with the harmonic-balance factor.")] = "seed",
+    law: Annotated[
+        str, typer.Option(help="seed: eq. 5.8 as printed; hb: harmonic-balance factor; exact: the one-mass backbone.")
+    ] = "seed",
     max_ratio: Annotated[float | None, typer.Option(help="Fit only points with f <= ratio x f_n (default: all).")] = None,
     smooth: Annotated[int, typer.Option(help="Running-median window (points, odd) of the RQ-FDP.")] = 5,
     boot: Annotated[int, typer.Option(help="Bootstrap replicates for the uncertainty (0: none).")] = 200,
@@ -24,6 +26,8 @@ def identify(
     validate: Annotated[str | None, typer.Option(help="rfs: validation hits, e.g. 1,2,3 (default: the others).")] = None,
     out_toml: Annotated[Path | None, typer.Option("--out", help="rfs: write the rig with the identified values.")] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write the RQ-FDP with the fit as PNG.")] = None,
+    csv_out: Annotated[Path | None, typer.Option("--csv", help="LOG: per-window table (default LOG.nsi-windows.csv).")] = None,
+    window: Annotated[float | None, typer.Option(help="LOG: window length, s (default ~T/2 of the fundamental, Ch. 5).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the JSON summary instead of tables.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
@@ -39,8 +43,10 @@ def identify(
     opts.validate()
     if not source.exists():
         fail(f"{source}: no such file or directory")
-    if not source.is_dir():
-        fail(f"{source}: identification from a session log is not implemented yet; give a 'gvt sweep' directory")
+    if not source.is_dir():  # a session LOG: windowed δ̄ as in the seed's Ch. 5 experiment (daq/identify_log.py)
+        from daq.identify_log import cli_identify_log
+
+        return cli_identify_log(source, rig, opts, png, csv_out, window, json_out, overwrite)
     if png is not None:
         check_output(png, overwrite, "--png")
     r = open_rig(rig)

@@ -1,0 +1,67 @@
+"""NSI columns recorded by ``gvt sweep`` (issue 22: identify a sweep without re-simulating) and the exact
+one-DOF backbone law of analysis/nsi.py.
+
+Oracles: the re-simulating path of ``daq.identify_cmd.simulate_runs`` (the same integrator and reduction, so the
+columns must agree to the CSV's 9 significant digits), the closed-form period of the pure cubic oscillator
+(x'' + x³ = 0 at amplitude A: ω = π A / (2 K(m = 1/2)) = 0.847213 A) and the Duffing small-amplitude limit
+(the harmonic-balance ω² = ω_n² + (3/4)(α/m) A²)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from analysis import nsi
+
+
+def test_exact_backbone_limits():
+    # pure cubic: ω/ω_n → c sqrt(u) as u = α A²/k → ∞, x'' + x³ = 0 having ω = c A, c = π / (2 K(1/2)) = 0.847213
+    from scipy.special import ellipk
+
+    r, s = nsi.backbone_ratios(np.array([1e-6, 1e8]), 2.0)
+    assert r[1] / 1e4 == pytest.approx(math.pi / (2 * ellipk(0.5)), rel=1e-6)
+    # small amplitude: harmonic balance and δ̄ = 2A/π
+    assert r[0] ** 2 - 1 == pytest.approx(0.75e-6, rel=1e-3)
+    assert s[0] == pytest.approx(2 / math.pi, rel=1e-6)
+    # the law in δ̄ tends to the HB law at small δ̄ and is stiffer at large δ̄ (ω = 1.3 ω_n: +2.8 % in Δω²)
+    om, m, a = 2 * math.pi * 26.0, 0.0509, 1.058e10
+    lo, hi = 1e-6, 2e-4
+    dw = lambda f: (2 * math.pi * f) ** 2 - om**2  # noqa: E731
+    assert dw(nsi.exact_law_hz(lo, om, m, a, 2.0)) == pytest.approx(dw(nsi.law_hz(lo, om, m, a, 2.0, "hb")), rel=2e-3)
+    assert 1.015 < dw(nsi.exact_law_hz(hi, om, m, a, 2.0)) / dw(nsi.law_hz(hi, om, m, a, 2.0, "hb")) < 1.04
+    # eq. 5.9 on the exact backbone: the α it returns puts the curve through the intersection
+    al = nsi.alpha_from_intersection(3.0297, 0.000196, 2.0391, 0.25, math.sqrt(40), "exact")
+    assert nsi.law_hz(0.000196, math.sqrt(40), 0.25, al, 2.0391, "exact") == pytest.approx(3.0297, rel=1e-9)
+
+
+def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
+    """A 6-run sweep of beam_nes_ch5 writes nsi.csv; its columns equal the re-simulating path's; identify reads
+    it (no simulation); an old sweep without nsi.csv is re-simulated and gives the same table."""
+    from analysis.model.rigs import open_rig
+    from analysis.sweep_capture import CaptureSettings
+    from daq.identify_cmd import NSI_CSV, IdentifyOptions, identify_sweep, read_runs, resolve_target, simulate_runs
+    from daq.sweep_cmd import SweepSpec, run_sweep, write_outputs
+
+    rig = open_rig("beam_nes_ch5")
+    spec = SweepSpec(pmin=0.3, pmax=30.0, n=6, duration=1.0, workers=1, capture=CaptureSettings(capture=False))
+    rep = run_sweep(rig, spec)
+    paths = write_outputs(rep, tmp_path)
+    assert paths["nsi"] == tmp_path / NSI_CSV
+    swept = read_runs(paths["nsi"])
+    dofs = rig.structure.translational_dofs()
+    g = rig.guyan(dofs)
+    target = resolve_target(rig, dofs, g.M, g.K)
+    again = simulate_runs(rig, spec.amplitudes, spec.duration, dofs, target, g.M, g.K, rep.spec.order)
+    for k in ("P", "energy", "dbar", "f_rq", "f_pom"):  # written with 9 significant digits
+        assert np.allclose(getattr(swept, k), getattr(again, k), rtol=1e-8, atol=0), k
+    assert np.allclose(swept.mac, again.mac, rtol=0, atol=1e-6)  # written with 6 decimals
+    assert np.array_equal(swept.capture, again.capture) and np.array_equal(swept.pom_index, again.pom_index)
+    opts = IdentifyOptions(frequency="pom", law="exact", n_boot=0)
+    ident = identify_sweep(rig, tmp_path, opts)
+    assert ident.source.startswith(str(paths["nsi"])) and "re-simulated" not in ident.source
+    paths["nsi"].unlink()  # an old sweep: no NSI columns -> re-simulated, same table
+    old = identify_sweep(rig, tmp_path, opts)
+    assert "re-simulated" in old.source and (tmp_path / NSI_CSV).exists()
+    assert np.allclose(old.runs.dbar, swept.dbar, rtol=1e-8) and old.fit.beta == pytest.approx(ident.fit.beta, rel=1e-9)

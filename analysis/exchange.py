@@ -67,6 +67,9 @@ class WindowFeatures:
     #: (t_s (k,), phase (k, r), band-passed q (k, r)) of the window's first hop, decimated to ~1 kHz: the samples the
     #: phase-lock label (:func:`lock_fit`) needs; consecutive windows' hops tile the stream. None: not kept
     lock: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    #: the raw coordinates' energies where ``energy`` is band-limited (the input-jump rule needs the hit's full jump:
+    #: a band-pass spreads it over windows); None: ``energy`` is the raw one
+    energy_raw: FloatArray | None = None
 
 
 def lock_fit(
@@ -172,7 +175,13 @@ class ModalWindower:
     """
 
     def __init__(
-        self, basis: ModalBasis, sample_rate: float, length: int, hop: int, first_index: int = 0, phase_bandpass: bool = True,
+        self,
+        basis: ModalBasis,
+        sample_rate: float,
+        length: int,
+        hop: int,
+        first_index: int = 0,
+        phase_bandpass: bool = True,
         energy_bandpass: bool = False,
     ) -> None:
         if length < 2 or hop < 1:
@@ -191,7 +200,8 @@ class ModalWindower:
             if bands:
                 self._sos = np.ascontiguousarray(np.stack(bands))
                 self._zi = np.zeros((len(bands), bands[0].shape[0], 2, 2))
-        self._e = np.zeros((0, r))
+        self.energy_bandpass = self.energy_bandpass and self._sos is not None
+        self._e = np.zeros((0, 2 * r if self.energy_bandpass else r))  # band-limited energies, then raw
         self._dphi = np.zeros((0, r))
         self._th = np.zeros((0, r))  # phase and band-passed q per sample, for WindowFeatures.lock
         self._qb = np.zeros((0, r))
@@ -212,7 +222,7 @@ class ModalWindower:
             theta = modal_phase(qf, qdf, w)
             qb = qf
             if self.energy_bandpass:
-                e = modal_energy(qf, qdf, w)
+                e = np.concatenate([modal_energy(qf, qdf, w), e], axis=1)  # band-limited, then raw
         else:
             theta = modal_phase(q, qdot, w)
             qb = np.asarray(q, float)
@@ -238,17 +248,17 @@ class ModalWindower:
             # per-window sums by one reduceat over interleaved (a, b) pairs: sequential, so the numbers do
             # not depend on how the stream was cut into blocks
             idx = np.array([(st - self._buf_start, st - self._buf_start + self.length) for st in starts]).ravel()
-            pad = np.zeros((1, self._e.shape[1]))
-            e_sum = np.add.reduceat(np.concatenate([self._e, pad]), idx, axis=0)[::2]
-            d_sum = np.add.reduceat(np.concatenate([self._dphi, pad]), idx, axis=0)[::2]
+            e_sum = np.add.reduceat(np.concatenate([self._e, np.zeros((1, self._e.shape[1]))]), idx, axis=0)[::2]
+            d_sum = np.add.reduceat(np.concatenate([self._dphi, np.zeros((1, self._dphi.shape[1]))]), idx, axis=0)[::2]
             inp_any = np.add.reduceat(np.concatenate([self._inp, [False]]).astype(np.int64), idx)[::2] > 0
+            r = self._dphi.shape[1]
             for k, st in enumerate(starts):
                 out.append(
                     WindowFeatures(
                         index=self._count, start=st, stop=st + self.length, t_start_s=st / self.fs,
-                        t_end_s=(st + self.length) / self.fs, energy=e_sum[k] / self.length,
+                        t_end_s=(st + self.length) / self.fs, energy=e_sum[k, :r] / self.length,
                         freq_hz=d_sum[k] * self.fs / (2 * np.pi * self.length), input_active=bool(inp_any[k]),
-                        lock=self._lock_samples(st),
+                        lock=self._lock_samples(st), energy_raw=e_sum[k, r:] / self.length if e_sum.shape[1] > r else None,
                     )
                 )  # fmt: skip
                 self._count += 1
@@ -308,6 +318,12 @@ class ExchangeSettings:
     #: classes, every one standing 3-3000x above the sensor noise in mode 2's band (docs/detection.md §7)
     floor_fraction: float = 2e-5
     noise_factor: float = 10.0  # ... and this multiple of its pre-input noise energy, when known
+    #: where the band noise is known (measured before the input, or the sensors' noise through
+    #: :func:`band_noise_energy`), the physical gate is ``noise_factor`` x that noise and the relative floor only a
+    #: backstop against the modal filter's leakage, at this lower fraction: 5e-6 let false events through on three
+    #: linear twins (up to 0.46 a hit, 8 s records at 3 % noise), 1e-5 none in any class: 2x margin (§3's rule;
+    #: docs/detection.md §9)
+    known_floor_fraction: float = 1e-5
     ratios: tuple[tuple[int, int], ...] = DEFAULT_RATIOS
     lock_tolerance: float = 0.04  # relative detuning |r − m/n| / (m/n) that counts as locked
     #: gain, lock, exchange, rq weights of :func:`evidence`, the scores' weighted mean that was the confidence before
@@ -417,9 +433,15 @@ class ExchangeDetector:
     """Streaming: feed :class:`WindowFeatures` in order, get :class:`IREvent` s when they close."""
 
     def __init__(
-        self, settings: ExchangeSettings | None = None, damping: Sequence[float] | None = None, n_modes: int | None = None
+        self,
+        settings: ExchangeSettings | None = None,
+        damping: Sequence[float] | None = None,
+        n_modes: int | None = None,
+        noise_prior: Sequence[float] | FloatArray | None = None,
     ) -> None:
         self.s = settings or ExchangeSettings()
+        self._prior: FloatArray | None = None
+        self.set_noise_prior(noise_prior)
         self.damping = None if damping is None else np.asarray(damping, float)  # ζ per mode, for the exchange score
         self._pairs = {p: _PairState() for p in self.s.pairs}
         self._peak_total = 0.0
@@ -432,6 +454,12 @@ class ExchangeDetector:
             for g, r in self.s.pairs:
                 if r > n_modes:
                     raise ValueError(f"exchange pair {g}-{r} needs {r} modes in the modal filter, it has {n_modes}")
+
+    def set_noise_prior(self, energy: Sequence[float] | FloatArray | None) -> None:
+        """The band noise energy per mode known from the sensors (:func:`band_noise_energy` of their noise std
+        through the modal filter in use; None: unknown). A measured floor (quiet windows before an input)
+        takes precedence where it exists; rebuilt filters (a sensor excluded) need a new prior."""
+        self._prior = None if energy is None else np.asarray(energy, float)
 
     def _measure_noise(self) -> None:
         """At an input: per mode, the lower quartile of the settled quiet windows of the last ``noise_span_s``, taken
@@ -511,10 +539,16 @@ class ExchangeDetector:
         return out
 
     def _above_floor(self, pair: tuple[int, int], e: float) -> bool:
-        if e < self.s.floor_fraction * self._peak_total:
-            return False
-        noise = np.nan if self._noise is None else float(self._noise[pair[1] - 1])
-        return not (np.isfinite(noise) and e < self.s.noise_factor * noise)
+        """The receiver's energy stands ``noise_factor`` x above the band noise where that is known (measured, else
+        the sensors' prior) with the relative backstop ``known_floor_fraction``; else above ``floor_fraction`` x the
+        peak total, the stand-in for an unknown noise."""
+        j = pair[1] - 1
+        noise = np.nan if self._noise is None else float(self._noise[j])
+        if not np.isfinite(noise) and self._prior is not None:
+            noise = float(self._prior[j])
+        if np.isfinite(noise) and noise > 0:
+            return e >= self.s.known_floor_fraction * self._peak_total and e >= self.s.noise_factor * noise
+        return e >= self.s.floor_fraction * self._peak_total
 
     def _locked(self, g: int, r: int, f_give: float) -> tuple[int, int] | None:
         """:func:`lock_fit` over the last ``lock_span_s`` of samples (after the last input), up to the window now."""

@@ -34,7 +34,15 @@ from typing import Protocol
 import numba
 import numpy as np
 
-from analysis.exchange import ExchangeDetector, ExchangeSettings, IREvent, ModalWindower, WindowFeatures, with_rq_score
+from analysis.exchange import (
+    ExchangeDetector,
+    ExchangeSettings,
+    IREvent,
+    ModalWindower,
+    WindowFeatures,
+    band_noise_energy,
+    with_rq_score,
+)
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.preprocess import CausalPreprocessor, PreprocessSettings
 from analysis.records import (
@@ -111,6 +119,9 @@ class RigModel:
     nonlinear_sensors: tuple[str, ...] = ()  # the sensors on the nonlinear springs' DOFs: losing one blinds detection
     ranges: tuple[float | None, ...] | None = None  # ± range per sensor (SI), for the clipping check
     sensitivities: tuple[float, ...] | None = None  # mV per SI unit per sensor: noise compared in volts
+    #: the sensors' specified noise (SI rms, the rig's ``noise_rms``): the band noise the exchange detector gates on
+    #: until it has measured the floor itself (None: not declared for every sensor)
+    noise_rms: tuple[float, ...] | None = None
 
     @classmethod
     def from_rig(cls, rig) -> RigModel:
@@ -129,6 +140,7 @@ class RigModel:
             nonlinear_sensors=tuple(rig.sensors[i].name for i in order if rig.sensors[i].dof in nl_dofs),
             ranges=tuple(getattr(getattr(rig.sensors[i], "props", None), "range", None) for i in order),
             sensitivities=_sensitivities(rig, order),
+            noise_rms=_noise_rms(rig, order),
         )  # fmt: skip
 
 
@@ -140,6 +152,11 @@ def _per_sensor(values: tuple | None, model: RigModel) -> tuple | None:
 def _sensitivities(rig, order: list[int]) -> tuple[float, ...] | None:
     s = [getattr(getattr(rig.sensors[i], "props", None), "sensitivity_mv_per_unit", None) for i in order]
     return None if any(v is None for v in s) else tuple(float(v) for v in s)
+
+
+def _noise_rms(rig, order: list[int]) -> tuple[float, ...] | None:
+    n = [getattr(getattr(rig.sensors[i], "props", None), "noise_rms", None) for i in order]
+    return None if any(v is None or v <= 0 for v in n) else tuple(float(v) for v in n)
 
 
 @dataclass
@@ -422,6 +439,7 @@ class AnalysisOperator:
                 self._mf_cols = list(sw.keep)
                 self._tracker.set_basis(sw.basis)
                 self._windower.basis = sw.basis
+                self._detector.set_noise_prior(self._noise_prior())
 
     def _drain(self) -> None:
         """Emit the seed results of the block the worker is computing (pipelined feeds), waiting for it."""
@@ -451,8 +469,9 @@ class AnalysisOperator:
         self._tracker = ModalStateTracker(self.basis, fs, s.modal_filter)
         ex = s.exchange if s.exchange.window_s == self.window_s else replace(s.exchange, window_s=self.window_s)
         self._ex_settings = ex
-        self._windower = ModalWindower(self.basis, fs, round(ex.window_s * fs), max(1, round(ex.hop * fs)), first)
-        self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes)
+        self._windower = ModalWindower(self.basis, fs, round(ex.window_s * fs), max(1, round(ex.hop * fs)), first,
+                                       energy_bandpass=ex.band_limited_energy)  # fmt: skip
+        self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes, self._noise_prior())
         self._prev_total: float | None = None
         self._min_total = np.inf  # lowest windowed modal energy so far: the noise floor once the rig was quiet
         self._f1_hist: deque[float] = deque(maxlen=7)
@@ -473,6 +492,15 @@ class AnalysisOperator:
         self._spikes_until = first / fs
         self._seed_rule = CausalSpikeRule(RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,)))
 
+    def _noise_prior(self) -> np.ndarray | None:
+        """The band noise per mode that the sensors' declared noise puts through the modal filter now in use
+        (:func:`band_noise_energy`); None where the rig declares none or the filter reads displacements."""
+        noise = _per_sensor(self.model.noise_rms, self.model)
+        mf = self.s.modal_filter
+        if noise is None or mf.quantity != "acceleration":
+            return None
+        return band_noise_energy(self.basis, np.asarray(noise)[self._mf_cols], self.fs, mf.highpass_hz, mf.order)
+
     def _finish_lanes(self) -> None:
         self._drain()
         if self.s.seed_lane:
@@ -483,10 +511,10 @@ class AnalysisOperator:
         self._settle(float("inf"))
 
     def _modal_window(self, w: WindowFeatures) -> None:
-        total = float(w.energy.sum())
+        total = float((w.energy if w.energy_raw is None else w.energy_raw).sum())
         if (self._ham_col is None and self._prev_total is not None and total > self.s.input_jump * self._prev_total
                 and total > INPUT_OVER_FLOOR * self._min_total):  # fmt: skip
-            w = WindowFeatures(w.index, w.start, w.stop, w.t_start_s, w.t_end_s, w.energy, w.freq_hz, True)
+            w = replace(w, input_active=True)
         self._prev_total = total
         self._min_total = min(self._min_total, total) if total > 0 else self._min_total
         if w.input_active:

@@ -17,6 +17,8 @@ from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.model.updating import MeasuredModes, Progress, UpdateResult, select_parameters, update, updated_toml
 
+LOW_HZ = 2.0  # the lower edge of the band modes are identified in, as `gvt modal`
+
 
 @dataclass
 class UpdateRun:
@@ -27,8 +29,11 @@ class UpdateRun:
     text: str  # the updated rig TOML
 
 
-def measured_from_source(source: Path, rig: Rig, band: tuple[float, float], progress: Progress | None = None) -> MeasuredModes:
-    """A modes JSON (``gvt modal --modes-out``) is read; anything else is a session log, identified like ``gvt modal``."""
+def measured_from_source(
+    source: Path, rig: Rig, band: tuple[float, float] | None = None, progress: Progress | None = None
+) -> MeasuredModes:
+    """A modes JSON (``gvt modal --modes-out``) is read; anything else is a session log, identified like ``gvt modal``:
+    ``band`` None is its default, 2 Hz to the FRFs' top (1000 Hz, or fs / 2.56 when lower: ``default_band``)."""
     if source.suffix.lower() == ".json":
         try:
             doc = json.loads(source.read_text())
@@ -44,7 +49,9 @@ def measured_from_source(source: Path, rig: Rig, band: tuple[float, float], prog
     from daq.frf_cmd import frf_from_log
     from daq.modal_cmd import modal_from_frf, modes_json
 
-    fr = frf_from_log(source, rig, band_hz=band[1], progress=None if progress is None else (lambda f: progress("hits", f)))
+    fr = frf_from_log(source, rig, band_hz=None if band is None else band[1],
+                      progress=None if progress is None else (lambda f: progress("hits", f)))  # fmt: skip
+    band = (LOW_HZ, fr.band_hz) if band is None else band
     if fr.frf is None:
         refused = sum(h["verdict"] != "accepted" for h in fr.hits)
         raise BadInput(f"{source}: no accepted hit to build FRFs from ({refused} refused; `gvt frf {source}` says why)")
@@ -55,7 +62,7 @@ def measured_from_source(source: Path, rig: Rig, band: tuple[float, float], prog
 
 
 def run_update(rig: Rig, rig_path: Path, source: Path, *, params: list[str] | None = None, objective: str | None = None,
-               n_modes: int | None = None, optimiser: str = "de", band: tuple[float, float] = (2.0, 1000.0),
+               n_modes: int | None = None, optimiser: str = "de", band: tuple[float, float] | None = None,
                progress: Progress | None = None) -> UpdateRun:  # fmt: skip
     """Measured modes of ``source`` -> updated parameters -> the updated rig file's text."""
     chosen = select_parameters(rig.config, params)

@@ -450,6 +450,62 @@ def test_energy_floor_lets_a_faint_exchange_through_and_not_a_fainter_one():
     assert run(1e-5) == []
 
 
+def test_noise_prior_gates_faint_rises_at_the_band_noise_and_lets_real_ones_through():
+    """docs/detection.md §9: with the band noise known (the sensors' prior), a receiver must stand ``noise_factor`` x
+    above it and the relative floor drops to ``known_floor_fraction`` (1e-5). The same x5 rise to 1.5e-5 of the peak
+    total: no event without a prior (below ``floor_fraction`` 2e-5), an event with a prior 100x below it, none with a
+    prior that puts it under 10x the noise; a measured floor (quiet windows before the input) overrides the prior."""
+    from analysis.exchange import ExchangeDetector, WindowFeatures
+
+    f = np.array([20.8, 62.4])
+
+    def w(k, e, inp=False):
+        return WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([1.0, e]), f, inp)
+
+    def run(det, top=1.5e-5, k0=0):
+        e2 = [top / 5] * 5 + list(np.geomspace(top / 5, top, 6)) + [top * 0.5] * 5
+        ev = det.feed(w(k0, 1.0, True))
+        for k, e in enumerate(e2, k0 + 1):
+            ev += det.feed(w(k, e))
+        return ev + det.finish()
+
+    assert ExchangeSettings().known_floor_fraction == 1e-5 < ExchangeSettings().floor_fraction
+    assert run(ExchangeDetector(ExchangeSettings())) == []
+    (ev,) = run(ExchangeDetector(ExchangeSettings(), noise_prior=[1e-9, 1.5e-7]))
+    assert ev.gain == pytest.approx(5.0)
+    assert run(ExchangeDetector(ExchangeSettings(), noise_prior=[1e-9, 2e-6])) == []  # 1.5e-5 < 10 x 2e-6
+    det = ExchangeDetector(ExchangeSettings(settle_s=0.0), noise_prior=[1e-9, 2e-6])
+    for k in range(20):  # quiet, stationary windows before the hit: the measured floor 1e-8 replaces the prior
+        det.feed(w(k, 1e-8))
+    (ev,) = run(det, k0=20)
+    assert det._noise[1] == pytest.approx(1e-8)
+    det.set_noise_prior(None)
+    assert det._prior is None
+
+
+def test_operator_passes_the_rigs_sensor_noise_and_band_limited_energies():
+    """The live lane runs the detector the realistic grid scored (docs/detection.md §9): band-limited energies, and the
+    rig's per-sensor ``noise_rms`` through :func:`band_noise_energy` as the noise prior (recomputed when sensor health
+    drops a channel); the raw energies stay available for the input-jump rule."""
+    from analysis.exchange import band_noise_energy
+
+    rig = rig_with()
+    model = RigModel.from_rig(rig)
+    assert model.noise_rms is not None and len(model.noise_rms) == len(model.sensors)
+    fs = float(rig.sample_rate)
+    op = AnalysisOperator(model, tuple(model.sensors), fs)
+    op._start(0)
+    assert op._windower.energy_bandpass
+    np.testing.assert_allclose(op._detector._prior, band_noise_energy(op.basis, np.array(model.noise_rms), fs), rtol=1e-12)
+    q = np.random.default_rng(0).standard_normal((2048, op.basis.n_modes)) * 1e-6
+    (win, *_) = op._windower.feed(q, q * 100.0)
+    assert win.energy_raw is not None and win.energy_raw.shape == win.energy.shape and win.energy_raw.sum() > win.energy.sum()
+    without = RigModel(**{**model.__dict__, "noise_rms": None})
+    op2 = AnalysisOperator(without, tuple(model.sensors), fs)
+    op2._start(0)
+    assert op2._detector._prior is None
+
+
 def test_detector_labels_by_the_slowest_slow_phase_not_the_nearest_ratio():
     """Issue 21, docs/detection.md §8: the event's m:n is the candidate whose slow phase ``m θ1 − n θ2`` (eq. 4.2)
     turns slowest, ``argmin n |r − m/n|``. Oracle: the rate of each slow phase written out, ``|n f2 − m f1|``. At

@@ -20,7 +20,7 @@ import numpy as np
 
 from analysis.evaluation.grid import CaseData, GridCase, case_rig
 from analysis.evaluation.score import DetectedEvent
-from analysis.exchange import ExchangeDetector, ExchangeSettings, ModalWindower, nearest_ratio
+from analysis.exchange import ExchangeDetector, ExchangeSettings, ModalWindower, band_noise_energy, nearest_ratio
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.model.rig import Rig
 from analysis.operator import window_rq
@@ -33,6 +33,19 @@ WINDOW_S = 0.0216
 #: samples per block fed to the health check and the modal filter: the demo/simulated DAQ's block (daq/demo.py)
 BLOCK = 1024
 HEALTH = HealthSettings()
+#: the detector's settings in every evaluation (the defaults a session uses, at the seed's window)
+EXCHANGE = ExchangeSettings(window_s=WINDOW_S)
+#: hand the detector the band noise the case's sensors put into each mode (their noise std through
+#: :func:`band_noise_energy`), as a session does from the rig's ``noise_rms``: the grid's single-hit records start at
+#: the pulse, so the detector has no quiet windows to measure it from (docs/detection.md §9)
+NOISE_PRIOR = True
+
+
+def noise_prior(case: CaseData, basis: ModalBasis, cols: list[int], mf: ModalFilterSettings) -> np.ndarray | None:
+    """Band noise energy per mode from the case's per-channel noise std on the columns ``cols`` in use."""
+    if not NOISE_PRIOR or case.noise_std.size == 0 or mf.quantity != "acceleration":
+        return None
+    return band_noise_energy(basis, case.noise_std[cols], case.fs, mf.highpass_hz, mf.order)
 
 
 _MODELS: dict[int, tuple[Rig, tuple]] = {}
@@ -95,7 +108,7 @@ def modal_exchange_health(
     data = (case.acc if quantity == "acceleration" else case.disp_true).astype(np.float64)
     inp = case.input_active()
     zeta = case.case.zeta
-    s = ExchangeSettings(window_s=WINDOW_S)
+    s = EXCHANGE
     fs = case.fs
     c = case.case
     nl_rig = model_rig if model_rig is not None else case_rig(GridCase(1.0, c.zeta, True, 0, c.rig))
@@ -106,11 +119,13 @@ def modal_exchange_health(
         guard = HealthGuard(M, K, case.sensor_names, fs, basis.n_modes, health, [x.props.range for x in sensors],
                             [x.props.sensitivity_mv_per_unit for x in sensors],
                             [x.name for x in sensors if x.dof in nl_dofs])  # fmt: skip
-    tracker = ModalStateTracker(basis, fs, ModalFilterSettings(quantity=quantity))
+    mf = ModalFilterSettings(quantity=quantity)
+    tracker = ModalStateTracker(basis, fs, mf)
     windower = ModalWindower(basis, fs, round(s.window_s * fs), max(1, round(s.hop * fs)), 0,
                              energy_bandpass=s.band_limited_energy)  # fmt: skip
-    det = ExchangeDetector(s, [zeta, zeta, c.zeta_rest, c.zeta_rest], basis.n_modes)
-    events, warns, cols = [], [], list(range(data.shape[1]))
+    cols = list(range(data.shape[1]))
+    det = ExchangeDetector(s, [zeta, zeta, c.zeta_rest, c.zeta_rest], basis.n_modes, noise_prior(case, basis, cols, mf))
+    events, warns = [], []
     for a in range(0, data.shape[0], BLOCK):
         x, i = data[a : a + BLOCK], inp[a : a + BLOCK]
         switches = guard.feed(x, i) if guard is not None else []
@@ -124,6 +139,7 @@ def modal_exchange_health(
                     tracker.set_basis(sw.basis)
                     windower.basis = sw.basis
                     cols = list(sw.keep)
+                    det.set_noise_prior(noise_prior(case, sw.basis, cols, mf))
     events.extend(det.finish())
     return events, warns
 

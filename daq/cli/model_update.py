@@ -10,8 +10,6 @@ import typer
 
 from daq.cli.common import OverwriteOpt, Progress, RigArg, check_output, err, fail, open_rig, out
 
-BAND = (2.0, 1000.0)  # Hz, as `gvt modal`: beam_ch4_exp's modes 1-6 (20.8-965 Hz)
-
 
 def model_update(
     rig: RigArg,
@@ -32,7 +30,10 @@ def model_update(
         int | None, typer.Option("--modes", min=1, max=50, help="Use the first N FE modes (default: the rig's update.modes, 6).")
     ] = None,
     optimiser: Annotated[str, typer.Option(help="de (differential evolution) or multistart (least_squares).")] = "de",
-    band: Annotated[tuple[float, float], typer.Option(help="Band to identify modes in from a log, Hz: LOW HIGH.")] = BAND,
+    band: Annotated[
+        tuple[float, float] | None,
+        typer.Option(help="Band of the modes from a log, Hz: LOW HIGH (default: 2 Hz to 1000 Hz or fs/2.56, as gvt modal)."),
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:

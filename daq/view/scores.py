@@ -32,11 +32,11 @@ class DetectorScore:
         return self.tp / (self.tp + self.fn) if self.tp + self.fn else None
 
 
-# bench/calibrate_confidence.py ("pooled": every event at the default min_confidence over the 27 classes of the
-# realistic grid, nonlinear cases; bench/results/calibrate_confidence.json), 2026-11-26, commit c397a79 + this work
+# bench/eval_realistic.py ("gvtlink modal exchange (acc)" summed over its 27 classes, nonlinear cases, at the default
+# min_confidence; bench/results/eval_realistic.json), 2026-11-26, after the sensors' noise prior (docs/detection.md §9)
 MODAL_EXCHANGE = DetectorScore(
-    "internal-resonance events (modal exchange)", "detector", 2372, 25, 399, 0.99,
-    "realistic grid, 27 error classes (bench/calibrate_confidence.py, 2026-11-26, after the phase-lock labels)",
+    "internal-resonance events (modal exchange)", "detector", 2431, 33, 340, 0.99,
+    "realistic grid, 27 error classes (bench/eval_realistic.py, 2026-11-26, with the sensors' noise prior)",
 )  # fmt: skip
 # docs/detection.md §4 (bench/eval_detection.py): the spikes alone on the issue-6 grid, 24 nonlinear hits, 63 exchanges
 ROBUST_RQ_SPIKES = DetectorScore(

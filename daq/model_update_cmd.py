@@ -67,7 +67,8 @@ def run_update(rig: Rig, rig_path: Path, source: Path, *, params: list[str] | No
     """Measured modes of ``source`` -> updated parameters -> the updated rig file's text."""
     chosen = select_parameters(rig.config, params)
     measured = measured_from_source(source, rig, band, progress)
-    result = update(rig.config, measured, chosen, objective=objective, n_modes=n_modes, optimiser=optimiser, progress=progress)
+    result = update(rig.config, measured, chosen, objective=objective, n_modes=n_modes, optimiser=optimiser, progress=progress,
+                    path=rig_path)  # fmt: skip
     date = datetime.now(UTC).isoformat(timespec="seconds")
     text = updated_toml(Path(rig_path).read_text(), result, result.provenance(str(rig_path), str(source), date))
     return UpdateRun(Path(rig_path), source, measured, result, text)

@@ -39,6 +39,7 @@ import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -60,6 +61,7 @@ TARGETS = {
     r"structure\.springs\[\d+\]\.k": "a lumped spring (N/m)",
     r"point_masses\[\d+\]\.mass": "a point mass (kg)",
     r"springs\[\d+\]\.k": "a grounded linear spring (N/m): an attachment or a boundary spring",
+    r"structure\.stiffness_parts\[\d+\]\.scale": "an imported rig's substructure stiffness scale p_i (K = sum p_i K_i)",
 }
 _TARGET_RE = re.compile("^(?:" + "|".join(TARGETS) + ")$")
 _STEP = re.compile(r"^([a-z_]+)((?:\[\d+\])*)$")
@@ -205,14 +207,16 @@ class MeasuredModes:
 class ParametricModel:
     """Modes of the rig's linear structure as a function of the parameter values ``p`` (physical units)."""
 
-    def __init__(self, cfg: RigConfig, params: Sequence[UpdateParameter]) -> None:
+    def __init__(self, cfg: RigConfig, params: Sequence[UpdateParameter], path: str | Path = "<config>") -> None:
+        """``path``: the rig file, whose folder an imported rig's matrix files are relative to."""
         from analysis.model.rig import build_rig
 
         self.cfg = cfg
+        self.path = path
         self.params = list(params)
         self.data = cfg.model_dump()
         self.p0 = np.array([get_target(self.data, p.target) for p in self.params])
-        rig = build_rig(cfg)
+        rig = build_rig(cfg, path)
         self.sensor_names = [s.name for s in rig.sensors]
         self.sensor_dofs = np.array(rig.sensor_dofs)
         self.M0, self.K0 = rig.structure.M, rig.structure.K
@@ -236,7 +240,7 @@ class ParametricModel:
         data = self.cfg.model_dump()
         for par, v in zip(self.params, p, strict=True):
             set_target(data, par.target, float(v))
-        s = build_rig(RigConfig.model_validate(data)).structure
+        s = build_rig(RigConfig.model_validate(data), self.path).structure
         return s.M, s.K
 
     def _affine(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -496,7 +500,7 @@ def jacobian_sigma(problem: Problem, p: np.ndarray, rel_step: float = 1e-5) -> n
 
 def update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdateParameter], *, objective: str | None = None,
            n_modes: int | None = None, optimiser: str = "de", seed: int | None = None, mac_weight: float | None = None,
-           progress: Progress | None = None) -> UpdateResult:  # fmt: skip
+           progress: Progress | None = None, path: str | Path = "<config>") -> UpdateResult:  # fmt: skip
     """Update ``params`` of the rig ``cfg`` so that its modes match ``measured`` (module docstring).
 
     ``objective``, ``n_modes``, ``seed`` and ``mac_weight`` default to the rig's ``[update]`` table. BLAS runs
@@ -506,12 +510,12 @@ def update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdateParam
 
     with threadpool_limits(1):
         return _update(cfg, measured, params, objective=objective, n_modes=n_modes, optimiser=optimiser, seed=seed,
-                       mac_weight=mac_weight, progress=progress)  # fmt: skip
+                       mac_weight=mac_weight, progress=progress, path=path)  # fmt: skip
 
 
 def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdateParameter], *, objective: str | None,
             n_modes: int | None, optimiser: str, seed: int | None, mac_weight: float | None,
-            progress: Progress | None) -> UpdateResult:  # fmt: skip
+            progress: Progress | None, path: str | Path = "<config>") -> UpdateResult:  # fmt: skip
     from analysis.model.config import UpdateSpec
 
     spec = cfg.update or UpdateSpec()
@@ -521,7 +525,7 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
     mac_weight = spec.mac_weight if mac_weight is None else mac_weight
     _check_request(measured, params, objective, optimiser)
     t0 = time.perf_counter()
-    model = ParametricModel(cfg, params)
+    model = ParametricModel(cfg, params, path)
     rows = _measured_rows(measured, model.sensor_names) if measured.shapes is not None else None
     n_fe = min(max(2 * n_use, n_use + 4), model.M0.shape[0])
     p, pairs, prob, nominal_value, notes = _search(model, measured, params, n_use, n_fe, rows, objective, mac_weight,

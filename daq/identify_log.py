@@ -231,12 +231,22 @@ def write_windows(run: LogIdentification, path: Path) -> None:
 
 
 def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png: Path | None, csv_out: Path | None,
-                     window_s: float | None, json_out: bool, overwrite: bool) -> None:  # fmt: skip
-    """The ``gvt identify LOG`` verb body (daq/cli/identify.py branches here for a file)."""
+                     window_s: float | None, json_out: bool, overwrite: bool, out_toml: Path | None = None,
+                     validation_png: Path | None = None, validate: str | None = None) -> None:  # fmt: skip
+    """The ``gvt identify LOG`` verb body (daq/cli/identify.py branches here for a file); with ``--out``,
+    ``--validation-png`` or ``--validate`` the identified rig is re-simulated against the logged hits
+    (``daq.identify_validate.validate_log``)."""
     import json
 
+    from daq import identify_validate as iv
     from daq.cli.common import Progress, check_output, err, fail, open_rig, out
     from daq.identify_cmd import plot_fdp, print_report
+    from daq.rfs_cmd import _parse_hits
+
+    val_hits = _parse_hits(validate, "--validate")
+    for p, what in ((out_toml, "--out"), (validation_png, "--validation-png")):
+        if p is not None:
+            check_output(p, overwrite, what, inputs=[source])
 
     if window_s is not None and not window_s > 0:
         fail(f"--window {window_s:g}: give a positive length in seconds")
@@ -247,14 +257,24 @@ def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png:
         if png.resolve() == csv_path.resolve():
             fail("--png and --csv name the same file")
     r = open_rig(rig_name)
+    if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
+        fail(f"--out {out_toml}: is the rig itself; give a new file name")
     with Progress(err if json_out else out) as report:
         run = identify_log(r, source, options, window_s=window_s, progress=report)
     write_windows(run, csv_path)
     if png is not None:
         plot_fdp(run.ident, png)
+    res = None
+    if out_toml is not None or validation_png is not None or val_hits is not None:
+        with Progress(err if json_out else out) as report:
+            res = iv.finish(run.ident, r, iv.log_dofs(run, r), out_toml, validation_png,
+                            lambda idr: iv.validate_log(run, r, idr, source, val_hits, progress=report))  # fmt: skip
     if json_out:
         doc = run.summary()
         doc["windows_csv"] = str(csv_path)
+        doc["png"] = str(png) if png is not None else None
+        if res is not None:
+            doc.update(res.to_dict())
         out.print_json(json.dumps(doc, default=_json_default))
     else:
         print_report(out, run.ident)
@@ -270,6 +290,11 @@ def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png:
         for h in skipped:
             out.print(f"hit {h['hit']} skipped: {h['skipped']}", markup=False)
         out.print(f"wrote per-window table: {csv_path}" + (f"; plot: {png}" if png is not None else ""), markup=False)
+        if res is not None and res.validation is not None:
+            iv.print_validation(out, res.validation)
+        for path, what in ((out_toml, "identified rig"), (validation_png, "validation overlays")):
+            if path is not None:
+                out.print(f"wrote {what}: {path}", markup=False)
 
 
 def _json_default(x: Any) -> Any:

@@ -90,12 +90,19 @@ def _envelope(t: np.ndarray, y: np.ndarray, n: int = 2000) -> tuple[np.ndarray, 
 
 
 def build_report(
-    log: str | Path, out: str | Path, rig=None, frf_channel: str | None = None, band_hz: float | None = None
+    log: str | Path,
+    out: str | Path,
+    rig=None,
+    frf_channel: str | None = None,
+    band_hz: float | None = None,
+    identification: list | None = None,
 ) -> ReportSummary:
     """Write the report for ``log`` to ``out`` (.html); ``rig`` defaults to the one attached to the log.
 
     ``frf_channel``: the response drawn beside the driving point in the FRF figures (default: the last);
-    ``band_hz``: the band of interest of the FRFs and the hammer check (``gvt frf --band``)."""
+    ``band_hz``: the band of interest of the FRFs and the hammer check (``gvt frf --band``);
+    ``identification``: ``gvt identify --json`` summaries (``daq.report_identify.load_summaries``) for the
+    "Identification" section."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -268,6 +275,12 @@ def build_report(
     parts += sec.tables
     figs += [(name, _png(fig)) for name, fig in sec.figures]
     summary.frf_absent = sec.absent
+    if identification:
+        from daq.report_identify import identify_section
+
+        id_parts, id_figs = identify_section(identification, _table)
+        parts += ["<h2>Identification</h2>", *id_parts]
+        summary.figures += id_figs
     from daq.view.scores import MODAL_EXCHANGE, ROBUST_RQ_SPIKES, SCORE_COLS, score_note, score_rows
 
     # what each output is worth, measured on the simulator (issue 21): before the outputs themselves
@@ -286,7 +299,7 @@ def build_report(
     warns = [[w.get("kind"), w.get("message")] for w in res.get(layout.WARNINGS_TOPIC, [])]
     parts.append(_table("analysis warnings", ["kind", "message"], warns))
     summary.tables = [p.split("</h2>")[0][4:] for p in parts if p.startswith("<h2>")]
-    summary.figures = [name for name, _ in figs]
+    summary.figures = [name for name, _ in figs] + summary.figures
     header = (
         f"<h1>gvtlink session report</h1><p>log <code>{html.escape(str(log))}</code> · health: {html.escape(info['health'])} · "
         f"session {html.escape(json.dumps(sess.get('session', '')))} · rig {html.escape(rig.name if rig else 'unknown')} · "

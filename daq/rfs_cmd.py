@@ -322,8 +322,8 @@ def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate:
         plot(run, png)
     if out_toml is not None:
         write_identified(run, r, out_toml)
-    if json_out:
-        out.print_json(summary_json(run))
+    if json_out:  # the plot's path goes with the summary, so `gvt report --identify` can embed it
+        out.print_json(json.dumps({**json.loads(summary_json(run)), "png": None if png is None else str(png)}))
     else:
         print_report(out, run)
         for path, what in ((png, "plot"), (out_toml, "identified rig")):

@@ -23,8 +23,16 @@ def identify(
     no_intersection: Annotated[bool, typer.Option("--no-intersection", help="Fit α and β together (no eq. 5.9).")] = False,
     method: Annotated[str, typer.Option(help="nsi: the RQ-FDP fit; rfs: eq. 5.11 of a grounded attachment from a LOG.")] = "nsi",
     hit: Annotated[int | None, typer.Option(help="rfs: the identification hit (default: the first accepted).")] = None,
-    validate: Annotated[str | None, typer.Option(help="rfs: validation hits, e.g. 1,2,3 (default: the others).")] = None,
-    out_toml: Annotated[Path | None, typer.Option("--out", help="rfs: write the rig with the identified values.")] = None,
+    validate: Annotated[
+        str | None, typer.Option(help="LOG: validation hits, e.g. 1,2,3 (rfs default: the others; nsi: lowest, middle, highest).")
+    ] = None,
+    out_toml: Annotated[
+        Path | None, typer.Option("--out", help="Write the rig with the identified law (then validate it).")
+    ] = None,
+    validate_forces: Annotated[
+        str | None, typer.Option(help="Sweep: validation forces F,F,F in N (default: 3 log-spaced, off the sweep's grid).")
+    ] = None,
+    validation_png: Annotated[Path | None, typer.Option(help="Write the validation overlays (δ, δ') as PNG.")] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Write the RQ-FDP with the fit as PNG.")] = None,
     csv_out: Annotated[Path | None, typer.Option("--csv", help="LOG: per-window table (default LOG.nsi-windows.csv).")] = None,
     window: Annotated[float | None, typer.Option(help="LOG: window length, s (default ~T/2 of the fundamental, Ch. 5).")] = None,
@@ -43,20 +51,45 @@ def identify(
     opts.validate()
     if not source.exists():
         fail(f"{source}: no such file or directory")
+    outs = [(p, w) for p, w in ((png, "--png"), (out_toml, "--out"), (validation_png, "--validation-png")) if p is not None]
+    if len({p.resolve() for p, _ in outs}) < len(outs):
+        fail(f"{', '.join(w for _, w in outs)} must name different files")
     if not source.is_dir():  # a session LOG: windowed δ̄ as in the seed's Ch. 5 experiment (daq/identify_log.py)
         from daq.identify_log import cli_identify_log
 
-        return cli_identify_log(source, rig, opts, png, csv_out, window, json_out, overwrite)
-    if png is not None:
-        check_output(png, overwrite, "--png")
+        if validate_forces is not None:
+            fail("--validate-forces is for a sweep; a LOG validates on its hits (--validate 1,2,3)")
+        return cli_identify_log(source, rig, opts, png, csv_out, window, json_out, overwrite, out_toml, validation_png, validate)
+    if validate is not None:
+        fail("--validate names hits of a LOG; a sweep validates at forces (--validate-forces F,F,F)")
+    for p, w in outs:
+        check_output(p, overwrite, w)
+    from daq import identify_validate as iv
+
+    forces = iv.parse_forces(validate_forces) if validate_forces is not None else None
     r = open_rig(rig)
-    from daq.identify_cmd import identify_sweep, plot_fdp, print_report, summary_json
+    if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
+        fail(f"--out {out_toml}: is the rig itself; give a new file name")
+    from daq.identify_cmd import identify_sweep, plot_fdp, print_report
 
     with Progress(err if json_out else out) as report:
         ident = identify_sweep(r, source, opts, progress=report)
     if png is not None:
         plot_fdp(ident, png)
+    res = None
+    if out_toml is not None or validation_png is not None or forces is not None:
+        dofs, validator = iv.sweep_validator(ident, r, source, forces)
+        res = iv.finish(ident, r, dofs, out_toml, validation_png, validator)
     if json_out:
-        out.print_json(summary_json(ident))
+        doc = ident.summary()
+        doc["png"] = str(png) if png is not None else None
+        if res is not None:
+            doc.update(res.to_dict())
+        out.print_json(iv.dumps(doc))
     else:
         print_report(out, ident)
+        if res is not None and res.validation is not None:
+            iv.print_validation(out, res.validation)
+        for path, what in ((png, "RQ-FDP"), (out_toml, "identified rig"), (validation_png, "validation overlays")):
+            if path is not None:
+                out.print(f"wrote {what}: {path}", markup=False)

@@ -21,6 +21,10 @@ def report(
         float | None,
         typer.Option(min=1.0, help="Band of interest of the FRFs, Hz (a hit's -10 dB must reach it); default 1000 or fs/2.56."),
     ] = None,
+    identify: Annotated[
+        list[Path] | None,
+        typer.Option("--identify", help="A 'gvt identify --json' summary for the Identification section (repeatable)."),
+    ] = None,
     overwrite: OverwriteOpt = False,
 ) -> None:
     """A static HTML report of a session: hits, verdicts, loss, RQ-FEP, IR events, confirmations, FRFs and modes."""
@@ -28,9 +32,13 @@ def report(
     from daq.report import build_report
 
     check_output(out_path, overwrite, inputs=[log])
+    from daq.report_identify import load_summaries
+
+    ident = load_summaries(identify or [])
 
     with atomic_output(out_path) as tmp:
-        s = build_report(log, tmp, rig=open_rig(rig) if rig is not None else None, frf_channel=frf_channel, band_hz=band)
+        s = build_report(log, tmp, rig=open_rig(rig) if rig is not None else None, frf_channel=frf_channel, band_hz=band,
+                         identification=ident)  # fmt: skip
     out.print(f"wrote {out_path}: {len(s.figures)} plots, {len(s.tables)} tables (analysis results from {s.results_from})",
               markup=False)  # fmt: skip
     if s.rig_note and "carries no rig attachment" not in s.rig_note:

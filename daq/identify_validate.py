@@ -233,6 +233,48 @@ def validate_sweep(truth: Rig, identified: Rig, dofs: Sequence[int], att: int, r
 # --- log: against the logged hits ---------------------------------------------------------------------------------
 
 
+def _pick_hits(run, hits: Sequence[int] | None) -> list[int]:
+    """``hits`` checked against the hits that gave windows; default the lowest, middle and highest by force."""
+    used = [h for h in run.hits if "windows" in h]
+    if hits is None:
+        by_force = sorted(used, key=lambda h: h["peak_force_N"])
+        pick = sorted({0, len(by_force) // 2, len(by_force) - 1}) if by_force else []
+        return [by_force[i]["hit"] for i in pick]
+    ok = {h["hit"] for h in used}
+    bad = [h for h in hits if h not in ok]
+    if bad:
+        raise BadInput(f"--validate {bad}: not hits that gave windows; those are {sorted(ok)}")
+    return list(hits)
+
+
+def _measured_force(reader, rig: Rig, infos: dict, end: int, fs: float) -> np.ndarray:
+    """The hammer channel of the log from its start to sample ``end``, on the stream's index grid (0 in gaps)."""
+    ham = rig.hammer.name
+    stream = next(n for n, i in infos.items() if ham in i.channels)
+    fd = reader.read_stream(stream, [ham], start=0.0, end=end / fs, on_damage="skip")
+    idx = np.asarray(fd.index, np.int64)
+    force = np.zeros(end)
+    keep = (idx >= 0) & (idx < end)
+    force[idx[keep]] = np.asarray(fd.data, float)[keep, 0]
+    return force
+
+
+def _simulate_force(identified: Rig, dofs, force: np.ndarray, fs: float, progress) -> np.ndarray:
+    """The identified rig's accelerations at ``dofs`` driven by ``force`` from rest, in segments."""
+    from analysis.model.forces import ForceSeries
+    from daq.sweep_cmd import _simulator
+
+    end = force.size
+    sim = _simulator(identified, dofs, None)
+    fser = ForceSeries(t=np.arange(end) / fs, force=force, peak=1.0)
+    acc = np.empty((end, len(dofs)))
+    for seg in sim.run_segments(fser, end / fs, fs, [1.0], segment=65536):
+        acc[seg.first_index : seg.first_index + seg.t.size] = seg.acceleration[0]
+        if progress:
+            progress("re-simulating the log with the identified rig", (seg.first_index + seg.t.size) / end)
+    return acc
+
+
 def validate_log(run, rig: Rig, identified: Rig, log: Path, hits: Sequence[int] | None = None,
                  progress: Callable[[str, float], None] | None = None) -> Validation:  # fmt: skip
     """The log's hits ``hits`` (default: the lowest, middle and highest accepted hit that gave windows) against the
@@ -240,30 +282,19 @@ def validate_log(run, rig: Rig, identified: Rig, log: Path, hits: Sequence[int] 
     displacement chain over the same padded span (``daq.identify_log``), the chain's velocity stage for δ'."""
     import time
 
-    from analysis.model.forces import ForceSeries
+    import analysis.nsi_windows as nw
     from analysis.preprocess import PreprocessSettings, acc_to_disp
+    from analysis.records import HITS_TOPIC, Hit
     from daq.identify_log import INTEGRATION_PAD_PERIODS, PRE_TRIGGER_S, _layout, _read_span
     from daq.log.reader import LogReader
-    from daq.sweep_cmd import _simulator
 
     t0 = time.perf_counter()
     reader = LogReader(log)
     infos = reader.streams()
     sources, outs, dofs, quantity = _layout(reader, rig)
     fs = infos[sources[0].stream].sample_rate
-    tg = run.ident.target
-    att, refs = tg.attachment, tg.relative_to
-    used = [h for h in run.hits if "windows" in h]
-    if hits is None:
-        by_force = sorted(used, key=lambda h: h["peak_force_N"])
-        pick = sorted({0, len(by_force) // 2, len(by_force) - 1}) if by_force else []
-        hits = [by_force[i]["hit"] for i in pick]
-    ok = {h["hit"] for h in used}
-    bad = [h for h in hits if h not in ok]
-    if bad:
-        raise BadInput(f"--validate {bad}: not hits that gave windows; those are {sorted(ok)}")
-    from analysis.records import HITS_TOPIC, Hit
-
+    att, refs = run.ident.target.attachment, run.ident.target.relative_to
+    hits = _pick_hits(run, hits)
     recs = {h.hit: h for h in (Hit.from_json(m) for m in reader.json_messages(HITS_TOPIC))}
     s = run.settings
     pre, n_rec = round(PRE_TRIGGER_S * fs), round(rig.config.daq.record_length * fs)
@@ -276,25 +307,8 @@ def validate_log(run, rig: Rig, identified: Rig, log: Path, hits: Sequence[int] 
         if got is None:
             raise BadInput(f"hit {h}: its record is incomplete in {log}")
         spans[h] = got
-    # the measured force of the whole log up to the last span: the hammer channel on the same grid
     end = max(first + data.shape[0] for data, first in spans.values())
-    ham = rig.hammer.name
-    stream = next(n for n, i in infos.items() if ham in i.channels)
-    fd = reader.read_stream(stream, [ham], start=0.0, end=end / fs, on_damage="skip")
-    idx = np.asarray(fd.index, np.int64)
-    force = np.zeros(end)
-    keep = (idx >= 0) & (idx < end)
-    force[idx[keep]] = np.asarray(fd.data, float)[keep, 0]
-    sim = _simulator(identified, dofs, None)
-    tt = np.arange(end) / fs
-    fser = ForceSeries(t=tt, force=force, peak=1.0)
-    acc = np.empty((end, len(dofs)))
-    for seg in sim.run_segments(fser, end / fs, fs, [1.0], segment=65536):
-        acc[seg.first_index : seg.first_index + seg.t.size] = seg.acceleration[0]
-        if progress:
-            progress("re-simulating the log with the identified rig", (seg.first_index + seg.t.size) / end)
-    import analysis.nsi_windows as nw
-
+    acc = _simulate_force(identified, dofs, _measured_force(reader, rig, infos, end, fs), fs, progress)
     ps = PreprocessSettings(vel_corner_hz=fc, disp_corner_hz=fc, order=s.order, mode="zero_phase")
     val = Validation(f"the logged hits of {Path(log).name} (measured force drives the identified rig from the log's start)",
                      "attachment relative displacement (the identification's chain) and velocity (its first stage)")  # fmt: skip

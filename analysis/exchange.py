@@ -97,30 +97,32 @@ def lock_fit(
     if y.size < 16 or yy <= 0 or not cands or not (np.isfinite(f_give_hz) and f_give_hz > 0):
         return None
     fb = np.arange(1.25 * f_give_hz, 4.75 * f_give_hz, step_hz)
-    free = np.stack([np.cos(2 * np.pi * fb[:, None] * t), np.sin(2 * np.pi * fb[:, None] * t)], axis=2)  # (nf, n, 2)
-    forced = np.column_stack([np.cos(th), np.sin(th)])
-
-    # the normal equations by blocks: the free sinusoids' Gram matrix and projections are the same for every candidate
-    # (built once, as BLAS products: one einsum over (frequencies x samples x columns^2) cost ~40 ms an event)
-    free_t = free.transpose(0, 2, 1)  # (nf, 2, n)
-    g_ff = free_t @ free  # (nf, 2, 2)
+    arg = 2 * np.pi * fb[:, None] * t
+    free_t = np.stack([np.cos(arg), np.sin(arg)], axis=1)  # (nf, 2, n): the free sinusoids
+    # every locked column (θ's own pair, then each candidate's) at once: the normal equations by blocks, the free
+    # sinusoids' Gram matrix and every column's projection on them as two BLAS products per event (one einsum over
+    # frequencies x samples x columns^2 cost ~40 ms an event; per-candidate tensordots ~6 ms, mostly copies)
+    Z = np.column_stack([np.cos(th), np.sin(th), *(f(m / n * th) for m, n in cands for f in (np.cos, np.sin))])
+    g_ff = free_t @ free_t.transpose(0, 2, 1)  # (nf, 2, 2)
     b_f = free_t @ y  # (nf, 2)
+    P = (free_t.reshape(-1, t.size) @ Z).reshape(fb.size, 2, Z.shape[1])  # (nf, 2, columns)
+    ZZ, Zy = Z.T @ Z, Z.T @ y
 
-    def best_residual(cols: FloatArray) -> float:
-        pc = cols.shape[1]
+    def best_residual(idx: list[int]) -> float:
+        pc = len(idx)
         G = np.empty((fb.size, pc + 2, pc + 2))
-        G[:, :pc, :pc] = cols.T @ cols
-        g_cf = np.tensordot(cols, free, axes=([0], [1])).transpose(1, 0, 2)  # (nf, pc, 2)
+        G[:, :pc, :pc] = ZZ[np.ix_(idx, idx)]
+        g_cf = P[:, :, idx].transpose(0, 2, 1)  # (nf, pc, 2)
         G[:, :pc, pc:] = g_cf
-        G[:, pc:, :pc] = g_cf.transpose(0, 2, 1)
+        G[:, pc:, :pc] = P[:, :, idx]
         G[:, pc:, pc:] = g_ff
         G += 1e-12 * yy * np.eye(pc + 2)
-        b = np.concatenate([np.broadcast_to(cols.T @ y, (fb.size, pc)), b_f], axis=1)
+        b = np.concatenate([np.broadcast_to(Zy[idx], (fb.size, pc)), b_f], axis=1)
         coef = np.linalg.solve(G, b[..., None])[..., 0]
         return float(np.min(yy - np.einsum("fi,fi->f", b, coef)))
 
-    r0 = best_residual(forced)
-    res = [best_residual(np.column_stack([forced, np.cos(m / n * th), np.sin(m / n * th)])) for m, n in cands]
+    r0 = best_residual([0, 1])
+    res = [best_residual([0, 1, 2 + 2 * i, 3 + 2 * i]) for i in range(len(cands))]
     k = int(np.argmin(res))
     gain = r0 - res[k]
     return tuple(cands[k]) if gain >= min_improvement * r0 and gain >= min_share * yy else None
@@ -151,7 +153,10 @@ def band_noise_energy(
     sig = np.asarray(noise_std, float)
     if sig.shape != (basis.projector.shape[1],):
         raise ValueError(f"one noise standard deviation per channel ({basis.projector.shape[1]}), got {sig.shape}")
-    f = np.linspace(0.05, 0.5 * fs, 200001)
+    # a geometric grid: the integrand spans 1/f^4 below the high-pass to the band-pass's skirt; 4001 points agree with a
+    # 200001-point linear grid within 2e-6 (relative) on both grid rigs, in ~3 ms instead of ~100 ms (the operator
+    # computes this at every start and sensor exclusion)
+    f = np.geomspace(0.05, 0.5 * fs, 4001)
     w = 2 * np.pi * f
     _, hp = scipy.signal.sosfreqz(scipy.signal.butter(order, highpass_hz, "highpass", fs=fs, output="sos"), worN=f, fs=fs)
     hv2, hx2 = np.abs(hp) ** 2 / w**2, np.abs(hp) ** 4 / w**4

@@ -30,7 +30,7 @@ Pure numpy/scipy: arrays in, arrays or frozen dataclasses out.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -198,7 +198,9 @@ def hb_factor(beta: float | FloatArray) -> FloatArray | float:
     return float(k) if k.ndim == 0 else k
 
 
-Kappa = Literal["seed", "hb", "exact"]
+Kappa = Literal["seed", "hb", "exact", "modal", "modal-exact"]
+#: The multi-mode laws (:class:`ModalLaw`): they need the rig's modal basis, not only ω_n and m.
+MODAL_KINDS = ("modal", "modal-exact")
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 _TH = 0.25 * np.pi * (_GL_X + 1.0)  # θ on (0, π/2): x = A sin θ over a quarter period
@@ -242,7 +244,9 @@ def _kappa(kind: Kappa, beta: float | FloatArray) -> FloatArray | float:
         return 1.0
     if kind in ("hb", "exact"):  # exact: the intersection's α by the small-amplitude (HB) limit, refined below
         return hb_factor(beta)
-    raise BadInput(f"law form must be 'seed' (eq. 5.8), 'hb' or 'exact', got {kind!r}")
+    if kind in MODAL_KINDS:
+        raise BadInput(f"law {kind!r} needs the rig's modal basis (FitSettings.modal); it has no one-mass κ")
+    raise BadInput(f"law form must be 'seed' (eq. 5.8), 'hb', 'exact', 'modal' or 'modal-exact', got {kind!r}")
 
 
 def law_hz(dbar: FloatArray, omega_n: float, mass: float, alpha: float, beta: float, kappa: Kappa = "seed") -> FloatArray:
@@ -297,6 +301,113 @@ def r_squared(y: FloatArray, yhat: FloatArray) -> float:
     return 1.0 - float(np.sum((y - yhat) ** 2)) / sst if sst > 0 else float("nan")
 
 
+# ------------------------------------------------------------------------------------- multi-mode backbone
+@dataclass(frozen=True)
+class ModalBasis:
+    """The rig's linear model truncated to its lowest modes, as the multi-mode law needs it.
+
+    ``omega2`` (n,) the modes' ω² (rad²/s²) of the mass-normalised modes, ``b`` (n,) each mode's value of the
+    attachment's stretch δ (``AttachmentModel.phi_delta``), ``mode`` the attachment's linear mode, ``shapes``
+    (n_out, n) the modes at the outputs (the MAC of eq. 5.6 is taken there, as for the measured POMs; None:
+    in modal coordinates)."""
+
+    omega2: FloatArray
+    b: FloatArray
+    mode: int
+    shapes: FloatArray | None = None
+
+
+def _exact_over_hb(r: FloatArray, beta: float) -> FloatArray:
+    """ρ = Δω²_exact / Δω²_hb of the one-mass backbone at the same δ̄, as a function of r = κ_hb α δ̄^β / k (the HB
+    equivalent stiffness over the linear one). Both depend on u = α A^β / k only (:func:`backbone_ratios`), so ρ is
+    a function of r and β alone; ρ → 1 as r → 0 (one harmonic is exact in the weakly nonlinear limit)."""
+    u = np.logspace(-6.0, 5.0, 300)
+    w, s = backbone_ratios(u, beta)
+    r_hb = hb_factor(beta) * s**beta * u
+    rho = (w**2 - 1.0) / r_hb
+    return np.interp(np.log(np.maximum(r, 1e-300)), np.log(r_hb), rho)
+
+
+class ModalLaw:
+    """f(δ̄) of the attachment's mode of the rig's linear model plus the power-law spring's one-harmonic stiffness.
+
+    Every law above is a one-mass law (eq. 5.8). On a beam the mode shape changes as the spring stiffens (the tip
+    of beam_ch4_sim tends to a pin: its first mode saturates near the clamped–pinned 16.7 Hz instead of growing
+    like the one-mass backbone), on the LO–store the LO moves with the store, on the NES beam the NES mode mixes
+    with 1B/2B (docs/nsi.md "Issue 22's 5 %"). Here a sinusoidal stretch of amplitude A = π δ̄ / 2 (δ̄ = 2A/π)
+    adds the describing-function stiffness k_eq(A) = α A^β (2/√π) Γ((β+3)/2)/Γ((β+4)/2) = κ_hb(β) α δ̄^β across
+    the spring, so in the truncated modal basis K_r = diag(ω²) + k_eq b bᵀ (M_r = I). The attachment's mode is the
+    eigenvector with the highest MAC to its linear mode — the same pick eq. 5.6 makes among the measured POMs, so
+    the law models the branch the RQ-FDP follows (through a veering it stays with the attachment-like shape).
+
+    The branch's λ(k_eq) depends on k_eq alone, not on α, β or δ̄, so it is tabulated once (``n_grid`` points of
+    log k_eq over r = k_eq b_m² / ω_m² ∈ [1e-7, 1e6], 200 a decade) as g(k) = (λ − ω_m²)/k, smooth in log k and → b_m² as k → 0
+    (first-order perturbation, the one-mass law with m = 1/b_m²). A fit's evaluation is then one ``np.interp``.
+    ``exact=True`` multiplies k_eq by the one-mass exact/HB ratio ρ(r, β) at the same r (:func:`_exact_over_hb`),
+    which makes the law the exact backbone on a one-DOF rig; whether that correction is right on a multi-mode rig
+    is measured (docs/nsi.md "A multi-mode backbone")."""
+
+    def __init__(self, basis: ModalBasis, exact: bool = False, n_grid: int = 2600):
+        w2 = np.asarray(basis.omega2, float)
+        b = np.asarray(basis.b, float)
+        m = int(basis.mode)
+        if w2.ndim != 1 or b.shape != w2.shape or not 0 <= m < w2.size:
+            raise BadInput("modal basis: ω² and the stretch need one value per mode, and the mode must be one of them")
+        if not b[m] ** 2 > 1e-12 * float(np.max(b**2)):
+            raise BadInput(f"modal basis: linear mode {m + 1} does not stretch the spring")
+        self.omega2, self.b, self.mode, self.exact = w2, b, m, exact
+        self.k_unit = float(max(w2[m], 1e-300) / b[m] ** 2)  # k_eq that doubles ω_m² in the one-mass limit
+        k = self.k_unit * np.logspace(-7.0, 6.0, n_grid)
+        Kr = np.diag(w2)[None] + k[:, None, None] * np.outer(b, b)[None]
+        lam, V = np.linalg.eigh(Kr)  # (n_grid, n), (n_grid, n, n)
+        if basis.shapes is not None:
+            S = np.asarray(basis.shapes, float)
+            X = np.einsum("om,gmj->gjo", S, V)  # each eigenvector at the outputs
+            ref = S[:, m]
+        else:
+            X, ref = np.swapaxes(V, 1, 2), np.eye(w2.size)[m]
+        mac = (X @ ref) ** 2 / (np.sum(X**2, axis=-1) * float(ref @ ref))
+        # continuation over increasing k: adding stiffness never lowers an eigenvalue, so the followed branch's λ
+        # never falls; a higher MAC on a lower branch (the NES locked to the beam at very large k_eq, where its
+        # own mode no longer exists) is another branch, not the attachment's
+        j = np.empty(k.size, np.int64)
+        lam_prev = -np.inf
+        for i in range(k.size):
+            ok = lam[i] >= lam_prev * (1.0 - 1e-12)
+            j[i] = int(np.argmax(np.where(ok, mac[i], -1.0)))
+            lam_prev = lam[i, j[i]]
+        self.log_k = np.log(k)
+        self.g = (lam[np.arange(k.size), j] - w2[m]) / k
+        self.mac = mac[np.arange(k.size), j]
+
+    @property
+    def omega_n(self) -> float:
+        return float(np.sqrt(max(self.omega2[self.mode], 0.0)))
+
+    @property
+    def mass(self) -> float:
+        """The one-mass law's m = 1/b_m² (:func:`attachment_model`)."""
+        return float(1.0 / self.b[self.mode] ** 2)
+
+    def omega2_at(self, k_eq: FloatArray) -> FloatArray:
+        """ω² of the attachment's mode with a linear spring k_eq (≥ 0) added across the stretch."""
+        k = np.maximum(np.asarray(k_eq, float), 0.0)
+        g = np.interp(np.log(np.maximum(k, 1e-300)), self.log_k, self.g)
+        return self.omega2[self.mode] + k * g
+
+    def k_eq(self, dbar: FloatArray, alpha: float, beta: float) -> FloatArray:
+        """κ_hb(β) α δ̄^β, times ρ(r, β) for ``exact``."""
+        k = hb_factor(beta) * alpha * np.asarray(dbar, float) ** beta
+        if self.exact:
+            k = k * _exact_over_hb(k / self.k_unit, beta)
+        return k
+
+    def hz(self, dbar: FloatArray, alpha: float, beta: float) -> FloatArray:
+        if not (alpha > 0 and beta > 0):
+            return np.full(np.shape(dbar), np.nan)
+        return np.sqrt(self.omega2_at(self.k_eq(dbar, alpha, beta))) / (2.0 * np.pi)
+
+
 # --------------------------------------------------------------------------------------------------- fit
 @dataclass(frozen=True)
 class FitSettings:
@@ -309,6 +420,7 @@ class FitSettings:
     n_boot: int = 200
     seed: int = 0
     tol: float = 1e-10
+    modal: ModalBasis | None = None  # the rig's truncated modal basis, for kappa "modal" / "modal-exact"
 
 
 @dataclass(frozen=True)
@@ -333,15 +445,28 @@ class PowerLawFit:
     beta_sd: float = math.nan
     evaluations: int = 0
     extra: dict = field(default_factory=dict)
+    modal_law: ModalLaw | None = field(default=None, repr=False, compare=False)
 
     def predict_hz(self, dbar: FloatArray) -> FloatArray:
+        if self.modal_law is not None:
+            return self.modal_law.hz(dbar, self.alpha, self.beta)
         return law_hz(dbar, self.omega_n, self.mass, self.alpha, self.beta, self.kappa)  # type: ignore[arg-type]
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return asdict(replace(self, modal_law=None))
 
 
-def _model(theta: FloatArray, d: FloatArray, omega_n: float, m: float, kappa: Kappa, inter: tuple[float, float] | None):
+def _model(
+    theta: FloatArray,
+    d: FloatArray,
+    omega_n: float,
+    m: float,
+    kappa: Kappa,
+    inter: tuple[float, float] | None,
+    modal: ModalLaw | None = None,
+):
+    if modal is not None:  # two-parameter only (see fit_power_law)
+        return modal.hz(d, 10.0 ** theta[0], float(theta[1]))
     if inter is not None and kappa == "exact":  # eq. 5.9 on the exact backbone (no closed form)
         a = alpha_from_intersection(inter[0], inter[1], float(theta[0]), m, omega_n, kappa)
         return exact_law_hz(d, omega_n, m, a, float(theta[0]))
@@ -376,7 +501,13 @@ def fit_power_law(
     if mass <= 0 or omega_n < 0:
         raise BadInput("the attachment's mass must be positive and ω_n non-negative")
     inter = None
-    if s.use_intersection:
+    modal = None
+    if s.kappa in MODAL_KINDS:  # the law carries the linear modes the curve meets: no eq. 5.9 pin (docs/nsi.md)
+        if s.modal is None:
+            raise BadInput(f"law {s.kappa!r} needs the rig's modal basis (FitSettings.modal)")
+        modal = ModalLaw(s.modal, exact=s.kappa == "modal-exact")
+        omega_n, mass = modal.omega_n, modal.mass
+    if s.use_intersection and modal is None:
         for fl in sorted(f_linear):
             if fl > omega_n / (2 * np.pi) * (1 + 1e-9):
                 di = find_intersection(d, f, fl)
@@ -389,7 +520,7 @@ def fit_power_law(
         bounds = [tuple(np.log10(s.alpha_bounds)), s.beta_bounds]
 
     def sse(theta, dd=d, ff=f):
-        r = _model(np.asarray(theta), dd, omega_n, mass, s.kappa, inter) - ff
+        r = _model(np.asarray(theta), dd, omega_n, mass, s.kappa, inter, modal) - ff
         v = float(r @ r)
         return v if np.isfinite(v) else 1e300
 
@@ -403,7 +534,7 @@ def fit_power_law(
         return alpha_from_intersection(inter[0], inter[1], float(th[0]), mass, omega_n, s.kappa), float(th[0])
 
     alpha, beta = params(theta)
-    r2 = r_squared(f, _model(theta, d, omega_n, mass, s.kappa, inter))
+    r2 = r_squared(f, _model(theta, d, omega_n, mass, s.kappa, inter, modal))
     boots = []
     if s.n_boot > 0:
         rng = np.random.default_rng(s.seed)
@@ -417,7 +548,7 @@ def fit_power_law(
                 di = find_intersection(dd[o], ff[o], inter[0])
                 bi = (inter[0], di) if di is not None else inter
             res = scipy.optimize.least_squares(
-                lambda th, dd=dd, ff=ff, bi=bi: _model(th, dd, omega_n, mass, s.kappa, bi) - ff,
+                lambda th, dd=dd, ff=ff, bi=bi: _model(th, dd, omega_n, mass, s.kappa, bi, modal) - ff,
                 np.clip(theta, lo, hi), bounds=(lo, hi), method="trf",
             )  # fmt: skip
             nfev += int(res.nfev)
@@ -446,6 +577,8 @@ def fit_power_law(
         mode="intersection" if inter is not None else "two-parameter",
         intersection=None if inter is None else {"f_hz": inter[0], "dbar_m": inter[1]},
         evaluations=nfev,
+        extra={} if modal is None else {"modal_modes": int(modal.omega2.size), "modal_exact": modal.exact},
+        modal_law=modal,
         **kw,
     )
 
@@ -475,6 +608,26 @@ class AttachmentModel:
     mass_source: str
     f_linear_hz: tuple[float, ...]
     phi_delta: FloatArray  # δ of every mass-normalised mode kept
+    omega2: FloatArray | None = None  # ω² of every mode kept (rad²/s²), for the multi-mode law
+    shapes: FloatArray | None = None  # (n_out, n_modes) the mass-normalised modes kept
+    inertia: float | None = None  # kg·m²: a rotational attachment ([nsi] inertia), mass = inertia/arm²
+    arm: float | None = None  # m: its arm h (δ = hθ)
+
+    def rotational(self, k: float, alpha: float, beta: float) -> dict[str, float] | None:
+        """A rotational attachment's law in the seed's eq. 6.13 form: k and α (N/m^(β+1)) act at the arm on δ = hθ,
+        so the torsional stiffness is k h² (N·m/rad) and Ω² = (h²/I)(k + α δ̄^β) (eq. 6.12 with h², D3); None for
+        a translational one."""
+        if self.inertia is None or self.arm is None:
+            return None
+        h2 = self.arm**2
+        return {"inertia_kgm2": self.inertia, "arm_m": self.arm, "k_N_per_m": k, "k_torsional_Nm_per_rad": k * h2,
+                "alpha_N_per_m^(beta+1)": alpha, "beta": beta, "h2_over_I": h2 / self.inertia}  # fmt: skip
+
+    def modal_basis(self) -> ModalBasis:
+        """The truncated linear model :class:`ModalLaw` adds the spring to (the ``n_modes`` lowest modes)."""
+        if self.omega2 is None:
+            raise BadInput("this attachment model carries no modal basis; build it with attachment_model")
+        return ModalBasis(self.omega2, self.phi_delta, self.mode, self.shapes)
 
 
 def attachment_model(
@@ -485,6 +638,8 @@ def attachment_model(
     mode: int | None = None,
     mass: float | None = None,
     n_modes: int = 12,
+    inertia: float | None = None,
+    arm: float | None = None,
 ) -> AttachmentModel:
     """The attachment's linear mode and effective mass from the (Guyan-reduced) M, K at the output DOFs.
 
@@ -492,8 +647,20 @@ def attachment_model(
     one mode's Galerkin projection of a spring k_e across the attachment adds k_e φ_δ,r² to ω_r², so
     m = 1/φ_δ,r² is the mass eq. 5.8 divides by: the attachment's own mass for a light NES whose mode is all
     NES, the modal mass at the DOF for a spring grounded on a structure (m_beam/4 at a cantilever's tip).
-    Default mode: the lowest whose φ_δ² is at least half the largest among the ``n_modes`` lowest."""
+    Default mode: the lowest whose φ_δ² is at least half the largest among the ``n_modes`` lowest.
+
+    A rotational attachment (``inertia`` I, ``arm`` h; the seed's store, eqs. 6.11–6.13) is the translational law
+    in its flexure coordinate δ = hθ: from I θ̈ = −h(k δ + α|δ|^β δ), multiplying by h/I gives
+    δ̈ = −(h²/I)(k δ + α|δ|^β δ), i.e. m δ̈ = −(k δ + α|δ|^β δ) with m = I/h² — eq. 5.8 with that m, and
+    Ω² = (h²/I)(k + α δ̄^β): eq. 6.12 with h² where the seed prints h (method-nsi D3)."""
     import scipy.linalg
+
+    if inertia is not None or arm is not None:
+        if inertia is None or arm is None or not (inertia > 0 and arm > 0):
+            raise BadInput("a rotational attachment needs a positive inertia (kg m^2) and arm (m)")
+        if mass is not None:
+            raise BadInput("give the attachment's mass or its inertia and arm (m = I/h^2), not both")
+        mass = inertia / arm**2
 
     n = M.shape[0]
     k = min(n_modes, n)
@@ -509,14 +676,21 @@ def attachment_model(
     om = float(np.sqrt(max(w2[mode], 0.0)))
     m_eff = 1.0 / float(pd[mode] ** 2)
     f_lin = tuple(float(np.sqrt(max(w, 0.0)) / (2 * np.pi)) for w in w2[mode + 1 :])
+    source = "[nsi] mass" if mass is not None else "1/phi_delta^2 of the linear mode"
+    if inertia is not None:
+        source = "[nsi] inertia/arm^2 (rotational, eq. 6.11 with h^2/I)"
     return AttachmentModel(
         mode=int(mode),
         shape=phi[:, mode].copy(),
         omega_n=om,
         mass=float(mass) if mass is not None else m_eff,
-        mass_source="[nsi] mass" if mass is not None else "1/phi_delta^2 of the linear mode",
+        mass_source=source,
         f_linear_hz=f_lin,
         phi_delta=pd,
+        omega2=np.asarray(w2, float).copy(),
+        shapes=phi.copy(),
+        inertia=inertia,
+        arm=arm,
     )
 
 
@@ -542,10 +716,13 @@ def pom_frequency_hz(disp: FloatArray, pom: FloatArray, fs: float, trim: float =
 
 
 __all__ = [
+    "MODAL_KINDS",
     "AttachmentModel",
     "AttachmentPick",
     "CaptureTrack",
     "FitSettings",
+    "ModalBasis",
+    "ModalLaw",
     "PowerLawFit",
     "RqFdp",
     "alpha_from_intersection",

@@ -24,7 +24,11 @@ the start, with a penalty keeping the simulated amplitude over the last 0.5 s wi
   trust-region) on the displacement residuals — minimising their sum of squares is maximising R² — plus one
   penalty residual for the 75–125 % band; parameters in logs (``beta`` plain), ``alpha`` through the stiffness
   at a reference amplitude to decorrelate it from ``beta``;
-* uncertainty: the Jacobian at the optimum, ``sigma^2 (J^T J)^-1`` — a lower bound, the residuals are not white.
+* uncertainty: the Jacobian at the optimum, ``sigma^2 (J^T J)^-1`` — a lower bound, the residuals are not white;
+* the grounded store (eq. 6.13, L2154): the same model without the Coulomb term (``coulomb=False``: F_c fixed at 0,
+  not fitted — eq. 6.13 has "only viscous damping"), compared on the **velocity** (``quantity="velocity"``: the
+  store's Figs. 6.23–6.24 are velocities, method-nsi §1.12): the chain's velocity (one integral, one high-pass)
+  against the model's velocity through the same high-pass.
 """
 
 from __future__ import annotations
@@ -229,6 +233,7 @@ class SliceSettings:
     beta_bounds: tuple[float, float] = (0.5, 4.5)
     rounds: int = 4
     trim_s: float = 0.05
+    coulomb: bool = True  # False: the damping slice fits d alone (F_c = 0: eq. 6.13's viscous-only store)
 
 
 @dataclass(frozen=True)
@@ -272,11 +277,14 @@ def fit_stiffness(x: np.ndarray, r: np.ndarray, beta_bounds: tuple[float, float]
     return float(c[0] / scale), float(c[1] / scale ** (beta + 1.0)), beta
 
 
-def fit_damping(v: np.ndarray, r: np.ndarray) -> tuple[float, float]:
-    """``r = d x' + F_c sgn(x')`` by linear least squares (both columns are known functions of x')."""
+def fit_damping(v: np.ndarray, r: np.ndarray, coulomb: bool = True) -> tuple[float, float]:
+    """``r = d x' + F_c sgn(x')`` by linear least squares (both columns are known functions of x'); without
+    ``coulomb`` the viscous column alone (F_c = 0)."""
     v, r = np.asarray(v, dtype=float), np.asarray(r, dtype=float)
     if v.size < 3 or np.all(np.sign(v) == np.sign(v[0])):
         raise BadInput("the damping slice needs points of both signs of x'; loosen the slice threshold")
+    if not coulomb:
+        return float(v @ r / (v @ v)), 0.0
     c, *_ = np.linalg.lstsq(np.column_stack([v, np.sign(v)]), r, rcond=None)
     return float(c[0]), float(c[1])
 
@@ -297,7 +305,7 @@ def rfs_estimate(p: Processed, settings: SliceSettings = SliceSettings()) -> Rfs
     for _ in range(settings.rounds):
         k, a, b = fit_stiffness(x[s_idx], r[s_idx] - est.damping_force(v[s_idx]), settings.beta_bounds)
         est = replace(est, k=k, alpha=a, beta=b)
-        d, fc = fit_damping(v[d_idx], r[d_idx] - est.stiffness_force(x[d_idx]))
+        d, fc = fit_damping(v[d_idx], r[d_idx] - est.stiffness_force(x[d_idx]), settings.coulomb)
         est = replace(est, d=d, fc=fc)
     r2s = _r2(r[s_idx], est.stiffness_force(x[s_idx]) + est.damping_force(v[s_idx]))
     r2d = _r2(r[d_idx], est.stiffness_force(x[d_idx]) + est.damping_force(v[d_idx]))
@@ -319,16 +327,17 @@ def eq511_structure(params: Eq511, mass: float, v_eps: float | None = None):
     return replace(s, dampers=(damper,) if damper.rows() else ())
 
 
-def simulate_eq511(params: Eq511, mass: float, force: np.ndarray, fs: float, fs_out: float) -> np.ndarray:
-    """Displacement of eq. 5.11 at ``fs_out`` under the sampled ``force`` (at ``fs``, linearly interpolated; the
-    simulator integrates it exactly over each step), from rest at the record's first sample."""
+def simulate_eq511(params: Eq511, mass: float, force: np.ndarray, fs: float, fs_out: float,
+                   quantity: str = "displacement") -> np.ndarray:  # fmt: skip
+    """Displacement (or ``quantity="velocity"``) of eq. 5.11 at ``fs_out`` under the sampled ``force`` (at ``fs``,
+    linearly interpolated; the simulator integrates it exactly over each step), from rest at the first sample."""
     from analysis.model.forces import ForceSeries
     from analysis.model.simulate import ImpactSimulator
 
     sim = ImpactSimulator(eq511_structure(params, mass), 0, [0])
     t = np.arange(force.size) / fs
     res = sim.run(ForceSeries(t=t, force=np.asarray(force, dtype=float)), force.size / fs, fs_out)
-    return res.displacement[0, :, 0]
+    return (res.velocity if quantity == "velocity" else res.displacement)[0, :, 0]
 
 
 @dataclass(frozen=True)
@@ -347,11 +356,22 @@ class TimeSeriesSettings:
     beta_spread: float = 1.5
     penalty_weight: float = 10.0
     diff_steps: tuple[float, ...] = (1e-3, 1e-4)
+    quantity: str = "displacement"  # or "velocity" (the store, Fig. 6.24): what R² and the tail penalty compare
+    coulomb: bool = True  # False: F_c fixed at 0 and not a coordinate (eq. 6.13)
+
+    def __post_init__(self) -> None:
+        if self.quantity not in QUANTITIES:
+            raise BadInput(f"quantity {self.quantity!r}: use 'velocity' or 'displacement'")
+
+
+#: What the time series compares: the NES's displacement (Fig. 5.10), the store's velocity (Fig. 6.24).
+QUANTITIES = ("displacement", "velocity")
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """A hit's measured (chain) against the model's (simulated, high-passed) displacement at ``fs``, from the pulse."""
+    """A hit's measured (chain) against the model's (simulated, high-passed) displacement — or velocity, per
+    ``quantity`` — at ``fs``, from the pulse."""
 
     label: str
     peak_force: float
@@ -361,6 +381,7 @@ class Comparison:
     simulated: np.ndarray
     r2: float
     tail_ratio: float
+    quantity: str = "displacement"
 
 
 def tail_ratio(measured: np.ndarray, simulated: np.ndarray, fs: float, tail_s: float, noise_x: float = 0.0,
@@ -387,7 +408,8 @@ class _Target:
         self.p, self.chain, self.settings = p, chain, settings
         self.n = (p.disp.size // self.q) * self.q  # whole decimation steps: the simulation's samples are these
         self.i0 = p.pulse[0] // self.q
-        self.measured = p.disp[: self.n : self.q][self.i0 :]
+        self.velocity = settings.quantity == "velocity"
+        self.measured = (p.vel if self.velocity else p.disp)[: self.n : self.q][self.i0 :]
         self.sst = float(np.sum((self.measured - self.measured.mean()) ** 2))
         # The penalty's "last 0.5 s" (L1652) ends where the measured motion does (moving_span): once the friction
         # has stopped the mass, the record's tail holds only the high-passes' response to its rest offset (random
@@ -395,18 +417,22 @@ class _Target:
         self.tail_end = moving_span(p)[1] // self.q - self.i0
 
     def simulated(self, params: Eq511) -> np.ndarray:
-        x = simulate_eq511(params, self.p.record.mass, self.p.force[: self.n], self.p.record.fs, self.fs_out)
-        return self.chain.filter_displacement(x, self.fs_out)[self.i0 :]
+        q = "velocity" if self.velocity else "displacement"
+        y = simulate_eq511(params, self.p.record.mass, self.p.force[: self.n], self.p.record.fs, self.fs_out, q)
+        # the chain high-passes the velocity once (after the first integral), the displacement twice
+        y = self.chain.highpass(y, self.fs_out) if self.velocity else self.chain.filter_displacement(y, self.fs_out)
+        return y[self.i0 :]
 
     def compare(self, params: Eq511) -> Comparison:
         sim = self.simulated(params)
         m = self.measured
         t = (self.i0 + np.arange(m.size)) / self.fs_out
         return Comparison(self.p.record.label, self.p.record.peak_force, self.fs_out, t, m, sim, _r2(m, sim),
-                          self.tail(sim))  # fmt: skip
+                          self.tail(sim), self.settings.quantity)  # fmt: skip
 
     def tail(self, sim: np.ndarray) -> float:
-        return tail_ratio(self.measured, sim, self.fs_out, self.settings.tail_s, self.p.noise[2], self.tail_end)
+        noise = self.p.noise[1] if self.velocity else self.p.noise[2]
+        return tail_ratio(self.measured, sim, self.fs_out, self.settings.tail_s, noise, self.tail_end)
 
 
 @dataclass
@@ -429,17 +455,23 @@ class _Coords:
     stiffness at the reference amplitude (half the measured peak), so a change of beta at fixed kappa keeps the
     stiffness there."""
 
-    def __init__(self, x_ref: float) -> None:
-        self.x_ref = x_ref
+    def __init__(self, x_ref: float, coulomb: bool = True) -> None:
+        self.x_ref, self.coulomb = x_ref, coulomb
+
+    @property
+    def n(self) -> int:
+        """5 coordinates, or 4 without the Coulomb term (F_c fixed at 0: ln 0 is no coordinate)."""
+        return 5 if self.coulomb else 4
 
     def u(self, p: Eq511) -> np.ndarray:
         tiny = 1e-12
         return np.array([math.log(max(p.k, tiny)), math.log(max(p.alpha * self.x_ref**p.beta, tiny)), p.beta,
-                         math.log(max(p.d, tiny)), math.log(max(p.fc, tiny))])  # fmt: skip
+                         math.log(max(p.d, tiny)), math.log(max(p.fc, tiny))][: self.n])  # fmt: skip
 
     def p(self, u: np.ndarray) -> Eq511:
         beta = float(u[2])
-        return Eq511(math.exp(u[0]), math.exp(u[1]) / self.x_ref**beta, beta, math.exp(u[3]), math.exp(u[4]))
+        fc = math.exp(u[4]) if self.coulomb else 0.0
+        return Eq511(math.exp(u[0]), math.exp(u[1]) / self.x_ref**beta, beta, math.exp(u[3]), fc)
 
 
 def _positive_start(start: Eq511, p: Processed) -> Eq511:
@@ -459,21 +491,25 @@ def _positive_start(start: Eq511, p: Processed) -> Eq511:
 
 def optimise(p: Processed, start: Eq511, settings: TimeSeriesSettings = TimeSeriesSettings(), chain: Chain = Chain(),
              progress: Callable[[str, float], None] | None = None) -> TimeSeriesResult:  # fmt: skip
-    """The §1.12 optimisation: maximise R² of the identification hit's displacement, with the 75–125 % tail penalty."""
+    """The §1.12 optimisation: maximise R² of the identification hit's displacement (or velocity: ``settings.quantity``),
+    with the 75–125 % tail penalty; without ``settings.coulomb`` F_c is fixed at 0."""
     from scipy.optimize import least_squares
 
     t0 = time.perf_counter()
     tgt = _Target(p, settings, chain)
     start = _positive_start(start, p)
-    coords = _Coords(0.5 * float(np.max(np.abs(tgt.measured))))
+    if not settings.coulomb:
+        start = replace(start, fc=0.0)
+    # x_ref: half the measured displacement's peak (also when comparing velocities: kappa is a stiffness)
+    coords = _Coords(0.5 * float(np.max(np.abs(p.disp[: tgt.n : tgt.q][tgt.i0 :]))), settings.coulomb)
     u0 = coords.u(start)
-    lo = u0 - np.array([math.log(settings.spread)] * 2 + [settings.beta_spread] + [math.log(settings.spread)] * 2)
-    hi = u0 + np.array([math.log(settings.spread)] * 2 + [settings.beta_spread] + [math.log(settings.spread)] * 2)
+    width = np.array([math.log(settings.spread)] * 2 + [settings.beta_spread] + [math.log(settings.spread)] * 2)[: coords.n]
+    lo, hi = u0 - width, u0 + width
     lo[2], hi[2] = max(lo[2], 0.5), min(hi[2], 5.0)
     u0[2] = min(max(u0[2], lo[2] + 1e-6), hi[2] - 1e-6)
     norm = math.sqrt(tgt.sst) if tgt.sst > 0 else 1.0
     runs, history = [0], []
-    budget = settings.max_nfev * 6 * len(settings.diff_steps)  # max_nfev counts residual calls, not the 5 FD columns
+    budget = settings.max_nfev * (coords.n + 1) * len(settings.diff_steps)  # max_nfev counts calls, not the FD columns
 
     def residuals(u: np.ndarray) -> np.ndarray:
         runs[0] += 1
@@ -493,7 +529,7 @@ def optimise(p: Processed, start: Eq511, settings: TimeSeriesSettings = TimeSeri
     sol = None
     for step in settings.diff_steps:
         x0 = u0 if sol is None else sol.x
-        s = least_squares(residuals, x0, bounds=(lo, hi), x_scale=np.array([1.0, 1.0, 0.1, 1.0, 1.0]),
+        s = least_squares(residuals, x0, bounds=(lo, hi), x_scale=np.array([1.0, 1.0, 0.1, 1.0, 1.0])[: coords.n],
                           diff_step=step, max_nfev=settings.max_nfev, xtol=1e-8, ftol=1e-10)  # fmt: skip
         sol = s if sol is None or s.cost <= sol.cost else sol
     assert sol is not None
@@ -515,11 +551,13 @@ def _jacobian_sigma(J: np.ndarray, fun: np.ndarray, coords: _Coords, u: np.ndarr
     except np.linalg.LinAlgError:
         return None
     p = coords.p(u)
-    G_ = np.zeros((5, 5))  # d(k, alpha, beta, d, fc) / du
+    G_ = np.zeros((5, m))  # d(k, alpha, beta, d, fc) / du (F_c's row stays 0 when it is fixed)
     G_[0, 0] = p.k
     G_[1, 1], G_[1, 2] = p.alpha, -p.alpha * math.log(coords.x_ref)
     G_[2, 2] = 1.0
-    G_[3, 3], G_[4, 4] = p.d, p.fc
+    G_[3, 3] = p.d
+    if m > 4:
+        G_[4, 4] = p.fc
     c = G_ @ cov @ G_.T
     d = np.sqrt(np.clip(np.diag(c), 0.0, None))
     return dict(zip(("k", "alpha", "beta", "d", "fc"), (float(x) for x in d), strict=True))
@@ -532,6 +570,7 @@ def validate(p: Processed, params: Eq511, settings: TimeSeriesSettings = TimeSer
 
 
 __all__ = [
+    "QUANTITIES",
     "Chain",
     "Comparison",
     "Eq511",

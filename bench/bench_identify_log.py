@@ -162,12 +162,15 @@ def main() -> None:
     ap.add_argument("--rigs", default="beam_ch4_sim,beam_nes_ch5,lo_store_ch6")
     ap.add_argument("--noise", type=float, default=0.01)
     ap.add_argument("--seeds", default="1,2", help="noise seeds, one session each")
+    ap.add_argument("--laws", default="exact,hb", help="the POM-frequency laws refitted (the first is timed); rq/seed is added")
+    ap.add_argument("--out", default="bench/results/bench_identify_log.json")
     a = ap.parse_args()
+    variants = (*(("pom", law) for law in a.laws.split(",")), ("rq", "seed"))
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for name in a.rigs.split(","):
             for seed in (int(x) for x in a.seeds.split(",")):
-                new = run_case(name, a.hits, Path(d), a.noise, seed=seed)
+                new = run_case(name, a.hits, Path(d), a.noise, variants=variants, seed=seed)
                 rows += new
                 r = new[0]
                 print(
@@ -175,17 +178,17 @@ def main() -> None:
                     f"{r['windows']} windows",
                     flush=True,
                 )
-    print(f"\n{'rig':13s} {'seed':>4s} {'freq':4s} {'law':5s} {'maxr':>4s} {'win':>4s} {'pts':>4s} {'fit':13s} {'alpha':>10s} "
+    print(f"\n{'rig':13s} {'seed':>4s} {'freq':4s} {'law':11s} {'maxr':>4s} {'win':>4s} {'pts':>4s} {'fit':13s} {'alpha':>10s} "
           f"{'a err':>8s} {'beta':>7s} {'b err':>7s} {'R2':>6s} {'id s':>5s}")  # fmt: skip
     for r in rows:
         mr = "-" if r["max_ratio"] is None else f"{r['max_ratio']:g}"
         if "error" in r:
-            print(f"{r['rig']:13s} {r['seed']:4d} {r['frequency']:4s} {r['law']:5s} {mr:>4s} {r['error']}")
+            print(f"{r['rig']:13s} {r['seed']:4d} {r['frequency']:4s} {r['law']:11s} {mr:>4s} {r['error']}")
             continue
-        print(f"{r['rig']:13s} {r['seed']:4d} {r['frequency']:4s} {r['law']:5s} {mr:>4s} {r['windows']:4d} {r['n_points']:4d} "
+        print(f"{r['rig']:13s} {r['seed']:4d} {r['frequency']:4s} {r['law']:11s} {mr:>4s} {r['windows']:4d} {r['n_points']:4d} "
               f"{r['fit']:13s} {r['alpha']:10.4g} {100 * r['alpha_err']:+7.1f}% {r['beta']:7.4f} {100 * r['beta_err']:+6.1f}% "
               f"{r['r2']:6.3f} {r['identify_s']:5.1f}")  # fmt: skip
-    out = ROOT / "bench/results/bench_identify_log.json"
+    out = ROOT / a.out
     out.write_text(json.dumps({"hits": a.hits, "noise": a.noise, "cases": CASES, "rows": rows}, indent=1))
     print(f"wrote {out}")
 

@@ -31,6 +31,9 @@ def main() -> None:
     ap.add_argument("--pmax", type=float, default=3000.0)
     ap.add_argument("--seed-rigs", action="store_true", help="the seed's own rigs (beam_nes_ch5, lo_store_ch6) instead")
     ap.add_argument("--table", action="store_true", help="issue 22's three rigs: frequency x law x fit, errors, R2, time")
+    ap.add_argument("--laws", default="seed,hb,exact,modal,modal-exact", help="--table: the laws (comma-separated)")
+    ap.add_argument("--freqs", default="rq,pom", help="--table: the frequency estimators (comma-separated)")
+    ap.add_argument("--boot", type=int, default=100, help="--table: bootstrap replicates of the POM fits")
     ap.add_argument("--speed", type=int, default=0, metavar="N",
                     help="gvt identify on an N-run sweep's recorded columns against the re-simulating path")  # fmt: skip
     a = ap.parse_args()
@@ -38,7 +41,7 @@ def main() -> None:
         seed_rigs(a.runs)
         return
     if a.table:
-        table(a.runs)
+        table(a.runs, tuple(a.laws.split(",")), tuple(a.freqs.split(",")), a.boot)
         return
     if a.speed:
         speed(a.speed)
@@ -156,10 +159,12 @@ def _rig(name: str):
     return open_rig(name)
 
 
-def table(n_runs: int) -> None:
+def table(n_runs: int, laws: tuple[str, ...] = ("seed", "hb", "exact", "modal", "modal-exact"),
+          freqs: tuple[str, ...] = ("rq", "pom"), n_boot: int = 100) -> None:  # fmt: skip
     """Issue 22's acceptance table: per rig, frequency (seed RQ / POM) x law (seed eq. 5.8 / HB / exact backbone)
-    x fit (intersection eqs. 5.9-5.10 / two-parameter), whole-run dbar of 1 s runs (and 4 s on the NES: ~4 cycles of
-    its 1 Hz mode instead of 1); alpha/beta errors, R2, fit time. Writes bench/results/eval_nsi_table_RUNS.json."""
+    x fit (intersection eqs. 5.9-5.10 / two-parameter; the modal laws are two-parameter only), whole-run dbar of 1 s
+    runs (and 4 s on the NES: ~4 cycles of its 1 Hz mode instead of 1); alpha/beta errors with their bootstrap 95 %
+    intervals, R2, fit time. Writes bench/results/eval_nsi_table_RUNS.json (…_RUNS_LAWS.json for a subset of laws)."""
     rows, sims = [], {}
     for label, name, (p0, p1), alpha, mr, dur in RIGS:
         rig = _rig(name)
@@ -171,11 +176,11 @@ def table(n_runs: int) -> None:
             sims[name, dur] = (simulate_runs(rig, np.logspace(np.log10(p0), np.log10(p1), n_runs), dur, dofs, target, g.M,
                                              g.K), time.perf_counter() - t0)  # fmt: skip
         runs, sim_s = sims[name, dur]
-        for fr in ("rq", "pom"):
-            for law in ("seed", "hb", "exact"):
-                for inter in (True, False):
+        for fr in freqs:
+            for law in laws:
+                for inter in (True, False) if law not in ("modal", "modal-exact") else (False,):
                     t = time.perf_counter()
-                    opts = IdentifyOptions(frequency=fr, law=law, intersection=inter, n_boot=100 if fr == "pom" else 0,
+                    opts = IdentifyOptions(frequency=fr, law=law, intersection=inter, n_boot=n_boot if fr == "pom" else 0,
                                            max_ratio=mr)  # fmt: skip
                     try:
                         f = identify_runs(rig, target, runs, opts, "bench").fit
@@ -189,14 +194,19 @@ def table(n_runs: int) -> None:
                                  "fit_s": time.perf_counter() - t, "simulate_s": sim_s, "runs": n_runs, "run_s": dur,
                                  "alpha_ci": f.alpha_ci, "beta_ci": f.beta_ci})  # fmt: skip
     print(f"{n_runs} runs per rig, whole-run dbar; truth beta = 2")
-    print(f"{'rig':30} {'freq':4} {'law':5} {'fit':13} {'n':>3} {'alpha err':>10} {'beta err':>9} {'R2':>7} {'fit s':>6}")
+    print(f"{'rig':30} {'freq':4} {'law':11} {'fit':13} {'n':>3} {'alpha err':>10} {'beta err':>9} {'R2':>7} {'fit s':>6}"
+          "  alpha err 95% / beta err 95%")  # fmt: skip
     for r in rows:
         if r["fit"] == "error":
-            print(f"{r['rig']:30} {r['frequency']:4} {r['law']:5} error: {r['error']}")
+            print(f"{r['rig']:30} {r['frequency']:4} {r['law']:11} error: {r['error']}")
             continue
-        print(f"{r['rig']:30} {r['frequency']:4} {r['law']:5} {r['fit']:13} {r['n']:3d} {100 * r['alpha_err']:+9.1f}% "
-              f"{100 * r['beta_err']:+8.2f}% {r['r2']:7.4f} {r['fit_s']:6.2f}")  # fmt: skip
-    out = Path(__file__).parent / "results" / f"eval_nsi_table_{n_runs}.json"
+        a0, a1 = (100 * (x / r["alpha"] * (1 + r["alpha_err"]) - 1) for x in r["alpha_ci"])
+        b0, b1 = (100 * (x / 2 - 1) for x in r["beta_ci"])
+        print(f"{r['rig']:30} {r['frequency']:4} {r['law']:11} {r['fit']:13} {r['n']:3d} {100 * r['alpha_err']:+9.1f}% "
+              f"{100 * r['beta_err']:+8.2f}% {r['r2']:7.4f} {r['fit_s']:6.2f}  [{a0:+.1f}, {a1:+.1f}] / "
+              f"[{b0:+.2f}, {b1:+.2f}]")  # fmt: skip
+    tag = "" if set(laws) >= {"seed", "hb", "exact"} and set(freqs) == {"rq", "pom"} else "_" + "_".join(laws)
+    out = Path(__file__).parent / "results" / f"eval_nsi_table_{n_runs}{tag}.json"
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps({"runs": n_runs, "rows": rows}, indent=2, default=float))
     print(f"wrote {out}")

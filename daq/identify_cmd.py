@@ -61,9 +61,9 @@ def resolve_target(rig: Rig, output_dofs: list[int], M: np.ndarray, K: np.ndarra
         att = _dof_of(rig, spec.x if spec.x is not None else spec.dof, "nsi")  # type: ignore[arg-type]
         refs = [_dof_of(rig, r, f"nsi.relative_to[{i}]") for i, r in enumerate(spec.relative_to)]
         mode = None if spec.mode is None else spec.mode - 1
-        mass = spec.mass
+        mass, rot = spec.mass, {"inertia": spec.inertia, "arm": spec.arm}
     elif rig.structure.nonlinear:
-        att, refs, mode, mass = rig.structure.nonlinear[0].dof, [], None, None
+        att, refs, mode, mass, rot = rig.structure.nonlinear[0].dof, [], None, None, {}
     else:
         raise BadInput(f"{rig.name}: no [nsi] table and no nonlinear spring; say where the attachment is ([nsi] x or dof)")
     pos = {d: i for i, d in enumerate(output_dofs)}
@@ -71,7 +71,7 @@ def resolve_target(rig: Rig, output_dofs: list[int], M: np.ndarray, K: np.ndarra
     if missing:
         raise BadInput(f"{rig.name}: the attachment's DOFs {missing} are not among the outputs; use --outputs translational")
     ref_cols = tuple(pos[d] for d in refs)
-    model = nsi.attachment_model(M, K, pos[att], ref_cols, mode, mass)
+    model = nsi.attachment_model(M, K, pos[att], ref_cols, mode, mass, **rot)
     names = [rig.structure.dofs[d].name for d in refs]
     desc = rig.structure.dofs[att].name + (f" - mean({', '.join(names)})" if names else " (grounded)")
     return Target(pos[att], ref_cols, model, desc)
@@ -185,14 +185,20 @@ class IdentifyOptions:
     def validate(self) -> None:
         if self.frequency not in ("rq", "pom"):
             raise BadInput(f"--frequency must be 'rq' or 'pom', got {self.frequency!r}")
-        if self.law not in ("seed", "hb", "exact"):
-            raise BadInput(f"--law must be 'seed' (eq. 5.8), 'hb' or 'exact', got {self.law!r}")
+        if self.law not in ("seed", "hb", "exact", *nsi.MODAL_KINDS):
+            raise BadInput(f"--law must be 'seed' (eq. 5.8), 'hb', 'exact', 'modal' or 'modal-exact', got {self.law!r}")
         if self.max_ratio is not None and not self.max_ratio > 1:
             raise BadInput(f"--max-ratio must exceed 1 (a frequency above the linear one), got {self.max_ratio:g}")
         if self.smooth < 1 or self.smooth % 2 == 0:
             raise BadInput(f"--smooth must be a positive odd number of points, got {self.smooth}")
         if self.n_boot < 0:
             raise BadInput(f"--boot must be >= 0, got {self.n_boot}")
+
+
+_LAW_TEXT = {
+    "modal": "attachment mode of the rig's lowest linear modes + one-harmonic k_eq = kappa_hb alpha dbar^beta across the spring",
+    "modal-exact": "as modal, k_eq times the one-mass exact/HB backbone ratio at the same k_eq/k",
+}
 
 
 @dataclass
@@ -218,13 +224,17 @@ class Identification:
             "mass_kg": t.model.mass,
             "mass_source": t.model.mass_source,
             "frequency": self.options.frequency,
-            "law": "f = sqrt(w_n^2 + kappa (alpha/m) dbar^beta) / 2pi, kappa = "
-            + {"seed": "1 (seed eq. 5.8)", "hb": "HB factor"}.get(self.options.law, "exact one-DOF backbone (no kappa)"),
+            "law": _LAW_TEXT.get(
+                self.options.law,
+                "f = sqrt(w_n^2 + kappa (alpha/m) dbar^beta) / 2pi, kappa = "
+                + {"seed": "1 (seed eq. 5.8)", "hb": "HB factor"}.get(self.options.law, "exact one-DOF backbone (no kappa)"),
+            ),
             "smoothing": f"running median of {self.fdp.smooth_window} points on the dbar-sorted, capture-free curve",
             "runs": int(self.runs.P.size),
             "capture_runs": int(self.runs.capture.sum()),
             "excluded_above_max_ratio": self.excluded_above,
             "fit": f.to_dict(),
+            "rotational": t.model.rotational(t.model.mass * f.omega_n**2, f.alpha, f.beta),  # eq. 6.13 form, or None
         }
 
 
@@ -240,8 +250,9 @@ def identify_runs(rig: Rig, target: Target, runs: NsiRuns, options: IdentifyOpti
         above = keep & (fdp.smooth > fmax)
         excluded = int(above.sum())
         keep = keep & ~above
+    modal = target.model.modal_basis() if options.law in nsi.MODAL_KINDS else None
     settings = nsi.FitSettings(kappa=options.law, use_intersection=options.intersection, n_boot=options.n_boot,  # type: ignore[arg-type]
-                               seed=options.seed)  # fmt: skip
+                               seed=options.seed, modal=modal)  # fmt: skip
     fit = nsi.fit_power_law(fdp.dbar[keep], fdp.smooth[keep], target.model.omega_n, target.model.mass,
                             target.model.f_linear_hz, settings)  # fmt: skip
     return Identification(rig.name, target, runs, fdp, fit, options, excluded, source)

@@ -6,6 +6,11 @@ hit (``--hit``, default the first accepted) identifies k, alpha, beta, d and mu 
 R² of the displacement (the quantity the seed compared, Fig. 5.10). The rig names the DOF (the hammer's), its mass
 (eq. 5.11's m; one DOF: a grounded attachment) and the accelerometer on it; ``--out`` writes the rig with the
 identified values (its comments kept), which ``gvt simulate`` runs.
+
+The grounded store (eq. 6.13, ``configs/rigs/store_grounded_ch6.toml``) is the same model in z = hθ without the
+Coulomb term: a rig with no Coulomb friction at the DOF fits F_c = 0 (fixed, not a coordinate: :func:`has_coulomb`),
+and ``--quantity`` (default per rig: velocity for a rotational ``[nsi]``, the seed's store figures 6.23–6.24,
+displacement otherwise, Fig. 5.10) chooses what R² and the tail penalty compare.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,13 +49,20 @@ class RfsRun:
     result: rfs.TimeSeriesResult
     validation: list[tuple[int, rfs.Comparison]] = field(default_factory=list)
     elapsed_s: float = 0.0
+    quantity: str = "displacement"
+    coulomb: bool = True
+
+    @property
+    def equation(self) -> str:
+        """The seed's model: eq. 5.11 (the NES, with friction) or eq. 6.13 (the store: viscous only, in z = hθ)."""
+        return "5.11" if self.coulomb else "6.13 (no Coulomb, in z = h theta)"
 
     def summary(self) -> dict[str, Any]:
         m = self.mass
         est, res = self.estimate.params, self.result.params
         sig = self.result.sigma
         rows = []
-        for name in ("k", "alpha", "beta", "d", "mu"):
+        for name in ("k", "alpha", "beta", "d", "mu")[: 5 if self.coulomb else 4]:
             s = None
             if sig is not None:
                 s = sig["fc"] / (m * rfs.G) if name == "mu" else sig[name]
@@ -59,7 +71,8 @@ class RfsRun:
         return {
             "log": self.log, "rig": self.rig, "dof": self.dof, "mass_kg": m, "force_channel": self.channels[0],
             "acceleration_channel": self.channels[1], "identification_hit": self.id_hit, "peak_force_N": idc.peak_force,
-            "parameters": rows, "fc_N": res.fc,
+            "equation": self.equation, "parameters": rows, "fc_N": res.fc, "quantity": self.quantity,
+            "coulomb_fitted": self.coulomb,
             "rfs_slices": {"stiffness_points": int(self.estimate.stiffness_idx.size), "damping_points":
                            int(self.estimate.damping_idx.size), "r2_stiffness": self.estimate.r2_stiffness,
                            "r2_damping": self.estimate.r2_damping},
@@ -82,6 +95,20 @@ def _channels(rig: Rig) -> tuple[int, str, str, float]:
     if acc is None:
         raise BadInput(f"{rig.name}: no accelerometer on the hammer's DOF {rig.hammer.dof_name!r}; the RFS needs one")
     return dof, rig.hammer.name, acc, float(s.M[dof, dof])
+
+
+def has_coulomb(rig: Rig, dof: int) -> bool:
+    """Whether the rig models Coulomb friction at the DOF (a grounded ``[[dampers]]`` entry with ``coulomb`` > 0).
+    Without it the rig's model is eq. 6.13 (viscous only) and F_c is fixed at 0: a fitted F_c could only drift above
+    its true 0 (log coordinates never reach it) and trade off against d in the decay."""
+    return any(d.dof == dof and d.ref is None and d.coulomb > 0 for d in rig.structure.dampers)
+
+
+def default_quantity(rig: Rig) -> str:
+    """What the time series compares by default: the velocity for a rotational ``[nsi]`` (the store, Fig. 6.24),
+    the displacement otherwise (the NES, Fig. 5.10) — method-nsi §1.12."""
+    spec = rig.config.nsi
+    return "velocity" if spec is not None and spec.inertia is not None else "displacement"
 
 
 def _parse_hits(text: str | None, what: str) -> list[int] | None:
@@ -134,8 +161,9 @@ def read_hits(path: Path, rig: Rig) -> tuple[dict[int, rfs.HitRecord], tuple[str
 
 def identify_rfs(path: Path, rig: Rig, hit: int | None = None, validate: Sequence[int] | None = None,
                  settings: rfs.TimeSeriesSettings | None = None,
-                 progress: Callable[[str, float], None] | None = None) -> RfsRun:  # fmt: skip
-    """RFS estimate + time-series optimisation on hit ``hit`` of the log, validation on the others."""
+                 progress: Callable[[str, float], None] | None = None, quantity: str | None = None) -> RfsRun:  # fmt: skip
+    """RFS estimate + time-series optimisation on hit ``hit`` of the log, validation on the others; the Coulomb term
+    fitted only if the rig has one (:func:`has_coulomb`), ``quantity`` (default per rig) compared."""
     t0 = time.perf_counter()
     records, chans, _fs = read_hits(path, rig)
     available = sorted(records)
@@ -148,11 +176,14 @@ def identify_rfs(path: Path, rig: Rig, hit: int | None = None, validate: Sequenc
         raise BadInput(f"--validate {bad}: not accepted hits with a complete record; the log has {available}")
     if progress:
         progress("restoring-force surface", 0.0)
+    coulomb = has_coulomb(rig, rig.hammer.dof)
+    quantity = quantity or (settings.quantity if settings is not None else default_quantity(rig))
+    settings = replace(settings or rfs.TimeSeriesSettings(), quantity=quantity, coulomb=coulomb)
     p = rfs.process(records[hit])
-    est = rfs.rfs_estimate(p)
-    settings = settings or rfs.TimeSeriesSettings()
+    est = rfs.rfs_estimate(p, rfs.SliceSettings(coulomb=coulomb))
     res = rfs.optimise(p, est.params, settings, progress=progress)
-    run = RfsRun(str(path), rig.name, rig.hammer.dof_name, records[hit].mass, chans, hit, est, p, res)
+    run = RfsRun(str(path), rig.name, rig.hammer.dof_name, records[hit].mass, chans, hit, est, p, res,
+                 quantity=quantity, coulomb=coulomb)  # fmt: skip
     for k, h in enumerate(vals):
         run.validation.append((h, rfs.validate(rfs.process(records[h]), res.params, settings)))
         if progress:
@@ -165,7 +196,7 @@ def print_report(console, run: RfsRun) -> None:
     from rich.table import Table
 
     s = run.summary()
-    t = Table(title=f"{run.rig}: eq. 5.11 from {Path(run.log).name} hit {run.id_hit} ({s['peak_force_N']:.1f} N), "
+    t = Table(title=f"{run.rig}: eq. {run.equation} from {Path(run.log).name} hit {run.id_hit} ({s['peak_force_N']:.1f} N), "
                     f"m = {run.mass:g} kg at {run.dof}")  # fmt: skip
     for c in ("parameter", "RFS estimate", "optimised", "1-sigma (Jacobian)"):
         t.add_column(c, justify="right")
@@ -174,7 +205,7 @@ def print_report(console, run: RfsRun) -> None:
         sig = "-" if r["sigma"] is None else f"{r['sigma']:.3g}"
         t.add_row(f"{r['parameter']} {units[r['parameter']]}".strip(), f"{r['rfs']:.5g}", f"{r['optimised']:.5g}", sig)
     console.print(t)
-    v = Table(title="displacement R² (measured chain vs model)")
+    v = Table(title=f"{run.quantity} R² (measured chain vs model)")
     for c in ("hit", "use", "peak force N", "R²", "tail amplitude ratio"):
         v.add_column(c, justify="right")
     i = s["identification"]
@@ -226,9 +257,10 @@ def plot(run: RfsRun, path: Path) -> None:
     ax.legend(fontsize=7)
     for row, (use, h, c) in enumerate(comps, start=1):
         ax = fig.add_subplot(gs[row, :])
-        ax.plot(c.t, 1e3 * c.measured, "-", color="k", lw=0.7, label="measured (chain)")
-        ax.plot(c.t, 1e3 * c.simulated, "-", color="tab:red", lw=0.7, alpha=0.8, label="model")
-        ax.set_ylabel("x [mm]")
+        scale, unit = (1.0, "ẋ [m/s]") if c.quantity == "velocity" else (1e3, "x [mm]")
+        ax.plot(c.t, scale * c.measured, "-", color="k", lw=0.7, label="measured (chain)")
+        ax.plot(c.t, scale * c.simulated, "-", color="tab:red", lw=0.7, alpha=0.8, label="model")
+        ax.set_ylabel(unit)
         ax.set_title(f"hit {h} ({use}), {c.peak_force:.1f} N: R² = {c.r2:.4f}", fontsize=8)
         if row == 1:
             ax.legend(fontsize=7, loc="upper right")
@@ -270,16 +302,17 @@ def identified_toml(text: str, run: RfsRun) -> str:
     else:
         doc.setdefault("nonlinear_springs", tomlkit.aot()).append(tomlkit.item({"dof": dof, **vals}))
     dmp = _entry(doc.get("dampers"), dof)
-    vals = {"viscous": float(f"{p.d:.6g}"), "coulomb": float(f"{p.fc:.6g}")}
+    vals = {"viscous": float(f"{p.d:.6g}")} | ({"coulomb": float(f"{p.fc:.6g}")} if run.coulomb else {})
     if dmp is not None:
         dmp.update(vals)
     else:
         doc.setdefault("dampers", tomlkit.aot()).append(tomlkit.item({"dof": dof, **vals}))
     doc["name"] = f"{doc.get('name', run.rig)}_identified"
     i = run.result.identification
-    head = (f"# Identified by 'gvt identify --method rfs' (eq. 5.11) from {Path(run.log).name} hit {run.id_hit} "
+    head = (f"# Identified by 'gvt identify --method rfs' (eq. {run.equation}) from {Path(run.log).name} hit {run.id_hit} "
             f"({i.peak_force:.1f} N): k {p.k:.5g} N/m, alpha {p.alpha:.5g}, beta {p.beta:.5g}, d {p.d:.5g} N s/m, "
-            f"mu {p.mu(run.mass):.4g} (F_c {p.fc:.4g} N); displacement R² {i.r2:.4f}.\n")  # fmt: skip
+            f"mu {p.mu(run.mass):.4g} (F_c {p.fc:.4g} N{'' if run.coulomb else ', fixed'}); "
+            f"{run.quantity} R² {i.r2:.4f}.\n")  # fmt: skip
     return head + tomlkit.dumps(doc)
 
 
@@ -295,7 +328,7 @@ def write_identified(run: RfsRun, rig: Rig, out: Path) -> None:
 
 
 def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate: str | None, png: Path | None,
-            out_toml: Path | None, json_out: bool, overwrite: bool) -> None:  # fmt: skip
+            out_toml: Path | None, json_out: bool, overwrite: bool, quantity: str | None = None) -> None:  # fmt: skip
     """The ``gvt identify --method rfs`` verb body (daq/cli/identify.py branches here)."""
     from daq.cli.common import Progress, check_output, err, fail, open_rig, out
 
@@ -305,6 +338,8 @@ def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate:
         fail(f"{source}: no such file")
     if source.is_dir():
         fail(f"{source}: --method rfs reads a session LOG (.mcap), not a directory")
+    if quantity is not None and quantity not in rfs.QUANTITIES:
+        fail(f"--quantity {quantity!r}: use 'velocity' or 'displacement' (default per rig)")
     vals = _parse_hits(validate, "--validate")
     if hit is not None and hit < 0:
         fail(f"--hit {hit}: hit numbers start at 0")
@@ -317,7 +352,7 @@ def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate:
     if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
         fail(f"--out {out_toml}: is the rig itself; give a new file name")
     with Progress(err if json_out else out) as report:
-        run = identify_rfs(source, r, hit, vals, progress=report)
+        run = identify_rfs(source, r, hit, vals, progress=report, quantity=quantity)
     if png is not None:
         plot(run, png)
     if out_toml is not None:

@@ -461,14 +461,17 @@ class NsiSpec(_Strict):
     The attachment sits at ``x`` (beam, m) or ``dof`` (a DOF name); δ is its displacement minus the mean of
     the ``relative_to`` points (eq. 5.13: positions on a beam, DOF names otherwise), or the attachment itself
     when the list is empty (grounded). ``mass``: the attachment's mass in eq. 5.8 (default: the effective mass
-    1/φ_δ² of its mass-normalised linear mode); ``mode``: that linear mode, 1-based (default: the lowest mode
-    whose φ_δ² is at least half the largest); ``delta_highpass_hz``: the Butterworth high-pass on δ before δ̄
-    of measured data (Ch. 5 used 6 Hz, L1747; none by default)."""
+    1/φ_δ² of its mass-normalised linear mode), or ``inertia`` and ``arm`` for a rotational attachment (a store
+    pinned at one end, its spring at arm h: m = I/h² in z = hθ, eq. 6.11 with h²/I, method-nsi D3); ``mode``: that
+    linear mode, 1-based (default: the lowest mode whose φ_δ² is at least half the largest); ``delta_highpass_hz``:
+    the Butterworth high-pass on δ before δ̄ of measured data (Ch. 5 used 6 Hz, L1747; none by default)."""
 
     x: float | None = None
     dof: str | None = None
     relative_to: list[float | str] = []
     mass: Positive | None = Field(default=None, description="kg")
+    inertia: Positive | None = Field(default=None, description="kg m^2: a rotational attachment (store, eq. 6.11)")
+    arm: Positive | None = Field(default=None, description="m: the arm h at which the rotational attachment's spring acts")
     mode: Annotated[int, Field(ge=1)] | None = None
     delta_highpass_hz: Positive | None = Field(default=None, description="Hz")
 
@@ -476,7 +479,19 @@ class NsiSpec(_Strict):
     def _one_location(self) -> NsiSpec:
         if (self.x is None) == (self.dof is None):
             raise ValueError("give exactly one of 'x' (position along a beam, m) or 'dof' (a DOF name) for the attachment")
+        if (self.inertia is None) != (self.arm is None):
+            raise ValueError("a rotational attachment needs both 'inertia' (kg m^2) and 'arm' (m)")
+        if self.inertia is not None and self.mass is not None:
+            raise ValueError("give 'mass' (translational) or 'inertia' and 'arm' (rotational, m = I/h^2), not both")
         return self
+
+    @property
+    def attachment_mass(self) -> float | None:
+        """The m of eq. 5.8 in the attachment's coordinate: ``mass``, or ``I/h²`` for a rotational one (eq. 6.11 in
+        z = hθ, with the erratum's h²/I: method-nsi D3); None: the linear mode's effective mass."""
+        if self.inertia is not None and self.arm is not None:
+            return self.inertia / self.arm**2
+        return self.mass
 
 
 class RigConfig(_Strict):

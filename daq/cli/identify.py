@@ -15,7 +15,11 @@ def identify(
     rig: Annotated[str, typer.Option("--rig", help="Rig TOML file or name in configs/rigs (the sweep's rig).")],
     frequency: Annotated[str, typer.Option(help="rq: the POM's RQ (seed eq. 2.18); pom: its temporal frequency.")] = "rq",
     law: Annotated[
-        str, typer.Option(help="seed: eq. 5.8 as printed; hb: harmonic-balance factor; exact: the one-mass backbone.")
+        str,
+        typer.Option(
+            help="seed: eq. 5.8 as printed; hb: harmonic-balance factor; exact: the one-mass backbone; "
+            "modal / modal-exact: the attachment's mode of the rig's lowest modes + the spring (two-parameter)."
+        ),
     ] = "seed",
     max_ratio: Annotated[float | None, typer.Option(help="Fit only points with f <= ratio x f_n (default: all).")] = None,
     smooth: Annotated[int, typer.Option(help="Running-median window (points, odd) of the RQ-FDP.")] = 5,
@@ -23,6 +27,9 @@ def identify(
     no_intersection: Annotated[bool, typer.Option("--no-intersection", help="Fit α and β together (no eq. 5.9).")] = False,
     method: Annotated[str, typer.Option(help="nsi: the RQ-FDP fit; rfs: eq. 5.11 of a grounded attachment from a LOG.")] = "nsi",
     hit: Annotated[int | None, typer.Option(help="rfs: the identification hit (default: the first accepted).")] = None,
+    quantity: Annotated[
+        str | None, typer.Option(help="rfs: velocity|displacement compared (default: velocity for a rotational [nsi]).")
+    ] = None,
     validate: Annotated[
         str | None, typer.Option(help="LOG: validation hits, e.g. 1,2,3 (rfs default: the others; nsi: lowest, middle, highest).")
     ] = None,
@@ -43,7 +50,9 @@ def identify(
     if method != "nsi":  # --method rfs: the grounded attachment's eq. 5.11 from a session log (daq/rfs_cmd.py)
         from daq.rfs_cmd import cli_rfs
 
-        return cli_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite)
+        return cli_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite, quantity)
+    if quantity is not None:
+        fail("--quantity is for --method rfs")
     from daq.identify_cmd import IdentifyOptions
 
     opts = IdentifyOptions(frequency=frequency, law=law, max_ratio=max_ratio, smooth=smooth, n_boot=boot,

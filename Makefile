@@ -53,6 +53,11 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_model_update.py
 	$(BIN)/python bench/eval_realistic.py
 	$(BIN)/python bench/eval_updated_model.py
+	$(BIN)/python bench/calibrate_confidence.py
+	$(BIN)/python bench/eval_nsi.py --table --laws hb,exact,modal-exact
+	$(BIN)/python bench/eval_nsi.py --speed 1000
+	$(BIN)/python bench/bench_identify_log.py
+	$(BIN)/python bench/bench_rfs.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

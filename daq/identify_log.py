@@ -122,6 +122,56 @@ def _layout(reader, rig: Rig) -> tuple[list, list[str], list[int], tuple[str, ..
     return sources, outs, [by_name[c] for c in outs], tuple(quantity)
 
 
+def _window_settings(rig: Rig, g, dofs, model, window_s: float | None) -> nw.WindowSettings:
+    """:func:`analysis.nsi_windows.default_settings` of the rig's linear modes at the sensors; ``window_s`` overrides the
+    window length, and with it the start drop and the tail."""
+    import scipy.linalg
+
+    k = min(model.mode + 2, len(dofs))
+    f_lin = np.sqrt(np.maximum(scipy.linalg.eigh(g.K, g.M, eigvals_only=True, subset_by_index=[0, k - 1]), 0.0)) / (2 * np.pi)
+    spec = rig.config.nsi
+    settings = nw.default_settings(f_lin, model.mode, rig.config.hammer.pulse_duration,
+                                   spec.delta_highpass_hz if spec is not None else None)  # fmt: skip
+    if window_s is not None:
+        settings = nw.WindowSettings(window_s, rig.config.hammer.pulse_duration + window_s, window_s,
+                                     settings.integration_corner_hz, settings.delta_corner_hz)  # fmt: skip
+    return settings
+
+
+def _hit_windows(h: Hit, n: int, read: Callable[[], Any], ctx: dict) -> tuple[dict[str, Any], list[tuple]]:
+    """One hit: its report row and its windows' table rows (none if skipped; the reason in the row). ``read`` gives the
+    hit's padded span ``(data, first)`` or None."""
+    row: dict[str, Any] = {"hit": h.hit, "peak_force_N": h.peak_force_N}
+    left_out = set(ctx["outs"]) & set(h.excluded_channels or ())
+    if h.verdict != "accepted":
+        row["skipped"] = f"hit gate: {h.reason or h.verdict}"
+        return row, []
+    if left_out:
+        row["skipped"] = f"channel(s) {sorted(left_out)} left out of this hit by the gate"
+        return row, []
+    data = read()
+    if data is None:
+        row["skipped"] = f"record incomplete: not all {n} samples of every stream (end of log, gap or damage)"
+        return row, []
+    data, first = data
+    fs, pre, settings, target, g = ctx["fs"], ctx["pre"], ctx["settings"], ctx["target"], ctx["g"]
+    at = h.index - pre - first  # the hit's record [at, at + n) within the padded span
+    r0, r1 = nw.hit_region(n, fs, pre, settings)
+    disp = nw.to_displacement(data, fs, ctx["quantity"], settings)
+    w = nw.analyse_hit(disp, fs, (r0 + at, r1 + at), target.attachment, target.relative_to, target.model.shape, g.M, g.K,
+                       settings, (at, at + n))  # fmt: skip
+    b = w.bounds - at
+    if b.shape[0] == 0:
+        row["skipped"] = f"record of {n / fs:.3g} s holds no window after the start drop and the tail"
+        return row, []
+    e = h.input_energy_J if h.input_energy_J is not None else np.nan
+    rows = [(h.hit, h.peak_force_N, e, (b[i, 0] - pre) / fs, (b[i, 1] - pre) / fs, w.dbar[i], w.f_rq[i], w.f_pom[i],
+             w.mac[i], w.capture[i], w.pom_index[i]) for i in range(b.shape[0])]  # fmt: skip
+    row["windows"] = int(b.shape[0])
+    row["capture_windows"] = int(w.capture.sum())
+    return row, rows
+
+
 def identify_log(
     rig: Rig,
     path: Path,
@@ -146,18 +196,7 @@ def identify_log(
     fs = infos[sources[0].stream].sample_rate
     g = rig.guyan(dofs)
     target = resolve_target(rig, dofs, g.M, g.K)
-    model = target.model
-    if settings is None:
-        import scipy.linalg
-
-        k = min(model.mode + 2, len(dofs))
-        f_lin = np.sqrt(np.maximum(scipy.linalg.eigh(g.K, g.M, eigvals_only=True, subset_by_index=[0, k - 1]), 0.0)) / (2 * np.pi)
-        spec = rig.config.nsi
-        settings = nw.default_settings(f_lin, model.mode, rig.config.hammer.pulse_duration,
-                                       spec.delta_highpass_hz if spec is not None else None)  # fmt: skip
-        if window_s is not None:
-            settings = nw.WindowSettings(window_s, rig.config.hammer.pulse_duration + window_s, window_s,
-                                         settings.integration_corner_hz, settings.delta_corner_hz)  # fmt: skip
+    settings = settings if settings is not None else _window_settings(rig, g, dofs, target.model, window_s)
     settings.validate(fs)
     hits = sorted((Hit.from_json(h) for h in reader.json_messages(HITS_TOPIC)), key=lambda h: h.index)
     if not hits:
@@ -165,41 +204,18 @@ def identify_log(
     pre, n_rec = round(PRE_TRIGGER_S * fs), round(rig.config.daq.record_length * fs)
     fc = settings.integration_corner_hz
     pad = round(INTEGRATION_PAD_PERIODS / fc * fs) if fc else 0
+    ctx = {"outs": outs, "fs": fs, "pre": pre, "settings": settings, "target": target, "g": g, "quantity": quantity}
     rows: list[tuple] = []
     report: list[dict] = []
     for k, h in enumerate(hits):
-        row: dict[str, Any] = {"hit": h.hit, "peak_force_N": h.peak_force_N}
-        left_out = set(outs) & set(h.excluded_channels or ())
-        n = n_rec + pre
-        if k + 1 < len(hits):
-            n = min(n, hits[k + 1].index - h.index)
-        data = None
-        if h.verdict != "accepted":
-            row["skipped"] = f"hit gate: {h.reason or h.verdict}"
-        elif left_out:
-            row["skipped"] = f"channel(s) {sorted(left_out)} left out of this hit by the gate"
-        else:
-            got = _read_span(reader, sources, outs, h.index - pre - pad, h.index - pre + n + pad, h.index - pre, n, fs)
-            if got is None:
-                row["skipped"] = f"record incomplete: not all {n} samples of every stream (end of log, gap or damage)"
-            else:
-                data, first = got
-        if data is not None:
-            at = h.index - pre - first  # the hit's record [at, at + n) within the padded span
-            r0, r1 = nw.hit_region(n, fs, pre, settings)
-            disp = nw.to_displacement(data, fs, quantity, settings)
-            w = nw.analyse_hit(disp, fs, (r0 + at, r1 + at), target.attachment, target.relative_to, model.shape, g.M, g.K,
-                               settings, (at, at + n))  # fmt: skip
-            b = w.bounds - at
-            if b.shape[0] == 0:
-                row["skipped"] = f"record of {n / fs:.3g} s holds no window after the start drop and the tail"
-            else:
-                e = h.input_energy_J if h.input_energy_J is not None else np.nan
-                for i in range(b.shape[0]):
-                    rows.append((h.hit, h.peak_force_N, e, (b[i, 0] - pre) / fs, (b[i, 1] - pre) / fs, w.dbar[i], w.f_rq[i],
-                                 w.f_pom[i], w.mac[i], w.capture[i], w.pom_index[i]))  # fmt: skip
-                row["windows"] = int(b.shape[0])
-                row["capture_windows"] = int(w.capture.sum())
+        n = n_rec + pre if k + 1 == len(hits) else min(n_rec + pre, hits[k + 1].index - h.index)
+        i0 = h.index - pre
+
+        def read(i0: int = i0, n: int = n):  # only for a hit that is analysed
+            return _read_span(reader, sources, outs, i0 - pad, i0 + n + pad, i0, n, fs)
+
+        row, got = _hit_windows(h, n, read, ctx)
+        rows += got
         report.append(row)
         if progress:
             progress("windowed NSI of the hits", (k + 1) / len(hits))
@@ -210,8 +226,7 @@ def identify_log(
     runs = NsiRuns(a[:, 1], a[:, 2], a[:, 5], a[:, 6], a[:, 7], a[:, 8], np.array([r[9] for r in rows], bool),
                    np.array([r[10] for r in rows], np.int64), time.perf_counter() - t0)  # fmt: skip
     n_acc = sum(1 for r in report if "windows" in r)
-    source = f"{path}: {runs.P.size} windows of {n_acc} hits"
-    ident = identify_runs(rig, target, runs, options, source)
+    ident = identify_runs(rig, target, runs, options, f"{path}: {runs.P.size} windows of {n_acc} hits")
     return LogIdentification(ident, settings, a[:, 0].astype(np.int64), a[:, 3:5], report, tuple(outs),
                              {s.stream: s.offset for s in sources}, time.perf_counter() - t0)  # fmt: skip
 

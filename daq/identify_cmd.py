@@ -339,7 +339,12 @@ def print_report(console, ident: Identification) -> None:
     console.print(t)
     console.print(
         f"attachment {ident.target.description}: linear mode {m.mode + 1}, f_n = {m.omega_n / (2 * np.pi):.4f} Hz, "
-        f"m = {m.mass:.5g} kg ({m.mass_source}); frequency: {ident.options.frequency}, law: {ident.options.law}; "
+        + (
+            f"m = {m.mass:.5g} kg ({m.mass_source}); "
+            if ident.options.law not in nsi.MODAL_KINDS
+            else "the rig's modes carry the mass (modal law); "
+        )
+        + f"frequency: {ident.options.frequency}, law: {ident.options.law}; "
         f"{int(ident.runs.capture.sum())} capture runs excluded; source {ident.source}",
         markup=False,
     )

@@ -280,7 +280,11 @@ class SensorProps(_Strict):
     gain: str | None = Field(default=None, description='charge amplifier gain for a pC/... sensitivity, e.g. "1 mV/pC"')
     direction: Direction = Field(default=None, description="+X .. -Z; default +Z on a beam, +X on a lumped chain")
     range: Positive | None = Field(default=None, description="± measurement range, SI units; None = unlimited")
-    noise_rms: NonNegative = Field(default=0.0, description="noise floor, SI units rms")
+    noise_rms: NonNegative = Field(
+        default=0.0,
+        description="noise floor, SI units rms: the simulated device adds it, and the exchange detector gates on it until it "
+        "has measured the floor itself (0 = unknown); give the real floor, not a bound (docs/decisions.md D36)",
+    )
     model: str | None = None
 
     @model_validator(mode="before")

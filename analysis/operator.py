@@ -154,6 +154,29 @@ def _sensitivities(rig, order: list[int]) -> tuple[float, ...] | None:
     return None if any(v is None for v in s) else tuple(float(v) for v in s)
 
 
+#: modes at or above this fraction of the sample rate are left out of the modal filter: fs / 2.56, the usable band
+#: below Nyquist (the analyser's anti-alias convention, as daq/frf_cmd.py's default band); each kept mode's phase
+#: band-pass then lies below 0.45 fs (analysis/exchange.py phase_bands)
+RESOLVABLE_FRACTION = 1 / 2.56
+
+
+def resolvable_basis(model: RigModel, fs: float, n_modes: int) -> ModalBasis:
+    """The first ``n_modes`` modes of the rig's model at its sensors, less those above ``RESOLVABLE_FRACTION`` x fs: at
+    256 Hz beam_ch4_exp's modes 3-4 (194, 387 Hz) are above Nyquist, and their band-passes could not be built (the
+    operator raised "Wn[0] must be less than Wn[1]"). The exchange detector needs modes 1 and 2: fewer is a ValueError
+    that says which sample rate would do."""
+    basis = modal_basis(model.M, model.K, n_modes)
+    kept = int(np.count_nonzero(basis.freqs_hz < RESOLVABLE_FRACTION * fs))
+    if kept >= basis.n_modes:
+        return basis
+    if kept < 2:
+        need = float(basis.freqs_hz[1]) / RESOLVABLE_FRACTION
+        raise ValueError(f"at {fs:g} Hz the rig's mode 2 ({basis.freqs_hz[1]:.1f} Hz) lies above fs/2.56 = "
+                         f"{RESOLVABLE_FRACTION * fs:.1f} Hz; the modal analysis needs modes 1 and 2: "
+                         f"sample at >= {need:.0f} Hz")  # fmt: skip
+    return modal_basis(model.M, model.K, kept)
+
+
 def _noise_rms(rig, order: list[int]) -> tuple[float, ...] | None:
     n = [getattr(getattr(rig.sensors[i], "props", None), "noise_rms", None) for i in order]
     return None if any(v is None or v <= 0 for v in n) else tuple(float(v) for v in n)
@@ -356,7 +379,7 @@ class AnalysisOperator:
             raise ValueError(f"the stream lacks the rig's sensor channels {missing}")
         self._acc_cols = [channels.index(c) for c in model.sensors]
         self._ham_col = channels.index(model.hammer) if model.hammer in channels else None
-        self.basis: ModalBasis = modal_basis(model.M, model.K, min(self.s.n_modes, len(model.sensors)))
+        self.basis: ModalBasis = resolvable_basis(model, self.fs, min(self.s.n_modes, len(model.sensors)))
         self._guard = (None if self.s.health is None else
                        HealthGuard(model.M, model.K, model.sensors, self.fs, self.basis.n_modes, self.s.health,
                                    _per_sensor(model.ranges, model), _per_sensor(model.sensitivities, model),

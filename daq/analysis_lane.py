@@ -51,7 +51,11 @@ def start_analysis_lane(
     name = analysis_stream(streams, model)
     if name is None:
         raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
-    return AnalysisLane(fan, model, name, streams[name], sample_rate, sink, settings, maxsize=maxsize, **frame).start()
+    try:
+        lane = AnalysisLane(fan, model, name, streams[name], sample_rate, sink, settings, maxsize=maxsize, **frame)
+    except ValueError as exc:  # the rig's modes and the sample rate do not fit (analysis/operator.py resolvable_basis)
+        raise LaneUnavailable(f"rig {rig.name}: {exc}") from None
+    return lane.start()
 
 
 def warm_up(model: RigModel, stream: str, channels: tuple[str, ...], sample_rate: float,

@@ -84,3 +84,35 @@ def test_gvt_analyze_cli_prints_events_and_json(session_log):
     bad = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--rig", "no_such_rig"],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
+
+
+def test_gvt_analyze_at_256_hz_keeps_the_modes_below_fs_over_2_56_and_refuses_a_rate_without_mode_2(tmp_path):
+    """At 256 Hz beam_ch4_exp's modes 3-4 (194, 387 Hz) are above Nyquist: their band-passes cannot be built, and the
+    operator raised "Wn[0] must be less than Wn[1]" (gvt analyze: an internal error, exit 1). Now the modal filter
+    keeps the modes below fs/2.56 (1-2: 20.8, 68.4 Hz) and finds the strong hit's exchanges; at 128 Hz mode 2 is out
+    of reach and gvt analyze says which rate would do (one line, exit 2)."""
+    from pathlib import Path
+
+    from analysis.operator import AnalysisOperator, RigModel
+
+    text = Path(open_rig("beam_ch4_exp").path).read_text()
+    for fs, pulse in ((256.0, 0.008), (128.0, 0.016)):
+        t = text.replace("sample_rate = 16384.0", f"sample_rate = {fs}")
+        t = t.replace("pulse_duration = 0.001", f"pulse_duration = {pulse}")
+        assert f"sample_rate = {fs}" in t and f"pulse_duration = {pulse}" in t
+        (tmp_path / f"r{int(fs)}.toml").write_text(t)
+    rig256 = tmp_path / "r256.toml"
+    model = RigModel.from_rig(open_rig(rig256))
+    assert AnalysisOperator(model, model.sensors, 256.0).basis.n_modes == 2
+    log = tmp_path / "lo.mcap"
+    cli = [sys.executable, "-m", "daq.cli"]
+    p = subprocess.run([*cli, "simulate", str(rig256), "--hits", "2", "--out", str(log)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    p = subprocess.run([*cli, "analyze", str(log), "--rig", str(rig256), "--json"], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert len(json.loads(p.stdout)["events"]) >= 1
+    log128, rig128 = tmp_path / "lo128.mcap", tmp_path / "r128.toml"
+    p = subprocess.run([*cli, "simulate", str(rig128), "--hits", "1", "--out", str(log128)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    p = subprocess.run([*cli, "analyze", str(log128), "--rig", str(rig128)], capture_output=True, text=True)
+    assert p.returncode == 2 and "sample at >= 175 Hz" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr

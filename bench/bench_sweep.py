@@ -23,7 +23,8 @@ from pathlib import Path
 from rich.console import Console
 
 from analysis.model.rigs import open_rig
-from daq.sweep_cmd import SweepSpec, _jsonable, print_report, run_sweep, write_outputs
+from daq.outputs import jsonable
+from daq.sweep_cmd import SweepSpec, print_report, run_sweep, write_outputs
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -52,7 +53,7 @@ def main() -> None:
     summary["peak_rss_largest_worker_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
     summary["machine"] = {"python": platform.python_version(), "cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "bench_sweep.json").write_text(json.dumps(summary, indent=2, default=_jsonable))
+    (RESULTS / "bench_sweep.json").write_text(json.dumps(summary, indent=2, default=jsonable))
     worst_low = max(abs(a["error_median"]) for a in rep.asymptotes if a["end"] == "low")
     print(
         f"\nwall {rep.wall_s:.0f} s (target <= 300 s on 2 idle cores), peak RSS client {rep.peak_rss_mb:.0f} MB / "

@@ -315,14 +315,9 @@ def plot_fdp(ident: Identification, path: Path) -> None:
 
 
 def summary_json(ident: Identification) -> str:
-    def default(x: Any) -> Any:
-        if isinstance(x, np.generic):
-            return x.item()
-        if isinstance(x, np.ndarray):
-            return x.tolist()
-        raise TypeError(type(x).__name__)
+    from daq.outputs import jsonable
 
-    return json.dumps(ident.summary(), default=default)
+    return json.dumps(ident.summary(), default=jsonable)
 
 
 def print_report(console, ident: Identification) -> None:

@@ -26,6 +26,7 @@ from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.records import HITS_TOPIC, Hit
 from daq.identify_cmd import Identification, IdentifyOptions, NsiRuns, identify_runs, resolve_target
+from daq.outputs import jsonable
 
 #: Record read before each hit's index: the pulse's rising edge precedes a real trigger (``gvt frf``'s 0.01 s).
 PRE_TRIGGER_S = 0.01
@@ -290,7 +291,7 @@ def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png:
         doc["png"] = str(png) if png is not None else None
         if res is not None:
             doc.update(res.to_dict())
-        out.print_json(json.dumps(doc, default=_json_default))
+        out.print_json(json.dumps(doc, default=jsonable))
     else:
         print_report(out, run.ident)
         s = run.settings
@@ -310,14 +311,6 @@ def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png:
         for path, what in ((out_toml, "identified rig"), (validation_png, "validation overlays")):
             if path is not None:
                 out.print(f"wrote {what}: {path}", markup=False)
-
-
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x).__name__)
 
 
 __all__ = ["WINDOW_COLUMNS", "LogIdentification", "cli_identify_log", "identify_log", "windows_csv_path", "write_windows"]

@@ -377,16 +377,10 @@ def plot_validation(val: Validation, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(type(x).__name__)
-
-
 def dumps(doc: dict[str, Any]) -> str:
-    return json.dumps(doc, default=json_default)
+    from daq.outputs import jsonable
+
+    return json.dumps(doc, default=jsonable)
 
 
 # --- the verb's tail: identified rig, validation, files ---------------------------------------------------------

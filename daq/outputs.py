@@ -15,7 +15,18 @@ import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+import numpy as np
+
 from analysis.errors import BadInput
+
+
+def jsonable(x: object) -> object:
+    """``json.dumps(..., default=jsonable)``: numpy scalars and arrays as plain JSON values, anything else refused."""
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:

@@ -57,6 +57,7 @@ from analysis.rqfep import (
     rq_fep,
 )
 from analysis.sweep_capture import CaptureReport, CaptureSettings, confirm_captures
+from daq.outputs import jsonable
 
 N_KEEP = 4  # "the RQ-FEP for the first four POMs" (L1251)
 JITTER = 1e-6  # relative change of P for the robustness re-check (docs/simulator.md §3: "1 ppm")
@@ -342,17 +343,8 @@ def _survives_jitter(
     return True
 
 
-def _jsonable(x: Any) -> Any:
-    """numpy scalars and arrays as plain JSON values."""
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
-
-
 def summary_json(rep: SweepReport) -> str:
-    return json.dumps(rep.summary(), default=_jsonable)
+    return json.dumps(rep.summary(), default=jsonable)
 
 
 def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
@@ -389,7 +381,7 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
     tmp.replace(paths["csv"])
     plot_rqfep(rep, paths["png"])
     tmp = paths["json"].with_suffix(".json.part")
-    tmp.write_text(json.dumps(rep.summary(), indent=2, default=_jsonable))
+    tmp.write_text(json.dumps(rep.summary(), indent=2, default=jsonable))
     tmp.replace(paths["json"])
     return paths
 

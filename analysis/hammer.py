@@ -20,7 +20,7 @@ What a test engineer checks before a hit joins the average (Brandt, *Noise and V
 * **Overload**: a sample at or above ``0.999`` of the channel's full scale (the sensor's range or the ADC's,
   whichever is lower): a clipped force underestimates the input at every frequency.
 
-Arrays in, verdict out; the log and the rig are read by ``daq/frf_cmd.py``.
+Arrays in, verdict out; the log and the rig are read by ``daq/studies/frf.py``.
 """
 
 from __future__ import annotations

@@ -155,7 +155,7 @@ def _sensitivities(rig, order: list[int]) -> tuple[float, ...] | None:
 
 
 #: modes at or above this fraction of the sample rate are left out of the modal filter: fs / 2.56, the usable band
-#: below Nyquist (the analyser's anti-alias convention, as daq/frf_cmd.py's default band); each kept mode's phase
+#: below Nyquist (the analyser's anti-alias convention, as daq/studies/frf.py's default band); each kept mode's phase
 #: band-pass then lies below 0.45 fs (analysis/exchange.py phase_bands)
 RESOLVABLE_FRACTION = 1 / 2.56
 

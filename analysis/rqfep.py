@@ -1,6 +1,6 @@
 """POD → Rayleigh quotient → RQ frequency–energy plot (RQ-FEP) kernels for the seed's computational sweep.
 
-Pure numpy: no I/O, no simulator. ``gvt sweep`` (``daq/sweep_cmd.py``) feeds them the per-run output
+Pure numpy: no I/O, no simulator. ``gvt sweep`` (``daq/studies/sweep.py``) feeds them the per-run output
 covariances of :func:`analysis.model.sweep.sweep_moments`.
 
 * POD of a whole record per run (seed §4.2, L1251) is the eigendecomposition of the 1/n covariance of the

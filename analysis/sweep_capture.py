@@ -28,7 +28,7 @@ directions (L1296–L1298). This module runs that test on a few re-simulated run
    guard by its reversals outside it: the seed accepts a capture spanning "almost the entire simulation"
    (L1298), and a rule that discards any chain touching a guard cannot confirm one (docs/sweep.md).
 
-The re-simulation is injected (``simulate(p) -> (input work J, phases (2, n))``): ``daq.sweep_cmd`` passes the
+The re-simulation is injected (``simulate(p) -> (input work J, phases (2, n))``): ``daq.studies.sweep`` passes the
 sweep's own simulator (``analysis.model.sweep.run_modal_phases``), which reproduces the sweep's run bit for bit.
 """
 

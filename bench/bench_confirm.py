@@ -100,7 +100,7 @@ def _session(name: str, path: str, out_dir: Path) -> dict:
     """One 30 s ``gvt record`` session (paced, real time) with the confirmation lane on ``path``'s settings."""
     import functools
 
-    import daq.confirm_lane as lane_mod
+    import daq.lanes.confirm as lane_mod
     from analysis.model.loader import parse_toml, validate
     from analysis.model.rigs import open_rig
     from daq.config.session import SessionConfig

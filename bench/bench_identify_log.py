@@ -5,8 +5,8 @@
 Per rig: the rig with its sensors made accelerometers (beam_ch4_sim: 20 of them, every 5th node, at 4096 Hz),
 each channel's noise 1 % of the rms of its noise-free response to the session's weakest hit over one record
 (so every hit's records carry at most 1 % noise); a session of ``--hits`` hits at log-spaced forces recorded by
-the project's simulator and sensor model into a real MCAP log (``daq.sim_session``); then ``gvt identify LOG``'s
-kernel (``daq.identify_log.identify_log``) with each frequency estimator / law, timed. Prints a table and
+the project's simulator and sensor model into a real MCAP log (``daq.studies.simulate.session``); then ``gvt identify LOG``'s
+kernel (``daq.studies.identify.log.identify_log``) with each frequency estimator / law, timed. Prints a table and
 writes bench/results/bench_identify_log.json. The test (tests/test_nsi_log.py) uses the same helpers.
 """
 
@@ -97,7 +97,7 @@ def _expand_arrays(txt: str, rig) -> str:
 
 def record_session(rig, log: Path, forces: tuple[float, ...], spacing: float, seed: int = 1) -> dict:
     """The hits at ``forces`` (N, in this order) ``spacing`` s apart, recorded into the MCAP log at ``log``."""
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.simulate.session import SessionPlan, simulate_session
 
     plan = SessionPlan(
         forces=tuple(float(f) for f in forces), pre_trigger=0.1, spacing=spacing, tail=spacing + 2.0, block_size=1024
@@ -116,8 +116,8 @@ def run_case(name: str, n_hits: int, tmp: Path, noise: float = 0.01, variants=((
     """Record the session, run ``gvt identify LOG``'s kernel once (timed, with the CLI's default bootstrap, on the
     first variant), then refit its windows for the other variants and ``--max-ratio`` values."""
     from analysis.errors import BadInput
-    from daq.identify_cmd import IdentifyOptions, identify_runs
-    from daq.identify_log import identify_log
+    from daq.studies.identify.log import identify_log
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs
 
     c = CASES[name]
     forces = session_forces(name, n_hits)

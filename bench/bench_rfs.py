@@ -23,8 +23,8 @@ sys.path.insert(0, str(ROOT))
 
 from analysis import rfs  # noqa: E402
 from analysis.model.rig import load_rig  # noqa: E402
-from daq.rfs_cmd import identify_rfs  # noqa: E402
-from daq.sim_session import SessionPlan, simulate_session  # noqa: E402
+from daq.studies.identify.rfs import identify_rfs  # noqa: E402
+from daq.studies.simulate.session import SessionPlan, simulate_session  # noqa: E402
 
 RIG = ROOT / "configs" / "rigs" / "nes_grounded_ch5.toml"
 FORCES = (236.0, 114.7, 189.7, 305.5)

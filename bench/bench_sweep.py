@@ -24,7 +24,7 @@ from rich.console import Console
 
 from analysis.model.rigs import open_rig
 from daq.outputs import jsonable
-from daq.sweep_cmd import SweepSpec, print_report, run_sweep, write_outputs
+from daq.studies.sweep import SweepSpec, print_report, run_sweep, write_outputs
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"

@@ -4,7 +4,7 @@
 
 Simulates ``--runs`` impacts P = logspace(10, pmax) N, 1 s each, all 100 nodes (analysis of the seed, L1251),
 reduces each to whole-run δ̄ at the tip and the attachment POM's RQ and temporal frequency
-(daq/identify_cmd.py), and fits eq. 5.8: the seed's RQ estimator and the POM frequency, κ = 1 (eq. 5.8 as
+(daq/studies/identify/sweep.py), and fits eq. 5.8: the seed's RQ estimator and the POM frequency, κ = 1 (eq. 5.8 as
 printed) and the harmonic-balance κ(β), all points and the weakly nonlinear part (f <= 1.25 f_n); then the
 recommended variant on interleaved sub-grids, to show how much α depends on the grid. Prints a table and
 writes bench/results/eval_nsi.json.
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.model.rigs import open_rig
-from daq.identify_cmd import IdentifyOptions, NsiRuns, identify_runs, resolve_target, simulate_runs
+from daq.studies.identify.sweep import IdentifyOptions, NsiRuns, identify_runs, resolve_target, simulate_runs
 
 TRUE_ALPHA, TRUE_BETA = 5e8, 2.0
 

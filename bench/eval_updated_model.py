@@ -66,7 +66,7 @@ def true_text() -> str:
 def updated_rig(d: Path) -> tuple[Path, Path, float]:
     """Write the nominal and true TOMLs, simulate two 20 N hits on the true rig, update the nominal from them."""
     from daq.cli import run as gvt
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.simulate.session import SessionPlan, simulate_session
 
     (d / "nominal.toml").write_text(NOMINAL + UPDATE_TABLE)
     (d / "true.toml").write_text(true_text())

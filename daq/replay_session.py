@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daq.confirm_lane import DrainingConfirmLane
 from daq.fanout import END, FanOut
 from daq.lanes import Lane, Results
+from daq.lanes.confirm import DrainingConfirmLane
 from daq.log import layout
 from daq.recorder import Outcome, Recorder
 from daq.replay import Replayer, ReplayStats
@@ -134,7 +134,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
     the_rig, why_no_rig = _rig(rep, rig)
     vlane = None
     if view is not None:
-        from daq.view.lane import start_view_lane
+        from daq.lanes.view import start_view_lane
 
         vlane = start_view_lane(fan, the_rig, streams, fs, view)
         results.route(vlane)
@@ -145,7 +145,7 @@ def run_replay(log: Path, *, speed: float | None, rig: Any = None, analysis: boo
     alane = _analysis(fan, the_rig, why_no_rig, streams, fs, results, note) if analysis else None
     clane = None
     if alane is not None and confirm:
-        from daq.confirm_lane import start_confirm_lane
+        from daq.lanes.confirm import start_confirm_lane
 
         clane = start_confirm_lane(fan, alane, results.emit, log_path=str(log))
         results.route(clane, [layout.IR_EVENTS_TOPIC])
@@ -169,7 +169,7 @@ def _rig(rep: Replayer, rig: Any) -> tuple[Any, str]:
     """The rig given, else the one attached to the log; (None, why) when there is none."""
     if rig is not None:
         return rig, ""
-    from daq.analyze import AnalyzeError, rig_from_log
+    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
 
     try:
         return rig_from_log(rep.reader), ""
@@ -193,7 +193,7 @@ def _frf(fan: FanOut, rig: Any, streams: dict, fs: float, results: Results, vlan
 def _analysis(fan: FanOut, rig: Any, why_no_rig: str, streams: dict, fs: float, results: Results,
               note: Callable[[str], None] | None):  # fmt: skip
     """The analysis lane for a replay (None, with a note, when the log cannot be analysed)."""
-    from daq.analysis_lane import LaneUnavailable, start_analysis_lane
+    from daq.lanes.analysis import LaneUnavailable, start_analysis_lane
 
     if rig is None or not streams:
         if note is not None:

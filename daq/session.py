@@ -35,8 +35,8 @@ from daq.log import layout
 from daq.log.writer import ChannelInfo
 from daq.recorder import Outcome, Recorder
 from daq.sim_devices import SimHarness, start_simulation
-from daq.sim_session import channel_infos
 from daq.sources import DeviceSource
+from daq.studies.simulate.session import channel_infos
 from drivers.base import Driver, available_drivers
 
 #: samples per block each driver delivers, for queue sizes (a serial frame, the Modbus block, a CAN block)
@@ -80,7 +80,7 @@ class SessionResult:
     analysis_dropped_samples: int = 0  # samples the analysis lane skipped because it fell behind
     analysis_cpu_s: float = 0.0  # CPU of the analysis lane's thread
     analysis_latencies_s: list[float] = field(default_factory=list)  # per base-grid window: first block arrival → result
-    view_dropped_samples: int = 0  # samples the live view did not show (lossy side channel, daq/view/lane.py)
+    view_dropped_samples: int = 0  # samples the live view did not show (lossy side channel, daq/lanes/view.py)
     confirmations: list[dict] = field(default_factory=list)  # WBEMD + slow-flow records of the IR events
     outcome: Outcome | None = None  # why it ended, the one line, the exit code
     restarts: int = 0  # device restarts (new segments)
@@ -96,7 +96,7 @@ class SessionOptions:
 
     stop: threading.Event | None = None
     status: Callable[[dict], None] | None = None
-    view: Any = None  # a daq.view.lane.ViewTarget
+    view: Any = None  # a daq.lanes.view.ViewTarget
     overwrite: bool | None = None  # None: the session's own ``overwrite``
     wait_confirmations: bool = True  # False: --no-wait
     drain_progress: Callable[[int, int], None] | None = None  # confirmations done / total after the data ends
@@ -315,7 +315,7 @@ class Session:
         if not spec.enabled:
             return None
         from analysis.operator import AnalysisSettings
-        from daq.analysis_lane import LaneUnavailable, start_analysis_lane
+        from daq.lanes.analysis import LaneUnavailable, start_analysis_lane
 
         settings = AnalysisSettings(window_s=spec.window_s, n_keep=spec.n_keep, seed_lane=spec.seed_lane)
         block = min(BLOCK_GUESS.get(d.driver, 256) for d in self.cfg.device_list)
@@ -334,7 +334,7 @@ class Session:
     def _confirm_lane(self):
         if self.analysis is None or not self.cfg.analysis.confirm:
             return None
-        from daq.confirm_lane import DrainingConfirmLane, start_confirm_lane
+        from daq.lanes.confirm import DrainingConfirmLane, start_confirm_lane
 
         lane = start_confirm_lane(self.fan, self.analysis, self.results.emit)
         self.results.route(lane, [layout.IR_EVENTS_TOPIC])
@@ -344,7 +344,7 @@ class Session:
         target = self.opts.view
         if target is None:
             return None
-        from daq.view.lane import start_view_lane
+        from daq.lanes.view import start_view_lane
 
         block = min(BLOCK_GUESS.get(d.driver, 256) for d in self.cfg.device_list)
         # one second of blocks (64-sample serial blocks: 256): a hit's wavelet or a results batch may outlast less

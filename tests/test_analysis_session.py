@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from analysis.model.rigs import open_rig
-from daq.analyze import analyze_log
 from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
 from daq.log.reader import LogReader
 from daq.session import run_session
+from daq.studies.analyze.batch import analyze_log
 
 
 @pytest.fixture(scope="module")

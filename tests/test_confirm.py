@@ -15,7 +15,7 @@ from analysis.confirm import ConfirmContext, confirm_segment, pick_sensor
 from analysis.evaluation.detectors import WINDOW_S, modal_exchange_acc
 from analysis.evaluation.grid import case_rig, default_grid, simulate_cases
 from analysis.evaluation.score import can_match
-from daq.confirm_cmd import companion_path, read_confirmations
+from daq.studies.confirm import companion_path, read_confirmations
 
 
 def test_pick_sensor_is_where_both_modes_show():
@@ -108,7 +108,7 @@ def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_e
     assert side.exists() and [r["event_id"] for r in LogReader(side).json_messages("/analysis/confirmations")] == [0]
     live = LogReader(log).json_messages("/analysis/confirmations")  # the session's own lane wrote these
     assert [r["event_id"] for r in read_confirmations(log)] == [r["event_id"] for r in live] + [0]
-    from daq.report import build_report
+    from daq.studies.report.build import build_report
 
     page = tmp_path / "r.html"
     build_report(log, page)

@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 
-from daq.confirm_lane import CONFIRM_TOPIC, ConfirmLane, LaneSettings, _Ring
 from daq.fanout import FanOut
+from daq.lanes.confirm import CONFIRM_TOPIC, ConfirmLane, LaneSettings, _Ring
 from drivers.blocks import BlockStatus, SampleBlock
 
 FS = 1000.0

@@ -28,9 +28,9 @@ from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals, load_rig
 from analysis.records import HITS_TOPIC, Hit
 from daq.cli import run as gvt
-from daq.frf_cmd import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
 from daq.log.reader import LogReader
-from daq.sim_session import SessionPlan, simulate_session
+from daq.studies.frf import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
+from daq.studies.simulate.session import SessionPlan, simulate_session
 from drivers.sim.sensor_model import AdcModel, channel_models_for, measure
 
 ROOT = Path(__file__).resolve().parents[1]

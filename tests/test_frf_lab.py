@@ -34,10 +34,10 @@ from analysis.frf import FRFSet
 from analysis.model.rig import Rig, load_rig
 from analysis.records import FRF_TOPIC
 from daq.config.session import SessionConfig
-from daq.frf_cmd import frf_from_log
 from daq.lanes.frf import default_band, frf_plan, view_curves
 from daq.log.reader import LogReader
 from daq.session import SessionResult, run_session
+from daq.studies.frf import frf_from_log
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD_S = 1.0

@@ -40,7 +40,7 @@ def linear(tmp_path_factory):
 @pytest.fixture(scope="module")
 def replayed(linear, tmp_path_factory):
     """A full-speed replay with the live FRF lane, its terminal lines and a view saved to an .rrd."""
-    from daq.view.lane import open_view
+    from daq.lanes.view import open_view
 
     rig, log = linear
     rrd = tmp_path_factory.mktemp("frf_view") / "live.rrd"

@@ -22,7 +22,7 @@ from analysis.model.config import UpdateParameter
 from analysis.model.rig import load_rig
 from analysis.model.updating import MeasuredModes, ParametricModel, Problem, update
 from daq.cli import run as gvt
-from daq.sim_session import SessionPlan, simulate_session
+from daq.studies.simulate.session import SessionPlan, simulate_session
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = (ROOT / "configs/rigs/beam_ch4_exp.toml").read_text()

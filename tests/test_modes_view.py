@@ -2,7 +2,7 @@
 
 Data: the linear ``beam_ch4_exp`` session of tests/test_frf.py (five 200 N hits, 1 % noise) through ``gvt modal``.
 Oracle for the drawing: the modes file that the same ``gvt modal`` call writes (``--modes-out``: the ModalRun's
-shapes, by daq/modal_cmd.py) and the rig's channel table (node coordinates, directions), combined here by hand:
+shapes, by daq/studies/modal.py) and the rig's channel table (node coordinates, directions), combined here by hand:
 at phase 0 node = xyz + scale · Re(shape) · direction, with scale = 10 % of the extent / max |shape| (one
 channel per node on a beam, so the peak over the period of a node's displacement is |shape|). The .rrd is checked by
 the bundled ``rerun rrd verify``/``rrd print`` and read back by rerun's ``RrdReader``; positions are float32: rel 1e-5.

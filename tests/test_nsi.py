@@ -1,4 +1,4 @@
-"""NSI from the RQ frequency–displacement plot (analysis/nsi.py, daq/identify_cmd.py, ``gvt identify``).
+"""NSI from the RQ frequency–displacement plot (analysis/nsi.py, daq/studies/identify/sweep.py, ``gvt identify``).
 
 Oracles: the seed's own Ch. 5 numbers for eq. 5.9 (method-nsi §2.1), a synthetic eq. 5.8 curve, the closed
 form κ(2) = 3π²/16 of the harmonic-balance factor, and the law the simulator integrates (beam_ch4_sim: a cubic
@@ -120,7 +120,7 @@ def test_computational_nsi_of_the_beam_tip_spring(tmp_path):
     """
     from analysis.model.rigs import open_rig
     from daq.cli import run
-    from daq.identify_cmd import NSI_CSV, IdentifyOptions, identify_runs, resolve_target, simulate_runs, write_runs
+    from daq.studies.identify.sweep import NSI_CSV, IdentifyOptions, identify_runs, resolve_target, simulate_runs, write_runs
 
     rig = open_rig("beam_ch4_sim")
     dofs = rig.structure.translational_dofs()
@@ -230,7 +230,7 @@ def test_seed_rigs_rq_moves_only_with_the_poms_shape():
     * beam_nes_ch5: the NES's RQ does cross 1B (3.03 Hz) near the seed's δ̄₁ = 1.96e-4 m (L1592)."""
     from analysis.model.rig import build_rig
     from analysis.model.rigs import open_rig
-    from daq.identify_cmd import IdentifyOptions, identify_runs, resolve_target, simulate_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, resolve_target, simulate_runs
 
     r0 = open_rig("lo_store_ch6")
     rig = build_rig(r0.config.model_copy(update={"hammer": r0.config.hammer.model_copy(update={"dof": "store"})}))

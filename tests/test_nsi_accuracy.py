@@ -16,7 +16,7 @@ import pytest
 def _runs(name: str, pmin: float, pmax: float, n: int = 20, duration: float = 1.0):
     from analysis.model.rig import build_rig
     from analysis.model.rigs import open_rig
-    from daq.identify_cmd import resolve_target, simulate_runs
+    from daq.studies.identify.sweep import resolve_target, simulate_runs
 
     rig = open_rig("lo_store_ch6" if name == "lo_store_hit" else name)
     if name == "lo_store_hit":  # the store hit directly: the LO stays nearly still and the store's curve is clean
@@ -36,7 +36,7 @@ def test_lo_store_beta_from_the_exact_backbone():
     amplitude decay averaged into one δ̄, the LO's participation, [nsi] mass = I_s/h² against 1/φ_δ² = +1.1 %)
     still costs α −7 … −10 % — measured, not noise: the bootstrap interval is ±5 % and excludes the truth.
     Tolerances: β within 1 % (measured −0.35 %), α within 15 % (measured −7.2 %), HB's β error the larger."""
-    from daq.identify_cmd import IdentifyOptions, identify_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs
 
     rig, target, runs = _runs("lo_store_hit", 0.1, 20.0)
     exact = identify_runs(rig, target, runs, IdentifyOptions(frequency="pom", law="exact", intersection=False, n_boot=0), "t").fit
@@ -57,7 +57,7 @@ def test_nes_beta_within_10_percent_and_alpha_undetermined():
 
     β is within 10 % (measured −5.7 % here, −4 … −8 % over 40–80 runs), but the data do not determine α: the bootstrap
     interval spans a factor > 3 and contains the truth. 1 s holds one cycle of the 1 Hz NES (docs/nsi.md)."""
-    from daq.identify_cmd import IdentifyOptions, identify_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs
 
     rig, target, runs = _runs("beam_nes_ch5", 0.3, 300.0)
     fit = identify_runs(rig, target, runs, IdentifyOptions(frequency="pom", law="exact", intersection=False, n_boot=50), "t").fit

@@ -1,4 +1,5 @@
-"""Experimental-style NSI from a session log (issue 22: ``gvt identify LOG``; analysis/nsi_windows.py, daq/identify_log.py).
+"""Experimental-style NSI from a session log (issue 22: ``gvt identify LOG``; analysis/nsi_windows.py,
+daq/studies/identify/log.py).
 
 Data: beam_ch4_sim (tip cubic spring, α = 5e8 N/m³, β = 2) with 20 accelerometers at 4096 Hz, each channel's noise
 1 % of the rms of its response to the session's weakest hit; 8 hits 10–150 N, 6 s apart, recorded by the project's

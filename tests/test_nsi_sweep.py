@@ -1,7 +1,7 @@
 """NSI columns recorded by ``gvt sweep`` (issue 22: identify a sweep without re-simulating) and the exact
 one-DOF backbone law of analysis/nsi.py.
 
-Oracles: the re-simulating path of ``daq.identify_cmd.simulate_runs`` (the same integrator and reduction, so the
+Oracles: the re-simulating path of ``daq.studies.identify.sweep.simulate_runs`` (the same integrator and reduction, so the
 columns must agree to the CSV's 9 significant digits), the closed-form period of the pure cubic oscillator
 (x'' + x³ = 0 at amplitude A: ω = π A / (2 K(m = 1/2)) = 0.847213 A) and the Duffing small-amplitude limit
 (the harmonic-balance ω² = ω_n² + (3/4)(α/m) A²)."""
@@ -41,8 +41,8 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
     it (no simulation); an old sweep without nsi.csv is re-simulated and gives the same table."""
     from analysis.model.rigs import open_rig
     from analysis.sweep_capture import CaptureSettings
-    from daq.identify_cmd import NSI_CSV, IdentifyOptions, identify_sweep, read_runs, resolve_target, simulate_runs
-    from daq.sweep_cmd import SweepSpec, run_sweep, write_outputs
+    from daq.studies.identify.sweep import NSI_CSV, IdentifyOptions, identify_sweep, read_runs, resolve_target, simulate_runs
+    from daq.studies.sweep import SweepSpec, run_sweep, write_outputs
 
     rig = open_rig("beam_nes_ch5")
     spec = SweepSpec(pmin=0.3, pmax=30.0, n=6, duration=1.0, workers=1, capture=CaptureSettings(capture=False))

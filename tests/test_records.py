@@ -60,7 +60,7 @@ def session_log(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def sim_log(tmp_path_factory) -> Path:
     from analysis.model.rigs import open_rig
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.simulate.session import SessionPlan, simulate_session
 
     out = tmp_path_factory.mktemp("records") / "sim.mcap"
     plan = SessionPlan(forces=(300.0, 2600.0), pre_trigger=0.05, spacing=0.13, tail=0.2, block_size=512)  # 2600 N clips

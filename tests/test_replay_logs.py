@@ -64,7 +64,7 @@ def test_weak_log_regenerates_to_the_same_samples(tmp_path):
 def test_format1_logs_still_analyse_like_their_format2_regeneration(name):
     """The logs in tests/data/format1/ (written before issue 19) analyse as the regenerated replay_logs do:
     the same IR events (the samples differ only by ADC quantisation, max 2.3e-3 m/s²)."""
-    from daq.analyze import analyze_log
+    from daq.studies.analyze.batch import analyze_log
 
     old = analyze_log(Path(__file__).resolve().parent / "data" / "format1" / f"{name}.mcap")
     new = analyze_log(LOGS / f"{name}.mcap")

@@ -27,7 +27,7 @@ def logs(tmp_path_factory):
     assert res.lost_samples == 0 and len(res.hits) == 2
     confirmed = d / "confirmed.mcap"
     conf = with_synthetic_confirmation(plain, confirmed)  # SYNTHETIC confirmation message (made-up numbers)
-    from daq.report import build_report
+    from daq.studies.report.build import build_report
 
     html = d / "report.html"
     summary = build_report(confirmed, html)
@@ -116,8 +116,8 @@ class DrawCounter:
 
 @pytest.fixture(scope="module")
 def linear_report(tmp_path_factory):
-    from daq.report import build_report
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.report.build import build_report
+    from daq.studies.simulate.session import SessionPlan, simulate_session
     from tests.test_frf import linear_rig
 
     d = tmp_path_factory.mktemp("report_frf")
@@ -209,7 +209,7 @@ def test_demo_shows_frf_peaks_and_modes_of_weak_hits():
 
     from rich.console import Console
 
-    from daq.demo import LINEAR_HITS, WEAK_FRACTION, run_demo_linear
+    from daq.studies.demo import LINEAR_HITS, WEAK_FRACTION, run_demo_linear
 
     rig = open_rig("beam_ch4_exp")
     buf = io.StringIO()

@@ -1,5 +1,5 @@
 """Coulomb friction and viscous dampers in the simulator; the RFS + time-series identification of eq. 5.11
-(analysis/rfs.py, daq/rfs_cmd.py, ``gvt identify --method rfs``) on the seed's grounded NES (L1633–1660)."""
+(analysis/rfs.py, daq/studies/identify/rfs.py, ``gvt identify --method rfs``) on the seed's grounded NES (L1633–1660)."""
 
 from __future__ import annotations
 

@@ -156,7 +156,7 @@ def test_gvt_frf_groups_the_hits_by_point_as_the_lane_did(roving):
     records, and the same FRFs as the matrix the lane attached (same records, same sums); without the
     progress records (a log recorded with --no-frf) the plan's order gives the same assignment."""
     from analysis.records import HITS_TOPIC, Hit
-    from daq.frf_cmd import assign_points, frf_from_log, plan_of_hits
+    from daq.studies.frf import assign_points, frf_from_log, plan_of_hits
 
     rig, _cfg, out, _res, _ = roving
     run = frf_from_log(out, rig)
@@ -179,8 +179,8 @@ def test_gvt_modal_on_the_roving_log_uses_every_hit_point(roving):
     """The roving matrix is a polyreference test: pLSCF with the five hit points as references finds modes 3-6
     (modes 1-2 still ring from the previous hit 1.2 s earlier, see above) within 0.1 % of the FE model, damping
     within 5 %, MAC >= 0.99, mass-normalised through each point's driving-point sensor."""
-    from daq.frf_cmd import frf_from_log
-    from daq.modal_cmd import modal_from_frf
+    from daq.studies.frf import frf_from_log
+    from daq.studies.modal import modal_from_frf
 
     rig, _cfg, out, _res, _ = roving
     run = frf_from_log(out, rig)
@@ -195,7 +195,7 @@ def test_gvt_modal_on_the_roving_log_uses_every_hit_point(roving):
 def test_the_report_of_a_roving_log_lists_every_hit_point(roving):
     """The report's FRF section on the roving log: one averages row per hit point (3 each) and the modal table
     from the polyreference fit (modes 3-6 paired with their FE modes)."""
-    from daq.report_frf import frf_section
+    from daq.studies.report.frf import frf_section
 
     rig, _cfg, out, _res, _ = roving
     tables: list[tuple[str, list]] = []

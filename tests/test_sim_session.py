@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from daq.log.reader import LogReader
-from daq.sim_session import SessionPlan, channel_noise, measure_segment, simulate_session
+from daq.studies.simulate.session import SessionPlan, channel_noise, measure_segment, simulate_session
 from drivers.sim.sensor_model import AdcModel, ChannelModel, measure
 
 
@@ -63,7 +63,7 @@ _PEAK_RSS = """
 import json, resource, sys, tempfile
 from pathlib import Path
 from analysis.model.rigs import open_rig
-from daq.sim_session import SessionPlan, simulate_session
+from daq.studies.simulate.session import SessionPlan, simulate_session
 rig = open_rig("beam_ch4_exp")
 peaks = []
 with tempfile.TemporaryDirectory() as tmp:

@@ -149,7 +149,7 @@ def test_confirm_captures_flags_only_confirmed_runs_and_respects_the_budget():
 @pytest.fixture(scope="module")
 def sweep_model(rigs):
     from analysis.model.sweep import ModalProbe
-    from daq.sweep_cmd import _simulator, output_dofs
+    from daq.studies.sweep import _simulator, output_dofs
 
     rig = rigs("beam_ch4_sim")
     dofs = output_dofs(rig, "translational")
@@ -197,7 +197,7 @@ def test_a_linear_rig_gives_no_capture(sweep_model):
     from analysis.model.rig import build_rig
     from analysis.model.rigs import resolve_rig_path
     from analysis.model.sweep import ModalProbe, run_modal_phases
-    from daq.sweep_cmd import _simulator, output_dofs
+    from daq.studies.sweep import _simulator, output_dofs
 
     cfg = load_config(RigConfig, resolve_rig_path("beam_ch4_sim")).model_copy(update={"nonlinear_springs": []})
     rig = build_rig(cfg)

@@ -283,7 +283,7 @@ def test_run_with_modal_phase_keeps_the_moments_and_measures_the_linear_modes(ri
     """One small real run: the moments are run_moments' bit for bit, and at P = 1 mN (linear) the modal phase
     advance gives the Guyan modes' frequencies (3.807 / 23.861 Hz, damped: a shade lower)."""
     from analysis.model.sweep import ModalProbe, run_with_modal_phase
-    from daq.sweep_cmd import _simulator, output_dofs
+    from daq.studies.sweep import _simulator, output_dofs
 
     rig = rigs("beam_ch4_sim")
     dofs = output_dofs(rig, "translational")

@@ -194,7 +194,7 @@ def _events() -> list[dict]:
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_events_table_fits_with_units_and_evidence_below(width):
-    from daq.analyze_cmd import events_table
+    from daq.studies.analyze.tables import events_table
 
     for events in (_events(), [{k: v for k, v in e.items() if k != "evidence"} for e in _events()], []):
         text = render(events_table(events, "internal-resonance events (near-live analysis)"), width)
@@ -223,7 +223,7 @@ def _confirmations() -> list[dict]:
 @pytest.mark.parametrize("soft_wrap", [True, False])
 @pytest.mark.parametrize("width", WIDTHS)
 def test_confirmations_table_fits_with_units_and_reasons_below(width, soft_wrap):
-    from daq.confirm_cmd import confirmations_table
+    from daq.studies.confirm import confirmations_table
 
     recs = _confirmations()
     text = render(confirmations_table(recs, "confirmations (WBEMD + slow flow, in the background)"), width, soft_wrap)
@@ -270,7 +270,7 @@ def test_live_status_on_a_terminal_shows_the_table():
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_modes_table_keeps_hz(width):
-    from daq.modes_report import print_modes
+    from daq.studies.modes import print_modes
 
     report = {"rig": "beam_ch4_exp", "limit": "low", "n_dof": 200, "guyan_masters": 8, "nonlinear_springs": 1,
               "modes": [{"mode": k + 1, "frequency_hz": 20.8 * (k + 1) ** 2, "guyan_hz": None if k > 6 else 20.81 * (k + 1) ** 2,
@@ -285,7 +285,7 @@ def test_modes_table_keeps_hz(width):
 def _sweep_report():
     from analysis.rqfep import RatioLock, SweepInteraction
     from analysis.sweep_capture import CaptureReport, SweepCapture
-    from daq.sweep_cmd import SweepReport, SweepSpec
+    from daq.studies.sweep import SweepReport, SweepSpec
 
     asym = [{"end": end, "nnm": j, "runs": 10, "reference_hz": 20.8 * j, "median_hz": 20.9 * j, "min_hz": 20.7 * j,
              "error_median": 0.0048, "error_min": -0.005, "pass": j < 4}
@@ -312,7 +312,7 @@ def _sweep_report():
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_sweep_tables_fit_with_every_unit(width, tmp_path):
-    from daq.sweep_cmd import print_report, report_tables
+    from daq.studies.sweep import print_report, report_tables
 
     rep = _sweep_report()
     tables = report_tables(rep)

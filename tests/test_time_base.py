@@ -129,7 +129,7 @@ def test_streams_record_matches_what_log_info_decodes(tmp_path):
 
 
 def test_simulated_log_is_on_one_time_base_from_a_fixed_origin(tmp_path, rigs):
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.simulate.session import SessionPlan, simulate_session
 
     out = tmp_path / "sim.mcap"
     rig = rigs("beam_ch4_exp")
@@ -259,9 +259,9 @@ def test_recorded_session_every_log_time_lies_within_the_session(recorded):
 
 @pytest.mark.slow
 def test_recorded_session_replays_in_session_time_order(recorded):
-    from daq.confirm_cmd import _stream_t0_ns
     from daq.fanout import FanOut
     from daq.replay import Replayer
+    from daq.studies.confirm import _stream_t0_ns
 
     out, res, _before, _after = recorded
     r = LogReader(out)

@@ -341,9 +341,9 @@ def test_gvt_frf_reads_the_responses_on_the_other_device_through_the_time_base(t
     applied during the session (res.timeline), which must also be the offset the log's time base gives."""
     from analysis.frf import FRFAccumulator
     from analysis.model.rigs import open_rig
-    from daq.frf_cmd import frf_from_log
     from daq.log.export import time_base
     from daq.log.reader import LogReader
+    from daq.studies.frf import frf_from_log
 
     cfg, out, res = two
     rig = open_rig(cfg.rig)

@@ -17,9 +17,9 @@ import pytest
 from analysis.model.channels import Channel, rig_channels
 from analysis.model.geometry import make_geometry, rig_geometry
 from analysis.model.rigs import open_rig
-from daq import uff
 from daq.cli import run
 from daq.log.reader import LogReader
+from daq.studies.uff import datasets as uff
 
 E13 = 5e-6  # E13.5: 6 significant digits
 E20 = 1e-11  # E20.11: 12 significant digits

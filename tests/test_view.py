@@ -139,7 +139,7 @@ def test_a_slow_view_never_holds_up_the_recording(tmp_path):
     would have taken >= 71 s. It must finish in the time of an unpaced session (1–3 s idle, ~13 s at load 7
     on 2 cores) plus at most 2 s for the view to catch up, lose nothing, and the view must drop (and say so
     in the log and in the view)."""
-    from daq.view.lane import open_view
+    from daq.lanes.view import open_view
 
     rrd = tmp_path / "live.rrd"
     target = open_view("save", str(rrd))
@@ -165,7 +165,7 @@ def test_a_slow_view_never_holds_up_the_recording(tmp_path):
 
 def test_the_view_keeps_up_when_it_is_fast(tmp_path):
     """Paced at 1x (near-live): nothing dropped, hits and analysis results reach the view."""
-    from daq.view.lane import open_view
+    from daq.lanes.view import open_view
 
     rrd = tmp_path / "live.rrd"
     target = open_view("save", str(rrd))
@@ -180,7 +180,7 @@ def test_served_viewer_listens_on_localhost_only(tmp_path):
     """``--view`` starts the bundled rerun CLI as a gRPC proxy + web viewer bound to 127.0.0.1 (never 0.0.0.0)."""
     import urllib.request
 
-    from daq.view.lane import open_view
+    from daq.lanes.view import open_view
 
     target = open_view("serve")
     try:
@@ -229,7 +229,7 @@ def test_the_view_draws_in_frames_and_catches_up_after_a_burst(tmp_path):
     """A serial device's 64-sample blocks (256 a second) are drawn a frame (0.25 s) at a time, not one wake-up
     each; a start-up backlog larger than a frame's worth is caught up early instead of overflowing the queue."""
     from daq.fanout import FanOut
-    from daq.view.lane import ViewLane, open_view
+    from daq.lanes.view import ViewLane, open_view
     from daq.view.logger import ViewSetup
     from drivers.blocks import SampleBlock
 

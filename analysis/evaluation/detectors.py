@@ -30,7 +30,7 @@ from analysis.seed_detector import seed_spikes
 from analysis.sensor_health import HealthGuard, HealthSettings
 
 WINDOW_S = 0.0216
-#: samples per block fed to the health check and the modal filter: the demo/simulated DAQ's block (daq/demo.py)
+#: samples per block fed to the health check and the modal filter: the demo/simulated DAQ's block (daq/studies/demo.py)
 BLOCK = 1024
 HEALTH = HealthSettings()
 #: the detector's settings in every evaluation (the defaults a session uses, at the seed's window)

@@ -83,7 +83,7 @@ class SweepMoments(MomentResult):
     nsi: FloatArray | None = None  # (B, len(NSI_FIELDS)) with an NsiProbe, else None
 
 
-#: What :class:`NsiProbe` keeps per run, in this order (``gvt identify`` reads them back, daq/identify_cmd.py).
+#: What :class:`NsiProbe` keeps per run, in this order (``gvt identify`` reads them back, daq/studies/identify/sweep.py).
 NSI_FIELDS: tuple[str, ...] = ("dbar_m", "f_rq_hz", "f_pom_hz", "mac", "capture", "pom_index")
 
 
@@ -95,7 +95,7 @@ class NsiProbe:
     ``shape`` (eq. 5.6, 1:1 capture flagged by two similar POMs), the POM's RQ with the linear M, K (eq. 2.18),
     its temporal coefficient's frequency (``nsi.pom_frequency_hz``) and the whole-run δ̄ (eq. 5.2) of
     δ = ``delta_row`` q. The sweep keeps these six numbers per run so ``gvt identify SWEEP_DIR`` need not
-    re-simulate (issue 22: a 1000-run sweep identified within 60 s); ``daq.identify_cmd.simulate_runs`` calls the
+    re-simulate (issue 22: a 1000-run sweep identified within 60 s); ``daq.studies.identify.sweep.simulate_runs`` calls the
     same :meth:`reduce`, so both paths give the same table."""
 
     rows: FloatArray  # (n_out, n_r)

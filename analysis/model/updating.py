@@ -186,7 +186,7 @@ class MeasuredModes:
 
     @classmethod
     def from_json(cls, doc: dict, source: str = "") -> MeasuredModes:
-        """``gvt modal --modes-out``'s file (daq/modal_cmd.py modes_json), or just ``{"freq_hz": [...]}``."""
+        """``gvt modal --modes-out``'s file (daq/studies/modal.py modes_json), or just ``{"freq_hz": [...]}``."""
         try:
             f = np.asarray(doc["freq_hz"], dtype=float)
             shapes = None

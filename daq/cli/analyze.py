@@ -22,8 +22,8 @@ def analyze(
 ) -> None:
     """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
     from analysis.operator import AnalysisSettings
-    from daq.analyze import AnalyzeError, analyze_log
-    from daq.analyze_cmd import print_json, print_report
+    from daq.studies.analyze.batch import AnalyzeError, analyze_log
+    from daq.studies.analyze.tables import print_json, print_report
 
     if rrd is not None:
         check_output(rrd, overwrite, "--rrd", inputs=[log])

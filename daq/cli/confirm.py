@@ -21,8 +21,8 @@ def confirm(
     """Confirm IR events with WBEMD + slow-flow phase analysis (seed Ch. 3); results to a companion log."""
     import json
 
-    from daq.confirm_cmd import companion_path, confirm_log, confirmations_table, write_companion
     from daq.outputs import atomic_output
+    from daq.studies.confirm import companion_path, confirm_log, confirmations_table, write_companion
 
     dest = out_path or companion_path(log)
     check_output(dest, overwrite, inputs=[log])  # before minutes of work, not after

@@ -19,7 +19,7 @@ def demo(
     """The experimental beam rig: modes, a strong and a weak hit, then a recorded session over a real pty.
 
     Writes the session log (--out) and a rerun recording beside it (.rrd); existing ones only with --overwrite."""
-    from daq.demo import run_demo
+    from daq.studies.demo import run_demo
 
     check_output(session_out, overwrite)
     check_output(session_out.with_suffix(".rrd"), overwrite)

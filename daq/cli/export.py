@@ -1,5 +1,5 @@
 """``gvt export LOG --format uff``: geometry, trace lines, accepted hits' time histories and, when given, FRFs
-and mode shapes as one UFF file (daq/uff_export.py, docs/uff.md)."""
+and mode shapes as one UFF file (daq/studies/uff/export.py, docs/uff.md)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def export(
     """Export a session log for modal software: UFF geometry (15), trace lines (82), time histories of the accepted
     hits (58), and FRFs/coherence (58) and mode shapes (55) when given."""
     from daq.outputs import atomic_output
-    from daq.uff_export import export_uff
+    from daq.studies.uff.export import export_uff
 
     if fmt != "uff":
         fail(f"--format must be uff, got {fmt!r} (for npz or csv use `gvt log export`)")

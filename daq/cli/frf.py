@@ -1,4 +1,4 @@
-"""``gvt frf``: FRFs, coherence and hammer checks of a session's hits (daq/frf_cmd.py, docs/frf.md)."""
+"""``gvt frf``: FRFs, coherence and hammer checks of a session's hits (daq/studies/frf.py, docs/frf.md)."""
 
 from __future__ import annotations
 
@@ -31,10 +31,10 @@ def frf(
     """FRFs (H1/H2/Hv) and coherence of the accepted hits, averaged; each hit's hammer checks and verdict."""
     import json
 
-    from daq.analyze import rig_from_log
-    from daq.frf_cmd import frf_from_log, plot, summary
     from daq.log.reader import LogReader
     from daq.outputs import atomic_output
+    from daq.studies.analyze.batch import rig_from_log
+    from daq.studies.frf import frf_from_log, plot, summary
 
     for p, what in ((plot_path, "--plot"), (out_path, "--out")):
         if p is not None:

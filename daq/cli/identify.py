@@ -47,13 +47,13 @@ def identify(
     overwrite: OverwriteOpt = False,
 ) -> None:
     """Identify α|δ|^β δ of the rig's attachment from a force sweep: whole-run δ̄, RQ-FDP, eq. 5.8 fit."""
-    if method != "nsi":  # --method rfs: the grounded attachment's eq. 5.11 from a session log (daq/rfs_cmd.py)
-        from daq.rfs_cmd import cli_rfs
+    if method != "nsi":  # --method rfs: the grounded attachment's eq. 5.11 from a session log (daq/studies/identify/rfs.py)
+        from daq.studies.identify.rfs import cli_rfs
 
         return cli_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite, quantity)
     if quantity is not None:
         fail("--quantity is for --method rfs")
-    from daq.identify_cmd import IdentifyOptions
+    from daq.studies.identify.sweep import IdentifyOptions
 
     opts = IdentifyOptions(frequency=frequency, law=law, max_ratio=max_ratio, smooth=smooth, n_boot=boot,
                            intersection=not no_intersection)  # fmt: skip
@@ -63,8 +63,8 @@ def identify(
     outs = [(p, w) for p, w in ((png, "--png"), (out_toml, "--out"), (validation_png, "--validation-png")) if p is not None]
     if len({p.resolve() for p, _ in outs}) < len(outs):
         fail(f"{', '.join(w for _, w in outs)} must name different files")
-    if not source.is_dir():  # a session LOG: windowed δ̄ as in the seed's Ch. 5 experiment (daq/identify_log.py)
-        from daq.identify_log import cli_identify_log
+    if not source.is_dir():  # a session LOG: windowed δ̄ as in the seed's Ch. 5 experiment (daq/studies/identify/log.py)
+        from daq.studies.identify.log import cli_identify_log
 
         if validate_forces is not None:
             fail("--validate-forces is for a sweep; a LOG validates on its hits (--validate 1,2,3)")
@@ -73,13 +73,13 @@ def identify(
         fail("--validate names hits of a LOG; a sweep validates at forces (--validate-forces F,F,F)")
     for p, w in outs:
         check_output(p, overwrite, w)
-    from daq import identify_validate as iv
+    from daq.studies.identify import validate as iv
 
     forces = iv.parse_forces(validate_forces) if validate_forces is not None else None
     r = open_rig(rig)
     if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
         fail(f"--out {out_toml}: is the rig itself; give a new file name")
-    from daq.identify_cmd import identify_sweep, plot_fdp, print_report
+    from daq.studies.identify.sweep import identify_sweep, plot_fdp, print_report
 
     with Progress(err if json_out else out) as report:
         ident = identify_sweep(r, source, opts, progress=report)

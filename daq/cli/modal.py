@@ -34,8 +34,8 @@ def modal(
     import json
 
     from analysis.modal_id import load_targets
-    from daq.modal_cmd import load_frf_source, modal_from_frf, rows_summary, table_text, write_modes
     from daq.outputs import atomic_output
+    from daq.studies.modal import load_frf_source, modal_from_frf, rows_summary, table_text, write_modes
 
     for p, what in ((png, "--png"), (modes_out, "--modes-out"), (rrd, "--rrd")):
         if p is not None:
@@ -81,9 +81,9 @@ def modal(
 def _frfs_of_log(source: Path, r, band_hi: float | None, json_out: bool) -> tuple:
     """(rig, FRFs, driving points, refused hits) of a session log: its attached rig unless one was given, and
     gvt frf's FRFs of the accepted hits (every hit point of a roving plan a reference); none accepted: exit 2."""
-    from daq.analyze import rig_from_log
-    from daq.frf_cmd import frf_from_log
     from daq.log.reader import LogReader
+    from daq.studies.analyze.batch import rig_from_log
+    from daq.studies.frf import frf_from_log
 
     r = r if r is not None else rig_from_log(LogReader(source))
     with Progress(err if json_out else out) as report:

@@ -20,7 +20,7 @@ def model_modes(
     count: Annotated[int, typer.Option(min=1, help="How many modes to list.")] = 10,
 ) -> None:
     """List the rig's natural frequencies (FE, and Guyan-reduced to the sensor DOFs)."""
-    from daq.modes_report import modes_report, print_modes
+    from daq.studies.modes import modes_report, print_modes
 
     if limit not in ("low", "high"):
         fail(f"--limit must be 'low' or 'high', got {limit!r}")

@@ -39,8 +39,8 @@ def model_update(
 ) -> None:
     """Update the rig's parameters (Young's modulus, masses, springs) so its modes match the measured ones."""
     from analysis.model.rigs import resolve_rig_path
-    from daq.model_update_cmd import run_update, summary, table_text
     from daq.outputs import atomic_output
+    from daq.studies.update import run_update, summary, table_text
 
     rig_path = resolve_rig_path(rig)
     check_output(out_path, overwrite, "--out", inputs=[source, rig_path])

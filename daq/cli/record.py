@@ -124,11 +124,11 @@ def _print_results(cfg, res, target: Path) -> None:
     out.print(f"wrote {target}: {res.samples} samples in {res.seconds:.1f} s; lost: {lost}; writer overruns: "
               f"{res.writer_overrun_samples}{restarts}{rejected}; suspect channels: {suspects}", markup=False)  # fmt: skip
     if cfg.analysis.enabled:
-        from daq.analyze_cmd import events_table
+        from daq.studies.analyze.tables import events_table
 
         out.print(events_table(res.analysis_events, "internal-resonance events (near-live analysis)"))
         if res.confirmations:
-            from daq.confirm_cmd import confirmations_table
+            from daq.studies.confirm import confirmations_table
 
             out.print(confirmations_table(sorted(res.confirmations, key=lambda c: c.get("event_id") or 0),
                                           "confirmations (WBEMD + slow flow, in the background)"))  # fmt: skip

@@ -27,8 +27,8 @@ def replay(
     import signal
     import threading
 
-    from daq.confirm_cmd import companion_path
     from daq.replay_session import run_replay
+    from daq.studies.confirm import companion_path
 
     companion = companion_path(log)
     if analysis and confirm:
@@ -66,14 +66,14 @@ def _drain():
 
 def _print(log: Path, res, companion: Path) -> None:
     if res.stream is not None:
-        from daq.analyze_cmd import events_table
+        from daq.studies.analyze.tables import events_table
 
         out.print(events_table(res.events, f"internal-resonance events (analysis of {res.stream})"))
         if res.analysis_dropped_samples:
             out.print(f"analysis fell behind: skipped {res.analysis_dropped_samples} samples (restarted after each gap)",
                       markup=False)  # fmt: skip
     if res.confirmations is not None:
-        from daq.confirm_cmd import ConfirmRun, confirmations_table, write_companion
+        from daq.studies.confirm import ConfirmRun, confirmations_table, write_companion
 
         out.print(confirmations_table(res.confirmations, f"confirmations (WBEMD + slow flow, {res.stream})"))
         if res.confirmations:

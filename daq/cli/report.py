@@ -29,10 +29,10 @@ def report(
 ) -> None:
     """A static HTML report of a session: hits, verdicts, loss, RQ-FEP, IR events, confirmations, FRFs and modes."""
     from daq.outputs import atomic_output
-    from daq.report import build_report
+    from daq.studies.report.build import build_report
 
     check_output(out_path, overwrite, inputs=[log])
-    from daq.report_identify import load_summaries
+    from daq.studies.report.identify import load_summaries
 
     ident = load_summaries(identify or [])
 

@@ -33,13 +33,13 @@ def simulate(
         fail(f"--out {out_path}: use .mcap (session log) or .npz (one hit)")
     check_output(out_path, overwrite)
     if out_path.suffix == ".npz":
-        from daq.simulate_cmd import simulate_to_npz
+        from daq.studies.simulate.hit import simulate_to_npz
 
         out.print(simulate_to_npz(r, out_path, force=force, duration=duration, seed=seed))
         return
     if out_path.suffix != ".mcap":
         fail(f"--out {out_path}: use .mcap (session log) or .npz (one hit)")
-    from daq.sim_session import SessionPlan, default_forces, simulate_session
+    from daq.studies.simulate.session import SessionPlan, default_forces, simulate_session
 
     if forces:
         try:

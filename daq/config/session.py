@@ -224,7 +224,7 @@ class AnalysisSpec(_Strict):
     n_keep: Annotated[int, Field(ge=1, le=MAX_CHANNELS)] = 4  # NNMs of interest (POMs kept per window)
     seed_lane: bool = True  # POD/RQ curves and window-robust spikes (off: modal lane only)
     queue_seconds: QueueSeconds = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
-    confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/confirm_lane.py)
+    confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/lanes/confirm.py)
 
 
 #: Hit points of a roving-hammer plan and averages per point: a plan is typed by a person (hundreds of points on an

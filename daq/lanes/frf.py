@@ -5,13 +5,13 @@ gets them by :meth:`FRFLane.offer` (a bounded queue: a hit that does not fit is 
 the samples by its own fan-out subscription, of which it keeps a bounded ring of the hammer's stream
 (two records, the pre-trigger and one second: the gate reports a hit a record after its trigger). When a
 hit's record ``[index - pre, index - pre + n)`` is in the ring, it is judged exactly as ``gvt frf`` judges
-it (daq/frf_cmd.py: the gate's verdict, a complete record, :func:`analysis.hammer.check_hit`) and an
+it (daq/studies/frf.py: the gate's verdict, a complete record, :func:`analysis.hammer.check_hit`) and an
 accepted hit is added to an :class:`~analysis.frf.FRFAccumulator` (one FFT of the record, whatever the
 number of hits so far). Per hit it publishes a small :class:`~analysis.records.FRFUpdate` on
 ``/analysis/frf`` (averages, peaks, coherence at the peaks: never the FRF arrays), one terminal line
 (``say``) and, for the live view, the curves of the driving point and one chosen response (``view``).
 
-Record and window are ``gvt frf``'s (:mod:`daq.frf_cmd`): ``n`` = the rig's record length, the exponential
+Record and window are ``gvt frf``'s (:mod:`daq.studies.frf`): ``n`` = the rig's record length, the exponential
 window's ``tau`` from the rig's lowest mode (:func:`analysis.frf.choose_tau`), the band 1000 Hz (fs / 2.56 when
 lower: :func:`default_band`). One
 difference, because a live lane cannot know later hits: ``gvt frf`` shortens every record to the smallest
@@ -44,10 +44,10 @@ from analysis.frf import FRFAccumulator, FRFSet, choose_tau, stack_references
 from analysis.hammer import check_hit, force_spectrum, level_db
 from analysis.records import FRF_TOPIC, PLAN_TOPIC, FRFUpdate, PlanRecord
 from daq.fanout import END, FanOut, Subscription
-from daq.frf_cmd import PRE_TRIGGER_S, default_band, force_full_scale, lowest_decay_rate
 from daq.lanes import Sink
 from daq.log import layout
 from daq.roving import PlanTracker
+from daq.studies.frf import PRE_TRIGGER_S, default_band, force_full_scale, lowest_decay_rate
 from drivers.blocks import SampleBlock
 
 #: the view's topic for the curves of one update (in-process only: never written to a log)

@@ -4,7 +4,7 @@ The log's blocks go through the same :class:`~daq.view.logger.ViewLogger` the li
 order, and every result (hits, driver events, ``/analysis/*``, ``/analysis/confirmations``) is handed
 to it as soon as the blocks up to its time have been drawn — so POM shapes of events and the wavelet
 spectrum of hits come from the same bounded history as live. Results come from the log when the
-session ran the near-live analysis, or from :func:`daq.analyze.analyze_log` (same kernels) otherwise.
+session ran the near-live analysis, or from :func:`daq.studies.analyze.batch.analyze_log` (same kernels) otherwise.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def log_results(reader: LogReader, rig=None, results: dict[str, list[dict]] | No
     got = {t: reader.json_messages(t) for t in RESULT_TOPICS}
     if got[layout.RQ_TOPIC] or got[layout.MODAL_TOPIC]:
         return got, "log"
-    from daq.analyze import AnalyzeError, analyze_log
+    from daq.studies.analyze.batch import AnalyzeError, analyze_log
 
     try:
         run = analyze_log(reader.path, rig)
@@ -65,7 +65,7 @@ def build_rrd(
     log: str | Path, out: str | Path, rig=None, results: dict[str, list[dict]] | None = None, wavelet_channel: str | None = None,
 ) -> BuildSummary:  # fmt: skip
     """Write ``out`` (.rrd, blueprint included) from the session log ``log``; ``rig`` defaults to the log's."""
-    from daq.analyze import AnalyzeError, rig_from_log
+    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
 
     reader = LogReader(log)
     infos = reader.streams()

@@ -1,4 +1,4 @@
-"""The few lines ``gvt record|replay --view/--connect`` need around :mod:`daq.view.lane` (kept out of cli.py)."""
+"""The few lines ``gvt record|replay --view/--connect`` need around :mod:`daq.lanes.view` (kept out of cli.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import time
 
 from rich.console import Console
 
-from daq.view.lane import ViewLane, ViewTarget, open_view
+from daq.lanes.view import ViewLane, ViewTarget, open_view
 
 
 def open_live_view(console: Console, view: bool, connect: str | None) -> ViewTarget | None:

@@ -202,7 +202,7 @@ def rig_response_channels(rig, outputs: Sequence[str]) -> list[Channel]:
 
 
 def write_modal_run_rrd(run, rig, out: str | Path, frames: int = FRAMES) -> dict[int, float]:
-    """``gvt modal --rrd``: :func:`write_mode_rrd` for a ``daq.modal_cmd.ModalRun`` on ``rig``'s test geometry."""
+    """``gvt modal --rrd``: :func:`write_mode_rrd` for a ``daq.studies.modal.ModalRun`` on ``rig``'s test geometry."""
     from analysis.model.geometry import rig_geometry
 
     if rig is None:

@@ -21,7 +21,7 @@ from analysis import records
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
-from daq.analysis_lane import analysis_stream
+from daq.lanes.analysis import analysis_stream
 from daq.log import layout
 from daq.log.reader import LogReader, LogReadError
 from daq.replay import iter_log_blocks

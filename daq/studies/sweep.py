@@ -291,7 +291,7 @@ def _nsi_probe(rig: Rig, sim: ImpactSimulator, dofs: list[int], g) -> NsiProbe |
     """The per-run NSI reduction ``gvt identify`` reads (nsi.csv) when the rig has an attachment ([nsi] or a
     nonlinear spring at the outputs); None otherwise (the sweep is then as before)."""
     from analysis.errors import BadInput
-    from daq.identify_cmd import resolve_target
+    from daq.studies.identify.sweep import resolve_target
 
     try:
         t = resolve_target(rig, dofs, g.M, g.K)
@@ -355,7 +355,7 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
     res = rep.result
     cols = getattr(res, "nsi", None)
     if cols is not None:
-        from daq.identify_cmd import NSI_CSV, NsiRuns, write_runs
+        from daq.studies.identify.sweep import NSI_CSV, NsiRuns, write_runs
 
         paths["nsi"] = out_dir / NSI_CSV
         write_runs(NsiRuns(res.amplitudes, res.input_work, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3], cols[:, 4] > 0,

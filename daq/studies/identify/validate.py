@@ -2,7 +2,7 @@
 
 The identified law α|δ|^β δ goes into the rig's TOML as a ``power`` nonlinear spring (coefficient α, exponent β + 1,
 ``analysis/model/config.py``), with the rig's other entries, comments and the spring's ``to`` kept (tomlkit, as the
-RFS path's ``daq.rfs_cmd.identified_toml``). That rig and the reference are then compared at validation hit levels
+RFS path's ``daq.studies.identify.rfs.identified_toml``). That rig and the reference are then compared at validation hit levels
 by R² of the attachment's relative displacement and velocity — the quantities the seed compared (displacement for
 the NES beam, Fig. 5.7; velocity for the store, Fig. 6.19; digest §1.10–1.12):
 
@@ -205,7 +205,7 @@ def parse_forces(text: str) -> list[float]:
 def simulate_relative(rig: Rig, dofs: Sequence[int], att: int, refs: Sequence[int], forces: Sequence[float],
                       duration: float, order: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The rig's hammer pulse at each force: (t, δ (B, n), δ' (B, n)) of the attachment (outputs: its DOFs only)."""
-    from daq.sweep_cmd import _simulator
+    from daq.studies.sweep import _simulator
 
     out = [dofs[att], *(dofs[r] for r in refs)]
     sim = _simulator(rig, out, order)
@@ -262,7 +262,7 @@ def _measured_force(reader, rig: Rig, infos: dict, end: int, fs: float) -> np.nd
 def _simulate_force(identified: Rig, dofs, force: np.ndarray, fs: float, progress) -> np.ndarray:
     """The identified rig's accelerations at ``dofs`` driven by ``force`` from rest, in segments."""
     from analysis.model.forces import ForceSeries
-    from daq.sweep_cmd import _simulator
+    from daq.studies.sweep import _simulator
 
     end = force.size
     sim = _simulator(identified, dofs, None)
@@ -279,14 +279,14 @@ def validate_log(run, rig: Rig, identified: Rig, log: Path, hits: Sequence[int] 
                  progress: Callable[[str, float], None] | None = None) -> Validation:  # fmt: skip
     """The log's hits ``hits`` (default: the lowest, middle and highest accepted hit that gave windows) against the
     identified rig driven by the log's measured force from the log's start; both through the identification's
-    displacement chain over the same padded span (``daq.identify_log``), the chain's velocity stage for δ'."""
+    displacement chain over the same padded span (``daq.studies.identify.log``), the chain's velocity stage for δ'."""
     import time
 
     import analysis.nsi_windows as nw
     from analysis.preprocess import PreprocessSettings, acc_to_disp
     from analysis.records import HITS_TOPIC, Hit
-    from daq.identify_log import INTEGRATION_PAD_PERIODS, PRE_TRIGGER_S, _layout, _read_span
     from daq.log.reader import LogReader
+    from daq.studies.identify.log import INTEGRATION_PAD_PERIODS, PRE_TRIGGER_S, _layout, _read_span
 
     t0 = time.perf_counter()
     reader = LogReader(log)
@@ -422,8 +422,8 @@ def sweep_validator(
     ident, rig: Rig, sweep_dir: Path, forces: Sequence[float] | None
 ) -> tuple[list[int], Callable[[Rig], Validation]]:
     """The sweep's output DOFs and the validation against its own rig at ``forces`` (default :func:`validation_forces`)."""
-    from daq.identify_cmd import read_sweep_spec
-    from daq.sweep_cmd import output_dofs
+    from daq.studies.identify.sweep import read_sweep_spec
+    from daq.studies.sweep import output_dofs
 
     spec = read_sweep_spec(sweep_dir)
     dofs = output_dofs(rig, spec["outputs"])

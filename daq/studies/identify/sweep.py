@@ -1,7 +1,7 @@
 """``gvt identify``: the seed's NSI (§5.1) on a force sweep of a rig — whole-run δ̄ and RQ-FDP, eq. 5.8 fit.
 
 A sweep directory written by ``gvt sweep`` holds each run's P, input energy and RQ frequencies but not δ̄ nor
-the POMs (``daq/sweep_cmd.py`` keeps moments only). The NSI needs both, so the sweep's runs (its rig, P grid,
+the POMs (``daq/studies/sweep.py`` keeps moments only). The NSI needs both, so the sweep's runs (its rig, P grid,
 duration and outputs from ``sweep.json``) are re-simulated here, one at a time in bounded memory, each reduced
 to δ̄ (eq. 5.2), its whole-record POD (eq. 2.12–2.13), the attachment's POM by MAC (eq. 5.6), its RQ frequency
 (eq. 2.18) and the frequency of its temporal coefficient; the per-run table is written beside the sweep as
@@ -110,7 +110,7 @@ def simulate_runs(
     covariance P cov(q) Pᵀ (eq. 2.12) for the POD, δ = (row_att − mean rows_refs) q for δ̄, the POM's temporal
     coefficient (q − q̄) Pᵀψ for its frequency. Memory: one run's q, q̇ (~6 MB for 1 s of beam_ch4_sim)."""
     from analysis.model.sweep import NsiProbe, _run_record
-    from daq.sweep_cmd import _simulator
+    from daq.studies.sweep import _simulator
 
     t0 = time.perf_counter()
     sim = _simulator(rig, output_dofs, order)
@@ -262,7 +262,7 @@ def identify_sweep(
     rig: Rig, sweep_dir: Path, options: IdentifyOptions, progress: Callable[[str, float], None] | None = None
 ) -> Identification:
     """``gvt identify SWEEP_DIR``: the sweep's runs (``nsi.csv`` if present, else simulated and cached)."""
-    from daq.sweep_cmd import output_dofs
+    from daq.studies.sweep import output_dofs
 
     spec = read_sweep_spec(sweep_dir)
     if spec["rig"] != rig.name:

@@ -7,8 +7,8 @@ import json
 import numpy as np
 from rich.console import Console
 
-from daq.analyze import AnalysisRun
 from daq.log import layout
+from daq.studies.analyze.batch import AnalysisRun
 from daq.terminal import Col, FitTable
 
 

@@ -17,8 +17,8 @@ from rich.table import Table
 
 from analysis.model.rig import Rig
 from analysis.model.truth import zero_crossing_frequency
-from daq.modes_report import modes_report, print_modes
-from daq.simulate_cmd import simulate_hit
+from daq.studies.modes import modes_report, print_modes
+from daq.studies.simulate.hit import simulate_hit
 
 WEAK_FRACTION = 0.02
 
@@ -89,9 +89,9 @@ def run_demo_linear(console: Console, rig: Rig, force: float) -> dict:
     from pathlib import Path
 
     from analysis.errors import BadInput
-    from daq.frf_cmd import frf_from_log, peak_rows
-    from daq.modal_cmd import driving_points, modal_from_frf, table_text
-    from daq.sim_session import SessionPlan, simulate_session
+    from daq.studies.frf import frf_from_log, peak_rows
+    from daq.studies.modal import driving_points, modal_from_frf, table_text
+    from daq.studies.simulate.session import SessionPlan, simulate_session
 
     t0 = time.perf_counter()
     plan = SessionPlan(forces=(force,) * LINEAR_HITS, pre_trigger=0.1, spacing=LINEAR_SPACING_S, tail=LINEAR_SPACING_S,
@@ -151,11 +151,11 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap",
     from daq.terminal import hits_table
 
     console.print(hits_table(res.hits, f"hits and verdicts ({len(res.hits)} found)"))
-    from daq.analyze_cmd import events_table
+    from daq.studies.analyze.tables import events_table
 
     console.print(events_table(res.analysis_events, "internal-resonance events flagged near-live"))
     if res.confirmations:
-        from daq.confirm_cmd import confirmations_table
+        from daq.studies.confirm import confirmations_table
 
         console.print(confirmations_table(sorted(res.confirmations, key=lambda r: r.get("event_id") or 0),
                                           "confirmed in the background (WBEMD + slow flow; seed Ch. 3)"))  # fmt: skip
@@ -166,8 +166,8 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap",
     )
     console.print(f"  analyse it again (same kernels, batch): gvt analyze {out}")
     rrd = str(Path(out).with_suffix(".rrd"))
+    from daq.lanes.view import ViewError, rerun_cli
     from daq.view.build import build_rrd
-    from daq.view.lane import ViewError, rerun_cli
 
     build_rrd(out, rrd, rig=rig)
     try:

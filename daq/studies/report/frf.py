@@ -1,7 +1,7 @@
 """The FRF section of ``gvt report``: FRFs, coherence, hammer spectra, averages, refused hits and modes.
 
 What an impact test exists to produce (issue 20, item 3), from the same code as ``gvt frf`` and ``gvt modal``
-(:func:`daq.frf_cmd.frf_from_log`, :func:`daq.modal_cmd.modal_from_frf`), so the report and the verbs agree:
+(:func:`daq.studies.frf.frf_from_log`, :func:`daq.studies.modal.modal_from_frf`), so the report and the verbs agree:
 
 - FRF magnitude and phase of the driving point (the response at the hammer's DOF) and one chosen response,
 - their coherence (a dip below 1 at a peak means noise or nonlinearity there; Ewins, *Modal Testing*, 2000, §4.3),
@@ -41,7 +41,7 @@ def frf_section(log: str | Path, rig, table, *, channel: str | None = None, band
     """The section for ``log``; ``table(title, cols, rows, empty)`` renders HTML tables (report's ``_table``)."""
     if rig is None:
         return _absent(table, f"no rig ({rig_note or 'the log carries no rig attachment'}); give one with --rig")
-    from daq.frf_cmd import frf_from_log
+    from daq.studies.frf import frf_from_log
 
     try:
         run = frf_from_log(log, rig, band_hz=band_hz)
@@ -99,7 +99,7 @@ def shown_outputs(outputs: list[str], driving: str | None, channel: str | None) 
 
 
 def _modal_table(frf, rig, band_hz: float, table, driving: dict[str, str] | None = None) -> str:
-    from daq.modal_cmd import modal_from_frf
+    from daq.studies.modal import modal_from_frf
 
     title = "identified modes (pLSCF + LSFD, window damping removed) against the FE modes"
     try:

@@ -1,10 +1,10 @@
 """``gvt modal``: modal parameters of a session (or of an FRF file), checked against the rig's FE modes.
 
-The chain the issue asks for, end to end: FRFs of the accepted hits (``daq/frf_cmd.py``, or an ``FRFSet`` saved
+The chain the issue asks for, end to end: FRFs of the accepted hits (``daq/studies/frf.py``, or an ``FRFSet`` saved
 by ``gvt frf --out``) → pLSCF stabilisation and automatic or manual pole selection → LSFD shapes, MPC/MPD
 (``analysis/modal_id.py``) → the exponential window's added damping removed → each mode paired with the FE
 mode of highest MAC at the sensor DOFs. Its modes file is what ``gvt export --format uff --modes`` writes as
-UFF 55 (``daq/uff_export.py::load_modes_json``) and what model updating (issue 21) will read.
+UFF 55 (``daq/studies/uff/export.py::load_modes_json``) and what model updating (issue 21) will read.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def modal_from_frf(frf: FRFSet, rig: Rig | None, f_lo: float, f_hi: float, targe
 
 
 def modes_json(run: ModalRun) -> dict:
-    """The modes file: ``daq/uff_export.py::load_modes_json``'s format plus the quality and FE columns."""
+    """The modes file: ``daq/studies/uff/export.py::load_modes_json``'s format plus the quality and FE columns."""
     shapes = run.result.shapes
     return {
         "source": run.source, "band_hz": [run.f_lo, run.f_hi], "references": list(run.frf.references),

@@ -1,4 +1,4 @@
-"""``gvt export LOG --format uff``: what a session log holds, as one UFF file (datasets in ``daq/uff.py``).
+"""``gvt export LOG --format uff``: what a session log holds, as one UFF file (datasets in ``daq/studies/uff/datasets.py``).
 
 Written, in this order: units (164, SI), the test geometry (15) and its trace lines (82), FRFs and coherence (58,
 function types 4 and 6) from ``--frf FRF.npz`` (``analysis.frf.FRFSet.to_npz``) and mode shapes (55) from
@@ -23,8 +23,8 @@ from analysis.errors import BadInput
 from analysis.model.channels import Channel, by_name, read_channel_csv, rig_channels
 from analysis.model.geometry import Geometry, make_geometry, rig_geometry
 from analysis.records import HITS_TOPIC, PLAN_TOPIC
-from daq import uff
 from daq.log.reader import LogReader
+from daq.studies.uff import datasets as uff
 
 PRE_TRIGGER_S = 0.01  # daq/hits.py TriggerSettings.pre_trigger: what the hit gate keeps before the edge
 
@@ -127,7 +127,7 @@ def _plan_references(reader: LogReader, chans: dict[str, Channel]) -> dict[str, 
 def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: Path | None = None,
                modes: Path | None = None, binary: bool = False) -> str:  # fmt: skip
     """Write ``out`` (the caller made it a temporary path) and return the one-line summary."""
-    from daq.analyze import rig_from_log
+    from daq.studies.analyze.batch import rig_from_log
 
     reader = LogReader(log)
     try:

@@ -1,11 +1,11 @@
 """``gvt report LOG --identify SUMMARY.json``: the "Identification" section of the session report (issue 22 item 7).
 
 Fed by the JSON summaries ``gvt identify --json`` prints (one file per ``--identify``, repeatable): an NSI summary
-(``daq.identify_cmd`` / ``daq.identify_log``: the eq. 5.8 law, α and β with their bootstrap intervals, R², the
-validation table of ``daq.identify_validate``) or an RFS one (``daq.rfs_cmd``: eq. 5.11's parameters, the hits'
-displacement R²). A PNG the summary names (``png``: the RQ-FDP, ``validation_png``: the overlays) is embedded when
-the file is found as written or beside the summary. The summaries are read before the report is drawn, so a bad one
-is one line, exit 2, and no half-written report.
+(``daq.studies.identify.sweep`` / ``daq.studies.identify.log``: the eq. 5.8 law, α and β with their bootstrap
+intervals, R², the validation table of ``daq.studies.identify.validate``) or an RFS one (``daq.studies.identify.rfs``:
+eq. 5.11's parameters, the hits' displacement R²). A PNG the summary names (``png``: the RQ-FDP, ``validation_png``:
+the overlays) is embedded when the file is found as written or beside the summary. The summaries are read before
+the report is drawn, so a bad one is one line, exit 2, and no half-written report.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ confirmations of the background lane (``/analysis/confirmations``, or "none") an
 plots: hammer force with hits, driving-point response, RQ per NNM against time with IR events, modal
 energies, the RQ-FEP (RQ frequency against windowed modal energy, seed Ch. 4), a Morlet wavelet
 spectrum of a hit record (eq. 3.2, amplitude normalisation), POM shapes of IR events and slow-flow phase
-trajectories of confirmations; and the FRF section (``daq/report_frf.py``): FRF magnitude and phase, coherence,
+trajectories of confirmations; and the FRF section (``daq/studies/report/frf.py``): FRF magnitude and phase, coherence,
 hammer spectra with their −10 dB points, averages, refused hits and the modes against the FE modes. Each figure
 is drawn once (:func:`_png`).
 
@@ -101,14 +101,14 @@ def build_report(
 
     ``frf_channel``: the response drawn beside the driving point in the FRF figures (default: the last);
     ``band_hz``: the band of interest of the FRFs and the hammer check (``gvt frf --band``);
-    ``identification``: ``gvt identify --json`` summaries (``daq.report_identify.load_summaries``) for the
+    ``identification``: ``gvt identify --json`` summaries (``daq.studies.report.identify.load_summaries``) for the
     "Identification" section."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from daq.analyze import AnalyzeError, rig_from_log
+    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
     from daq.view.build import log_results
     from daq.view.logger import ViewSetup
 
@@ -247,7 +247,7 @@ def build_report(
         figs.append(("POM shapes over IR events (acceleration POD)", _png(fig)))
     confs = res.get(layout.CONFIRMATIONS_TOPIC, [])
     if not confs:  # gvt confirm / gvt replay write theirs next to the log (docs/decisions.md D22)
-        from daq.confirm_cmd import read_confirmations
+        from daq.studies.confirm import read_confirmations
 
         confs = read_confirmations(log, include_log=False)
     with_traj = [c for c in confs if (c.get("trajectory") or {}).get("phi")]
@@ -269,14 +269,14 @@ def build_report(
     ev_rows = [[k, v] for k, v in sorted(info["events"].items())]
     parts.append(_table("driver and session events by kind", ["kind", "count"], ev_rows, "no events (no gaps, CRC errors)"))
     parts.append(_table("hits and verdicts", HIT_COLS, [_hit_row(h) for h in hits]))
-    from daq.report_frf import frf_section
+    from daq.studies.report.frf import frf_section
 
     sec = frf_section(log, rig, _table, channel=frf_channel, band_hz=band_hz, rig_note=rig_note)
     parts += sec.tables
     figs += [(name, _png(fig)) for name, fig in sec.figures]
     summary.frf_absent = sec.absent
     if identification:
-        from daq.report_identify import identify_section
+        from daq.studies.report.identify import identify_section
 
         id_parts, id_figs = identify_section(identification, _table)
         parts += ["<h2>Identification</h2>", *id_parts]

@@ -22,10 +22,10 @@ import numpy as np
 
 from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
 from analysis.model.rig import Rig
-from daq.analyze import AnalyzeError, analyze_log, open_for_analysis
-from daq.confirm_lane import CONFIRM_TOPIC, skipped
+from daq.lanes.confirm import CONFIRM_TOPIC, skipped
 from daq.log import layout
 from daq.log.reader import LogReader
+from daq.studies.analyze.batch import AnalyzeError, analyze_log, open_for_analysis
 
 META_CONFIRM = "gvtlink.confirm"
 

@@ -1,7 +1,7 @@
 """``gvt model update``: a rig's parameters updated against a session's (or a modes file's) measured modes.
 
 The measured modes come from ``gvt modal``'s chain (issue 20): a session log's accepted hits -> FRFs
-(``daq/frf_cmd.py frf_from_log``) -> pLSCF + LSFD (``daq/modal_cmd.py modal_from_frf``), or the modes file
+(``daq/studies/frf.py frf_from_log``) -> pLSCF + LSFD (``daq/studies/modal.py modal_from_frf``), or the modes file
 ``gvt modal --modes-out`` wrote. The updating itself is ``analysis/model/updating.py``; this module reads the
 inputs, and writes the updated rig TOML with its provenance (docs/model-updating.md).
 """
@@ -46,8 +46,8 @@ def measured_from_source(
         return MeasuredModes.from_json(doc, str(source))
     if not source.exists():
         raise BadInput(f"{source}: file not found")
-    from daq.frf_cmd import frf_from_log
-    from daq.modal_cmd import modal_from_frf, modes_json
+    from daq.studies.frf import frf_from_log
+    from daq.studies.modal import modal_from_frf, modes_json
 
     fr = frf_from_log(source, rig, band_hz=None if band is None else band[1],
                       progress=None if progress is None else (lambda f: progress("hits", f)))  # fmt: skip

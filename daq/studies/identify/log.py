@@ -5,7 +5,7 @@ for the rig's record length (shortened to the next hit's), one hit at a time (me
 two (the sensors on the hammer's sample grid through the session's time base, as ``gvt frf`` reads them); each is
 turned into displacement, cut into windows and reduced to one (δ̄, f) pair per window
 (``analysis.nsi_windows``). All windows then go through the sweep path's RQ-FDP and fit
-(``daq.identify_cmd.identify_runs``), so the tables, JSON and PNG are the sweep's; the per-window table is
+(``daq.studies.identify.sweep.identify_runs``), so the tables, JSON and PNG are the sweep's; the per-window table is
 written as CSV (default ``LOG.nsi-windows.csv`` beside the log; never over an existing file without
 ``--overwrite``).
 """
@@ -25,8 +25,8 @@ from analysis import nsi_windows as nw
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.records import HITS_TOPIC, Hit
-from daq.identify_cmd import Identification, IdentifyOptions, NsiRuns, identify_runs, resolve_target
 from daq.outputs import jsonable
+from daq.studies.identify.sweep import Identification, IdentifyOptions, NsiRuns, identify_runs, resolve_target
 
 #: Record read before each hit's index: the pulse's rising edge precedes a real trigger (``gvt frf``'s 0.01 s).
 PRE_TRIGGER_S = 0.01
@@ -75,7 +75,7 @@ class LogIdentification:
 
 def _read_span(reader, sources: list, cols: list[str], lo: int, hi: int, need: int, n: int, fs: float):
     """``cols`` over as much of ``[lo, hi)`` of the hits' grid as every stream holds without a gap, each stream read
-    on its own clock (``daq.frf_cmd._read_record`` reads exactly a record); None unless that covers the record
+    on its own clock (``daq.studies.frf._read_record`` reads exactly a record); None unless that covers the record
     ``[need, need + n)``. Returns (samples, first index)."""
     a, b, got = lo, hi, []
     for src in sources:
@@ -96,9 +96,9 @@ def _read_span(reader, sources: list, cols: list[str], lo: int, hi: int, need: i
 
 
 def _layout(reader, rig: Rig) -> tuple[list, list[str], list[int], tuple[str, ...]]:
-    """The rig's sensors found in the log on the hammer's sample grid (``daq.frf_cmd.layout``), one per model DOF,
+    """The rig's sensors found in the log on the hammer's sample grid (``daq.studies.frf.layout``), one per model DOF,
     with their model DOFs and quantities."""
-    from daq.frf_cmd import layout
+    from daq.studies.frf import layout
 
     infos = reader.streams()
     in_log = {c for i in infos.values() for c in i.channels}
@@ -251,13 +251,13 @@ def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png:
                      validation_png: Path | None = None, validate: str | None = None) -> None:  # fmt: skip
     """The ``gvt identify LOG`` verb body (daq/cli/identify.py branches here for a file); with ``--out``,
     ``--validation-png`` or ``--validate`` the identified rig is re-simulated against the logged hits
-    (``daq.identify_validate.validate_log``)."""
+    (``daq.studies.identify.validate.validate_log``)."""
     import json
 
-    from daq import identify_validate as iv
     from daq.cli.common import Progress, check_output, err, fail, open_rig, out
-    from daq.identify_cmd import plot_fdp, print_report
-    from daq.rfs_cmd import _parse_hits
+    from daq.studies.identify import validate as iv
+    from daq.studies.identify.rfs import _parse_hits
+    from daq.studies.identify.sweep import plot_fdp, print_report
 
     val_hits = _parse_hits(validate, "--validate")
     for p, what in ((out_toml, "--out"), (validation_png, "--validation-png")):

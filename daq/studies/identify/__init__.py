@@ -1,0 +1,1 @@
+"""``gvt identify``: NSI from a sweep (``sweep``) or a session log (``log``), RFS (``rfs``), validation (``validate``)."""

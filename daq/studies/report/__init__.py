@@ -1,0 +1,1 @@
+"""``gvt report``: the session report (``build``) and its sections."""

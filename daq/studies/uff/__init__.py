@@ -1,0 +1,1 @@
+"""UFF: the datasets through pyuff (``datasets``) and ``gvt export --format uff`` (``export``)."""

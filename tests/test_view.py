@@ -62,7 +62,7 @@ EXPECTED = {
 
 
 def test_offline_rrd_verifies_and_holds_the_layout(session_log, tmp_path):
-    from daq.view.build import build_rrd
+    from daq.studies.analyze.rrd import build_rrd
 
     out = tmp_path / "session.rrd"
     s = build_rrd(session_log, out)
@@ -123,7 +123,7 @@ def with_synthetic_confirmation(src: Path, dst: Path) -> dict:
 
 
 def test_confirmations_become_slow_flow_trajectories(session_log, tmp_path):
-    from daq.view.build import build_rrd
+    from daq.studies.analyze.rrd import build_rrd
 
     log = tmp_path / "confirmed.mcap"
     conf = with_synthetic_confirmation(session_log, log)

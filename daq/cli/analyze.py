@@ -40,7 +40,7 @@ def analyze(
                   markup=False)  # fmt: skip
     if rrd is not None:
         from daq.outputs import atomic_output
-        from daq.view.build import build_rrd
+        from daq.studies.analyze.rrd import build_rrd
 
         with atomic_output(rrd) as tmp:
             summary = build_rrd(log, tmp, rig=r, results=run.results)

@@ -167,7 +167,7 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap",
     console.print(f"  analyse it again (same kernels, batch): gvt analyze {out}")
     rrd = str(Path(out).with_suffix(".rrd"))
     from daq.lanes.view import ViewError, rerun_cli
-    from daq.view.build import build_rrd
+    from daq.studies.analyze.rrd import build_rrd
 
     build_rrd(out, rrd, rig=rig)
     try:

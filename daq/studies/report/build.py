@@ -13,7 +13,7 @@ hammer spectra with their −10 dB points, averages, refused hits and the modes 
 is drawn once (:func:`_png`).
 
 Results come from the log's ``/analysis/*`` topics, or from a batch run of the same kernels when the
-session did not run the analysis (:func:`daq.view.build.log_results`).
+session did not run the analysis (:func:`daq.studies.analyze.rrd.log_results`).
 """
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def build_report(
     import matplotlib.pyplot as plt
 
     from daq.studies.analyze.batch import AnalyzeError, rig_from_log
-    from daq.view.build import log_results
+    from daq.studies.analyze.rrd import log_results
     from daq.view.logger import ViewSetup
 
     reader = LogReader(log)

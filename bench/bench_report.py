@@ -80,7 +80,7 @@ def frf_seconds(log: Path) -> float:
     """In this tree: the FRF section alone (FRFs of the hits, pLSCF + LSFD, three figures drawn)."""
     code = (
         "import time, matplotlib; matplotlib.use('Agg')\n"
-        "from daq.log.reader import LogReader; from daq.studies.analyze.batch import rig_from_log\n"
+        "from daq.log.reader import LogReader; from daq.log.rig import rig_from_log\n"
         "from daq.studies.report.build import _png, _table; from daq.studies.report.frf import frf_section\n"
         f"rig = rig_from_log(LogReader({str(log)!r})); t = time.perf_counter()\n"
         f"s = frf_section({str(log)!r}, rig, _table); [_png(f) for _, f in s.figures]\n"

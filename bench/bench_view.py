@@ -44,8 +44,8 @@ import numpy as np  # noqa: E402
 from daq.fanout import END, FanOut  # noqa: E402
 from daq.lanes.analysis import start_analysis_lane  # noqa: E402
 from daq.lanes.view import open_view, start_view_lane  # noqa: E402
+from daq.log.rig import rig_from_log  # noqa: E402
 from daq.replay import Replayer  # noqa: E402
-from daq.studies.analyze.batch import rig_from_log  # noqa: E402
 
 
 def make_log(path: Path, seconds: float) -> None:

@@ -169,7 +169,7 @@ def _rig(rep: Replayer, rig: Any) -> tuple[Any, str]:
     """The rig given, else the one attached to the log; (None, why) when there is none."""
     if rig is not None:
         return rig, ""
-    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
+    from daq.log.rig import AnalyzeError, rig_from_log
 
     try:
         return rig_from_log(rep.reader), ""

@@ -32,11 +32,11 @@ from daq.lanes import Lane, Results
 from daq.lanes.hits import HitGateLane
 from daq.lanes.log import LogLane
 from daq.log import layout
+from daq.log.rig import channel_infos
 from daq.log.writer import ChannelInfo
 from daq.recorder import Outcome, Recorder
 from daq.sim_devices import SimHarness, start_simulation
 from daq.sources import DeviceSource
-from daq.studies.simulate.session import channel_infos
 from drivers.base import Driver, available_drivers
 
 #: samples per block each driver delivers, for queue sizes (a serial frame, the Modbus block, a CAN block)

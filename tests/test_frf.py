@@ -23,13 +23,13 @@ import numpy as np
 import pytest
 
 from analysis.frf import FRFAccumulator, FRFSet, choose_tau, convert_quantity, remove_window_damping
+from analysis.frf_setup import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
 from analysis.hammer import check_hit
 from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals, load_rig
 from analysis.records import HITS_TOPIC, Hit
 from daq.cli import run as gvt
 from daq.log.reader import LogReader
-from daq.studies.frf import PRE_TRIGGER_S, force_full_scale, lowest_decay_rate
 from daq.studies.simulate.session import SessionPlan, simulate_session
 from drivers.sim.sensor_model import AdcModel, channel_models_for, measure
 

@@ -32,8 +32,8 @@ def frf(
     import json
 
     from daq.log.reader import LogReader
+    from daq.log.rig import rig_from_log
     from daq.outputs import atomic_output
-    from daq.studies.analyze.batch import rig_from_log
     from daq.studies.frf import frf_from_log, plot, summary
 
     for p, what in ((plot_path, "--plot"), (out_path, "--out")):

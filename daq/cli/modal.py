@@ -82,7 +82,7 @@ def _frfs_of_log(source: Path, r, band_hi: float | None, json_out: bool) -> tupl
     """(rig, FRFs, driving points, refused hits) of a session log: its attached rig unless one was given, and
     gvt frf's FRFs of the accepted hits (every hit point of a roving plan a reference); none accepted: exit 2."""
     from daq.log.reader import LogReader
-    from daq.studies.analyze.batch import rig_from_log
+    from daq.log.rig import rig_from_log
     from daq.studies.frf import frf_from_log
 
     r = r if r is not None else rig_from_log(LogReader(source))

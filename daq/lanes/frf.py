@@ -41,13 +41,13 @@ from pathlib import Path
 import numpy as np
 
 from analysis.frf import FRFAccumulator, FRFSet, choose_tau, stack_references
+from analysis.frf_setup import PRE_TRIGGER_S, default_band, force_full_scale, lowest_decay_rate
 from analysis.hammer import check_hit, force_spectrum, level_db
 from analysis.records import FRF_TOPIC, PLAN_TOPIC, FRFUpdate, PlanRecord
 from daq.fanout import END, FanOut, Subscription
 from daq.lanes import Sink
 from daq.log import layout
 from daq.roving import PlanTracker
-from daq.studies.frf import PRE_TRIGGER_S, default_band, force_full_scale, lowest_decay_rate
 from drivers.blocks import SampleBlock
 
 #: the view's topic for the curves of one update (in-process only: never written to a log)

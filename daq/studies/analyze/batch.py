@@ -18,18 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from analysis import records
-from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from daq.lanes.analysis import analysis_stream
 from daq.log import layout
 from daq.log.reader import LogReader, LogReadError
+from daq.log.rig import AnalyzeError, rig_from_log
 from daq.replay import iter_log_blocks
 from drivers.blocks import SampleBlock, coalesce
-
-
-class AnalyzeError(BadInput):
-    """A log that cannot be analysed as asked (one line for the user)."""
 
 
 @dataclass
@@ -48,33 +44,6 @@ class AnalysisRun:
     @property
     def speed(self) -> float:
         return self.seconds_of_data / self.wall_seconds if self.wall_seconds > 0 else float("inf")
-
-
-def rig_from_log(reader: LogReader) -> Rig:
-    """The rig the session attached to its log (``rig/*.toml``), validated like any rig file."""
-    import tomllib
-
-    from analysis.model.config import RigConfig
-    from analysis.model.loader import ConfigError, validate
-    from analysis.model.rig import build_rig
-
-    rigs = {name: data for name, (_media, data) in reader.attachments().items() if name.startswith("rig/")}
-    if not rigs:
-        raise AnalyzeError(f"{reader.path}: the log carries no rig attachment; give the rig with --rig NAME_OR_TOML")
-    name, data = sorted(rigs.items())[0]
-    where = f"{reader.path}:{name}"
-    from analysis.model.loader import MAX_CONFIG_BYTES
-
-    if len(data) > MAX_CONFIG_BYTES:  # the limits a rig file has (elements, sensors: validate) before any parse
-        raise AnalyzeError(
-            f"{where}: {len(data)} bytes, over the {MAX_CONFIG_BYTES // 1024} kB limit for a rig; give the rig with --rig"
-        )
-    try:
-        return build_rig(validate(RigConfig, tomllib.loads(data.decode()), where), where)
-    except ConfigError as exc:
-        raise AnalyzeError(f"{exc}; give the rig with --rig NAME_OR_TOML") from None
-    except (ValueError, UnicodeDecodeError) as exc:  # not TOML, or a sensor off the structure
-        raise AnalyzeError(f"{where}: the attached rig cannot be used ({exc}); give the rig with --rig NAME_OR_TOML") from None
 
 
 def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:

@@ -65,7 +65,7 @@ def build_rrd(
     log: str | Path, out: str | Path, rig=None, results: dict[str, list[dict]] | None = None, wavelet_channel: str | None = None,
 ) -> BuildSummary:  # fmt: skip
     """Write ``out`` (.rrd, blueprint included) from the session log ``log``; ``rig`` defaults to the log's."""
-    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
+    from daq.log.rig import AnalyzeError, rig_from_log
 
     reader = LogReader(log)
     infos = reader.streams()

@@ -108,7 +108,7 @@ def build_report(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from daq.studies.analyze.batch import AnalyzeError, rig_from_log
+    from daq.log.rig import AnalyzeError, rig_from_log
     from daq.studies.analyze.rrd import log_results
     from daq.view.logger import ViewSetup
 

@@ -32,7 +32,8 @@ from analysis.model.forces import pulse_train
 from analysis.model.rig import Rig, channel_signals
 from analysis.records import Hit, SimEnergy
 from daq.log import layout
-from daq.log.writer import ChannelInfo, LogWriter
+from daq.log.rig import channel_infos
+from daq.log.writer import LogWriter
 from drivers.blocks import BlockStatus, SampleBlock
 from drivers.sim.sensor_model import AdcModel, Measurement, channel_models_for, measure
 
@@ -63,21 +64,6 @@ def default_forces(rig: Rig, n_hits: int) -> tuple[float, ...]:
     if n_hits == 1:
         return (peak,)
     return tuple(float(f) for f in np.linspace(0.1 * peak, peak, n_hits))
-
-
-def channel_infos(rig: Rig) -> list[ChannelInfo]:
-    return [
-        ChannelInfo(
-            name=p.name,
-            quantity=p.quantity,
-            unit=p.unit,
-            sensitivity_mv_per_unit=p.props.sensitivity_mv_per_unit,
-            position_m=p.x_model,
-            model_dof=p.dof_name,
-            sensor_model=p.props.model,
-        )
-        for p in [rig.hammer, *rig.sensors]
-    ]
 
 
 def channel_noise(seed: int, models, n: int, chunk: int = 1 << 20) -> list[np.random.Generator]:

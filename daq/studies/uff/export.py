@@ -127,7 +127,7 @@ def _plan_references(reader: LogReader, chans: dict[str, Channel]) -> dict[str, 
 def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: Path | None = None,
                modes: Path | None = None, binary: bool = False) -> str:  # fmt: skip
     """Write ``out`` (the caller made it a temporary path) and return the one-line summary."""
-    from daq.studies.analyze.batch import rig_from_log
+    from daq.log.rig import rig_from_log
 
     reader = LogReader(log)
     try:

@@ -25,7 +25,8 @@ from pydantic import ValidationError
 
 from analysis.model.loader import ConfigError
 from analysis.model.rig import Rig
-from daq.config.session import DeviceSpec, SessionConfig, TimelineSpec, check_session_against_rig, driver_table_error
+from daq.config.rig_checks import check_session_against_rig
+from daq.config.session import DeviceSpec, SessionConfig, TimelineSpec, driver_table_error
 from daq.fanout import FanOut
 from daq.hits import HitDetector, HitRecord, TriggerSettings
 from daq.lanes import Lane, Results

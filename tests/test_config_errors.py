@@ -7,7 +7,7 @@ naming the file and the field, and no traceback. They all fail while loading, be
 table runs in a second or two.
 
 Mistakes that need the rig as well (a trigger channel the session does not record, a buffer too big for the
-rig's channels) are found by :func:`daq.config.session.check_session_against_rig`, which the recorder calls at
+rig's channels) are found by :func:`daq.config.rig_checks.check_session_against_rig`, which the recorder calls at
 start-up before it opens anything; those are tested on the function, and through ``gvt record`` when the
 recorder calls it.
 """
@@ -32,11 +32,11 @@ from analysis.model.config import MAX_BEAM_ELEMENTS, MAX_FORCE_N, MAX_SENSORS, R
 from analysis.model.loader import ConfigError, load_config, validate
 from analysis.model.rigs import open_rig
 from daq.cli import run
+from daq.config.rig_checks import check_session_against_rig
 from daq.config.session import (
     MAX_DURATION_S,
     MAX_PRE_TRIGGER_S,
     SessionConfig,
-    check_session_against_rig,
     driver_table_error,
 )
 from tests.test_config import _paths

@@ -29,7 +29,8 @@ def record(
     import threading
 
     from analysis.model.loader import parse_toml, validate
-    from daq.config.session import SessionConfig, check_session_against_rig
+    from daq.config.rig_checks import check_session_against_rig
+    from daq.config.session import SessionConfig
     from daq.live_status import LiveStatus
     from daq.session import run_session
 

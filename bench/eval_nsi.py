@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from analysis.model.rigs import open_rig
-from daq.studies.identify.sweep import IdentifyOptions, NsiRuns, identify_runs, resolve_target, simulate_runs
+from analysis.nsi_target import resolve_target
+from daq.studies.identify.sweep import IdentifyOptions, identify_runs, simulate_runs
+from daq.studies.nsi_table import NsiRuns
 
 TRUE_ALPHA, TRUE_BETA = 5e8, 2.0
 

@@ -6,7 +6,7 @@ but from the slow phase Φ_{4:1} = 4θ̂_1 − θ̂_2 of the free-end displaceme
 the spike (L1275, L1298), with the neighbours (m−2 … m+2):1 as the test (L1296). This script applies that
 test, with the repo's own pieces, to runs of the sweep's model inside and outside the band:
 
-1. simulate one run per P exactly as the sweep does (``daq.studies.sweep._simulator``: rig beam_ch4_sim, its
+1. simulate one run per P exactly as the sweep does (``analysis.model.rig_sim.rig_simulator``: rig beam_ch4_sim, its
    half-sine at the hammer DOF, 1 s at the rig's 16384 Hz, order 4, the 100 translational outputs) and
    check that POD + RQ of the record reproduces the sweep's RQ pair;
 2. components, two ways: (a) WBEMD IMFs of the free-end displacement (the seed's Fig. 4.7–4.8, L1300),
@@ -81,11 +81,11 @@ def sweep_grid_points(targets: tuple[float, ...]) -> list[float]:
 def build():
     """The sweep's simulator, force and Guyan model (daq.studies.sweep.run_sweep builds the same ones)."""
     from analysis.model.rig import load_rig
-    from daq.studies.sweep import _simulator, output_dofs
+    from analysis.model.rig_sim import output_dofs, rig_simulator
 
     rig = load_rig(RIG)
     dofs = output_dofs(rig, "translational")
-    return rig, dofs, _simulator(rig, dofs, None), rig.hammer_force(), rig.guyan(dofs)
+    return rig, dofs, rig_simulator(rig, dofs, None), rig.hammer_force(), rig.guyan(dofs)
 
 
 def rq_pair(disp: np.ndarray, g) -> tuple[float, float]:

@@ -45,7 +45,7 @@ def test_true_law_validates_and_a_wrong_alpha_fails(sweep, tmp_path):
     """beam_nes_ch5's NES (α 3e9, β 2): the true law in the identified TOML re-simulates the rig (R² > 0.999 on δ
     and δ'); α + 30 % lowers the R² at the highest validation force below 0.9 (measured 0.70)."""
     from analysis.model.rig import load_rig
-    from daq.studies.sweep import output_dofs
+    from analysis.model.rig_sim import output_dofs
 
     rig, _, ident = sweep
     dofs = output_dofs(rig, "translational")

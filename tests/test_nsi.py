@@ -119,8 +119,10 @@ def test_computational_nsi_of_the_beam_tip_spring(tmp_path):
     4. ``gvt identify`` on a sweep directory whose nsi.csv is cached: JSON, PNG, never overwritten, bad input 2.
     """
     from analysis.model.rigs import open_rig
+    from analysis.nsi_target import resolve_target
     from daq.cli import run
-    from daq.studies.identify.sweep import NSI_CSV, IdentifyOptions, identify_runs, resolve_target, simulate_runs, write_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, simulate_runs
+    from daq.studies.nsi_table import NSI_CSV, write_runs
 
     rig = open_rig("beam_ch4_sim")
     dofs = rig.structure.translational_dofs()
@@ -230,7 +232,8 @@ def test_seed_rigs_rq_moves_only_with_the_poms_shape():
     * beam_nes_ch5: the NES's RQ does cross 1B (3.03 Hz) near the seed's δ̄₁ = 1.96e-4 m (L1592)."""
     from analysis.model.rig import build_rig
     from analysis.model.rigs import open_rig
-    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, resolve_target, simulate_runs
+    from analysis.nsi_target import resolve_target
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, simulate_runs
 
     r0 = open_rig("lo_store_ch6")
     rig = build_rig(r0.config.model_copy(update={"hammer": r0.config.hammer.model_copy(update={"dof": "store"})}))

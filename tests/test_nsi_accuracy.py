@@ -16,7 +16,8 @@ import pytest
 def _runs(name: str, pmin: float, pmax: float, n: int = 20, duration: float = 1.0):
     from analysis.model.rig import build_rig
     from analysis.model.rigs import open_rig
-    from daq.studies.identify.sweep import resolve_target, simulate_runs
+    from analysis.nsi_target import resolve_target
+    from daq.studies.identify.sweep import simulate_runs
 
     rig = open_rig("lo_store_ch6" if name == "lo_store_hit" else name)
     if name == "lo_store_hit":  # the store hit directly: the LO stays nearly still and the store's curve is clean

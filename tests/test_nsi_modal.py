@@ -39,7 +39,7 @@ def test_one_dof_modal_exact_is_the_exact_backbone():
 
 def _lo_store():
     from analysis.model.rigs import open_rig
-    from daq.studies.identify.sweep import resolve_target
+    from analysis.nsi_target import resolve_target
 
     rig = open_rig("lo_store_ch6")
     dofs = rig.structure.translational_dofs()
@@ -92,7 +92,8 @@ def test_lo_store_modal_exact_predicts_the_simulated_curve():
 
     from analysis.model.rig import build_rig
     from analysis.model.rigs import open_rig
-    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, resolve_target, simulate_runs
+    from analysis.nsi_target import resolve_target
+    from daq.studies.identify.sweep import IdentifyOptions, identify_runs, simulate_runs
 
     lo = open_rig("lo_store_ch6")
     rig = build_rig(lo.config.model_copy(update={"hammer": lo.config.hammer.model_copy(update={"dof": "store"})}))

@@ -40,8 +40,10 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
     """A 6-run sweep of beam_nes_ch5 writes nsi.csv; its columns equal the re-simulating path's; identify reads
     it (no simulation); an old sweep without nsi.csv is re-simulated and gives the same table."""
     from analysis.model.rigs import open_rig
+    from analysis.nsi_target import resolve_target
     from analysis.sweep_capture import CaptureSettings
-    from daq.studies.identify.sweep import NSI_CSV, IdentifyOptions, identify_sweep, read_runs, resolve_target, simulate_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_sweep, simulate_runs
+    from daq.studies.nsi_table import NSI_CSV, read_runs
     from daq.studies.sweep import SweepSpec, run_sweep, write_outputs
 
     rig = open_rig("beam_nes_ch5")

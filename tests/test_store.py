@@ -16,7 +16,7 @@ import scipy.linalg
 from analysis import nsi
 from analysis.model.loader import ConfigError
 from analysis.model.rig import load_rig
-from daq.studies.identify.sweep import resolve_target
+from analysis.nsi_target import resolve_target
 
 from .conftest import gvt_command
 

@@ -148,13 +148,13 @@ def test_confirm_captures_flags_only_confirmed_runs_and_respects_the_budget():
 
 @pytest.fixture(scope="module")
 def sweep_model(rigs):
+    from analysis.model.rig_sim import output_dofs, rig_simulator
     from analysis.model.sweep import ModalProbe
-    from daq.studies.sweep import _simulator, output_dofs
 
     rig = rigs("beam_ch4_sim")
     dofs = output_dofs(rig, "translational")
     g = rig.guyan(dofs)
-    return rig, _simulator(rig, dofs, None), ModalProbe.from_guyan(g.M, g.K, 2)
+    return rig, rig_simulator(rig, dofs, None), ModalProbe.from_guyan(g.M, g.K, 2)
 
 
 def test_run_modal_phases_is_the_sweeps_run(sweep_model):
@@ -195,15 +195,15 @@ def test_a_linear_rig_gives_no_capture(sweep_model):
     from analysis.model.config import RigConfig
     from analysis.model.loader import load_config
     from analysis.model.rig import build_rig
+    from analysis.model.rig_sim import output_dofs, rig_simulator
     from analysis.model.rigs import resolve_rig_path
     from analysis.model.sweep import ModalProbe, run_modal_phases
-    from daq.studies.sweep import _simulator, output_dofs
 
     cfg = load_config(RigConfig, resolve_rig_path("beam_ch4_sim")).model_copy(update={"nonlinear_springs": []})
     rig = build_rig(cfg)
     dofs = output_dofs(rig, "translational")
     g = rig.guyan(dofs)
-    sim, probe = _simulator(rig, dofs, None), ModalProbe.from_guyan(g.M, g.K, 2)
+    sim, probe = rig_simulator(rig, dofs, None), ModalProbe.from_guyan(g.M, g.K, 2)
     p = np.array([10.0, 1e3, 1e5])
     runs = [run_modal_phases(sim, rig.hammer_force(), 1.0, rig.sample_rate, x, probe) for x in p]
     e = np.array([w for w, _ in runs])

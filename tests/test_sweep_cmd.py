@@ -282,12 +282,12 @@ def test_flags_are_labelled_by_the_modal_ratio_with_the_rq_label_beside_it():
 def test_run_with_modal_phase_keeps_the_moments_and_measures_the_linear_modes(rigs):
     """One small real run: the moments are run_moments' bit for bit, and at P = 1 mN (linear) the modal phase
     advance gives the Guyan modes' frequencies (3.807 / 23.861 Hz, damped: a shade lower)."""
+    from analysis.model.rig_sim import output_dofs, rig_simulator
     from analysis.model.sweep import ModalProbe, run_with_modal_phase
-    from daq.studies.sweep import _simulator, output_dofs
 
     rig = rigs("beam_ch4_sim")
     dofs = output_dofs(rig, "translational")
-    sim = _simulator(rig, dofs, None)
+    sim = rig_simulator(rig, dofs, None)
     g = rig.guyan(dofs)
     probe = ModalProbe.from_guyan(g.M, g.K, 2)
     amps = np.array([1e-3, 150.0])

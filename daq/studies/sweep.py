@@ -37,6 +37,7 @@ import numpy as np
 
 from analysis.model.modal import structure_modes
 from analysis.model.rig import Rig
+from analysis.model.rig_sim import output_dofs, rig_simulator
 from analysis.model.simulate import ImpactSimulator, MomentResult
 from analysis.model.sweep import (
     MODAL_WINDOW_NAMES,
@@ -165,12 +166,6 @@ class SweepReport:
         }
 
 
-def output_dofs(rig: Rig, which: str) -> list[int]:
-    """``translational``: every transverse DOF of the structure (the seed's 100 nodes, L1251);
-    ``sensors``: the distinct sensor DOFs (the experiment's masters, L1367)."""
-    return rig.structure.translational_dofs() if which == "translational" else rig.master_dofs()
-
-
 def limit_frequencies(rig: Rig, count: int = N_KEEP) -> tuple[np.ndarray, np.ndarray]:
     """Fixed-free (linear structure) and fixed-pinned (springs pinned) natural frequencies, Hz (L1244)."""
     lo = structure_modes(rig.limit_structure("low")).frequencies_hz[:count]
@@ -211,20 +206,6 @@ def asymptote_errors(
     return rows
 
 
-def _simulator(rig: Rig, dofs: list[int], order: int | None) -> ImpactSimulator:
-    sim = rig.config.simulation
-    return ImpactSimulator(
-        rig.structure,
-        rig.hammer.dof,
-        dofs,
-        cutoff_hz=sim.modal_cutoff_hz,
-        residual_vectors=sim.residual_vectors,
-        max_omega_dt=sim.max_omega_dt,
-        order=sim.order if order is None else order,
-        modes=rig.modes,
-    )
-
-
 def run_sweep(
     rig: Rig, spec: SweepSpec, progress: Callable[[str, float], None] | None = None
 ) -> SweepReport:
@@ -233,7 +214,7 @@ def run_sweep(
     dofs = output_dofs(rig, spec.outputs)
     if len(dofs) < N_KEEP:
         raise ValueError(f"{rig.name}: {len(dofs)} output DOFs, the RQ-FEP needs at least {N_KEEP} POMs")
-    sim = _simulator(rig, dofs, spec.order)
+    sim = rig_simulator(rig, dofs, spec.order)
     spec = SweepSpec(**{**vars(spec), "order": sim.order})
     force = rig.hammer_force()
     g = rig.guyan(dofs)
@@ -291,7 +272,7 @@ def _nsi_probe(rig: Rig, sim: ImpactSimulator, dofs: list[int], g) -> NsiProbe |
     """The per-run NSI reduction ``gvt identify`` reads (nsi.csv) when the rig has an attachment ([nsi] or a
     nonlinear spring at the outputs); None otherwise (the sweep is then as before)."""
     from analysis.errors import BadInput
-    from daq.studies.identify.sweep import resolve_target
+    from analysis.nsi_target import resolve_target
 
     try:
         t = resolve_target(rig, dofs, g.M, g.K)
@@ -355,7 +336,7 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
     res = rep.result
     cols = getattr(res, "nsi", None)
     if cols is not None:
-        from daq.studies.identify.sweep import NSI_CSV, NsiRuns, write_runs
+        from daq.studies.nsi_table import NSI_CSV, NsiRuns, write_runs
 
         paths["nsi"] = out_dir / NSI_CSV
         write_runs(NsiRuns(res.amplitudes, res.input_work, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3], cols[:, 4] > 0,

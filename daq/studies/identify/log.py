@@ -24,9 +24,10 @@ import numpy as np
 from analysis import nsi_windows as nw
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
+from analysis.nsi_target import resolve_target
 from analysis.records import HITS_TOPIC, Hit
-from daq.outputs import jsonable
-from daq.studies.identify.sweep import Identification, IdentifyOptions, NsiRuns, identify_runs, resolve_target
+from daq.studies.identify.sweep import Identification, IdentifyOptions, identify_runs
+from daq.studies.nsi_table import NsiRuns
 
 #: Record read before each hit's index: the pulse's rising edge precedes a real trigger (``gvt frf``'s 0.01 s).
 PRE_TRIGGER_S = 0.01
@@ -246,71 +247,4 @@ def write_windows(run: LogIdentification, path: Path) -> None:
                         int(r.pom_index[k])])  # fmt: skip
 
 
-def cli_identify_log(source: Path, rig_name: str, options: IdentifyOptions, png: Path | None, csv_out: Path | None,
-                     window_s: float | None, json_out: bool, overwrite: bool, out_toml: Path | None = None,
-                     validation_png: Path | None = None, validate: str | None = None) -> None:  # fmt: skip
-    """The ``gvt identify LOG`` verb body (daq/cli/identify.py branches here for a file); with ``--out``,
-    ``--validation-png`` or ``--validate`` the identified rig is re-simulated against the logged hits
-    (``daq.studies.identify.validate.validate_log``)."""
-    import json
-
-    from daq.cli.common import Progress, check_output, err, fail, open_rig, out
-    from daq.studies.identify import validate as iv
-    from daq.studies.identify.rfs import _parse_hits
-    from daq.studies.identify.sweep import plot_fdp, print_report
-
-    val_hits = _parse_hits(validate, "--validate")
-    for p, what in ((out_toml, "--out"), (validation_png, "--validation-png")):
-        if p is not None:
-            check_output(p, overwrite, what, inputs=[source])
-
-    if window_s is not None and not window_s > 0:
-        fail(f"--window {window_s:g}: give a positive length in seconds")
-    csv_path = csv_out if csv_out is not None else windows_csv_path(source)
-    check_output(csv_path, overwrite, "--csv", inputs=[source])
-    if png is not None:
-        check_output(png, overwrite, "--png", inputs=[source])
-        if png.resolve() == csv_path.resolve():
-            fail("--png and --csv name the same file")
-    r = open_rig(rig_name)
-    if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
-        fail(f"--out {out_toml}: is the rig itself; give a new file name")
-    with Progress(err if json_out else out) as report:
-        run = identify_log(r, source, options, window_s=window_s, progress=report)
-    write_windows(run, csv_path)
-    if png is not None:
-        plot_fdp(run.ident, png)
-    res = None
-    if out_toml is not None or validation_png is not None or val_hits is not None:
-        with Progress(err if json_out else out) as report:
-            res = iv.finish(run.ident, r, iv.log_dofs(run, r), out_toml, validation_png,
-                            lambda idr: iv.validate_log(run, r, idr, source, val_hits, progress=report))  # fmt: skip
-    if json_out:
-        doc = run.summary()
-        doc["windows_csv"] = str(csv_path)
-        doc["png"] = str(png) if png is not None else None
-        if res is not None:
-            doc.update(res.to_dict())
-        out.print_json(json.dumps(doc, default=jsonable))
-    else:
-        print_report(out, run.ident)
-        s = run.settings
-        dc = "none" if s.delta_corner_hz is None else f"{s.delta_corner_hz:.3g} Hz"
-        n_hits = sum("windows" in h for h in run.hits)
-        shape = f">= {s.window_s:.4g} s, whole half-cycles of delta" if s.snap else f"{s.window_s:.4g} s"
-        out.print(f"{run.window_hit.size} windows of {shape} from {n_hits} hits "
-                  f"({int(run.ident.runs.capture.sum())} in capture, excluded); start drop {s.skip_s:.4g} s, "
-                  f"tail {s.tail_s:.4g} s, integration high-pass {s.integration_corner_hz or 0:.3g} Hz, "
-                  f"delta high-pass {dc}; {run.elapsed_s:.1f} s", markup=False)  # fmt: skip
-        skipped = [h for h in run.hits if "skipped" in h]
-        for h in skipped:
-            out.print(f"hit {h['hit']} skipped: {h['skipped']}", markup=False)
-        out.print(f"wrote per-window table: {csv_path}" + (f"; plot: {png}" if png is not None else ""), markup=False)
-        if res is not None and res.validation is not None:
-            iv.print_validation(out, res.validation)
-        for path, what in ((out_toml, "identified rig"), (validation_png, "validation overlays")):
-            if path is not None:
-                out.print(f"wrote {what}: {path}", markup=False)
-
-
-__all__ = ["WINDOW_COLUMNS", "LogIdentification", "cli_identify_log", "identify_log", "windows_csv_path", "write_windows"]
+__all__ = ["WINDOW_COLUMNS", "LogIdentification", "identify_log", "windows_csv_path", "write_windows"]

@@ -111,18 +111,6 @@ def default_quantity(rig: Rig) -> str:
     return "velocity" if spec is not None and spec.inertia is not None else "displacement"
 
 
-def _parse_hits(text: str | None, what: str) -> list[int] | None:
-    if text is None:
-        return None
-    try:
-        out = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise BadInput(f"{what} {text!r}: expected comma-separated hit numbers, e.g. 1,2,3") from None
-    if not out or min(out) < 0:
-        raise BadInput(f"{what}: give at least one hit number >= 0")
-    return out
-
-
 def read_hits(path: Path, rig: Rig) -> tuple[dict[int, rfs.HitRecord], tuple[str, str], float]:
     """Every accepted hit of the log as a :class:`~analysis.rfs.HitRecord` (force, acceleration), from
     ``PRE_TRIGGER_S`` before its trigger for the rig's record length (shortened to the next hit's pre-trigger)."""
@@ -325,42 +313,3 @@ def write_identified(run: RfsRun, rig: Rig, out: Path) -> None:
     with atomic_output(out) as tmp:
         tmp.write_text(text)
     load_rig(out)
-
-
-def cli_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate: str | None, png: Path | None,
-            out_toml: Path | None, json_out: bool, overwrite: bool, quantity: str | None = None) -> None:  # fmt: skip
-    """The ``gvt identify --method rfs`` verb body (daq/cli/identify.py branches here)."""
-    from daq.cli.common import Progress, check_output, err, fail, open_rig, out
-
-    if method != "rfs":
-        fail(f"--method {method!r}: use 'nsi' (RQ-FDP fit of a sweep) or 'rfs' (eq. 5.11 from a session log)")
-    if not source.exists():
-        fail(f"{source}: no such file")
-    if source.is_dir():
-        fail(f"{source}: --method rfs reads a session LOG (.mcap), not a directory")
-    if quantity is not None and quantity not in rfs.QUANTITIES:
-        fail(f"--quantity {quantity!r}: use 'velocity' or 'displacement' (default per rig)")
-    vals = _parse_hits(validate, "--validate")
-    if hit is not None and hit < 0:
-        fail(f"--hit {hit}: hit numbers start at 0")
-    for path, what in ((png, "--png"), (out_toml, "--out")):
-        if path is not None:
-            check_output(path, overwrite, what, inputs=[source])
-    if png is not None and out_toml is not None and png.resolve() == out_toml.resolve():
-        fail("--png and --out name the same file")
-    r = open_rig(rig_name)
-    if out_toml is not None and Path(r.path).resolve() == out_toml.resolve():
-        fail(f"--out {out_toml}: is the rig itself; give a new file name")
-    with Progress(err if json_out else out) as report:
-        run = identify_rfs(source, r, hit, vals, progress=report, quantity=quantity)
-    if png is not None:
-        plot(run, png)
-    if out_toml is not None:
-        write_identified(run, r, out_toml)
-    if json_out:  # the plot's path goes with the summary, so `gvt report --identify` can embed it
-        out.print_json(json.dumps({**json.loads(summary_json(run)), "png": None if png is None else str(png)}))
-    else:
-        print_report(out, run)
-        for path, what in ((png, "plot"), (out_toml, "identified rig")):
-            if path is not None:
-                out.print(f"wrote {what}: {path}", markup=False)

@@ -10,7 +10,6 @@ to δ̄ (eq. 5.2), its whole-record POD (eq. 2.12–2.13), the attachment's POM 
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 from collections.abc import Callable
@@ -23,73 +22,8 @@ import numpy as np
 from analysis import nsi
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
-
-NSI_CSV = "nsi.csv"
-COLUMNS = ("P_N", "input_energy_J", "dbar_m", "f_rq_hz", "f_pom_hz", "mac", "capture", "pom_index")
-
-
-@dataclass(frozen=True)
-class Target:
-    """The attachment at the simulator's outputs: its column, its connection points' columns, and the model."""
-
-    attachment: int
-    relative_to: tuple[int, ...]
-    model: nsi.AttachmentModel
-    description: str
-
-
-def _dof_of(rig: Rig, where: float | str, field: str) -> int:
-    s = rig.structure
-    if isinstance(where, str):
-        try:
-            return s.dof_index(where)
-        except KeyError:
-            raise BadInput(f"{rig.path}: {field}: unknown DOF {where!r}") from None
-    if s.mesh is None:
-        raise BadInput(f"{rig.path}: {field}: a position (m) needs a beam rig; give a DOF name")
-    node, _ = s.mesh.snap(float(where))
-    try:
-        return s.dof_index(f"w{node}")
-    except KeyError:
-        raise BadInput(f"{rig.path}: {field}: x = {where:g} m sits on a support") from None
-
-
-def resolve_target(rig: Rig, output_dofs: list[int], M: np.ndarray, K: np.ndarray) -> Target:
-    """The rig's ``[nsi]`` attachment, or (without one) the DOF of its first nonlinear spring, grounded."""
-    spec = rig.config.nsi
-    if spec is not None:
-        att = _dof_of(rig, spec.x if spec.x is not None else spec.dof, "nsi")  # type: ignore[arg-type]
-        refs = [_dof_of(rig, r, f"nsi.relative_to[{i}]") for i, r in enumerate(spec.relative_to)]
-        mode = None if spec.mode is None else spec.mode - 1
-        mass, rot = spec.mass, {"inertia": spec.inertia, "arm": spec.arm}
-    elif rig.structure.nonlinear:
-        att, refs, mode, mass, rot = rig.structure.nonlinear[0].dof, [], None, None, {}
-    else:
-        raise BadInput(f"{rig.name}: no [nsi] table and no nonlinear spring; say where the attachment is ([nsi] x or dof)")
-    pos = {d: i for i, d in enumerate(output_dofs)}
-    missing = [rig.structure.dofs[d].name for d in [att, *refs] if d not in pos]
-    if missing:
-        raise BadInput(f"{rig.name}: the attachment's DOFs {missing} are not among the outputs; use --outputs translational")
-    ref_cols = tuple(pos[d] for d in refs)
-    model = nsi.attachment_model(M, K, pos[att], ref_cols, mode, mass, **rot)
-    names = [rig.structure.dofs[d].name for d in refs]
-    desc = rig.structure.dofs[att].name + (f" - mean({', '.join(names)})" if names else " (grounded)")
-    return Target(pos[att], ref_cols, model, desc)
-
-
-@dataclass
-class NsiRuns:
-    """Per run of a sweep: the columns of :data:`COLUMNS`."""
-
-    P: np.ndarray
-    energy: np.ndarray
-    dbar: np.ndarray
-    f_rq: np.ndarray
-    f_pom: np.ndarray
-    mac: np.ndarray
-    capture: np.ndarray
-    pom_index: np.ndarray
-    wall_s: float = 0.0
+from analysis.nsi_target import Target, resolve_target
+from daq.studies.nsi_table import NSI_CSV, NsiRuns, read_runs, write_runs
 
 
 def simulate_runs(
@@ -109,11 +43,11 @@ def simulate_runs(
     Everything is computed in the simulator's reduced coordinates q (x = P q at the outputs): the 1/n output
     covariance P cov(q) Pᵀ (eq. 2.12) for the POD, δ = (row_att − mean rows_refs) q for δ̄, the POM's temporal
     coefficient (q − q̄) Pᵀψ for its frequency. Memory: one run's q, q̇ (~6 MB for 1 s of beam_ch4_sim)."""
+    from analysis.model.rig_sim import rig_simulator
     from analysis.model.sweep import NsiProbe, _run_record
-    from daq.studies.sweep import _simulator
 
     t0 = time.perf_counter()
-    sim = _simulator(rig, output_dofs, order)
+    sim = rig_simulator(rig, output_dofs, order)
     force = rig.hammer_force()
     fs = rig.sample_rate
     n, model, fdesc, stepping, amps = sim._prepare(force, duration, fs, amplitudes)
@@ -135,30 +69,6 @@ def simulate_runs(
             progress("simulating the sweep's runs for δ̄", (b + 1) / B)
     return NsiRuns(amps, out["energy"], out["dbar"], out["f_rq"], out["f_pom"], out["mac"], cap, pidx,
                    time.perf_counter() - t0)  # fmt: skip
-
-
-def write_runs(runs: NsiRuns, path: Path) -> None:
-    tmp = path.with_suffix(".csv.part")
-    with open(tmp, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(COLUMNS)
-        for k in range(runs.P.size):
-            w.writerow([f"{runs.P[k]:.9g}", f"{runs.energy[k]:.9g}", f"{runs.dbar[k]:.9g}", f"{runs.f_rq[k]:.9g}",
-                        f"{runs.f_pom[k]:.9g}", f"{runs.mac[k]:.6f}", int(runs.capture[k]), int(runs.pom_index[k])])  # fmt: skip
-    tmp.replace(path)
-
-
-def read_runs(path: Path) -> NsiRuns:
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        if not rows or any(c not in rows[0] for c in COLUMNS):
-            raise ValueError(f"expected columns {', '.join(COLUMNS)}")
-        col = {c: np.array([float(r[c]) for r in rows]) for c in COLUMNS}
-    except (OSError, ValueError, KeyError) as exc:
-        raise BadInput(f"{path}: not an NSI run table ({exc})") from None
-    return NsiRuns(col["P_N"], col["input_energy_J"], col["dbar_m"], col["f_rq_hz"], col["f_pom_hz"], col["mac"],
-                   col["capture"] > 0, col["pom_index"].astype(np.int64))  # fmt: skip
 
 
 def read_sweep_spec(sweep_dir: Path) -> dict[str, Any]:
@@ -262,7 +172,7 @@ def identify_sweep(
     rig: Rig, sweep_dir: Path, options: IdentifyOptions, progress: Callable[[str, float], None] | None = None
 ) -> Identification:
     """``gvt identify SWEEP_DIR``: the sweep's runs (``nsi.csv`` if present, else simulated and cached)."""
-    from daq.studies.sweep import output_dofs
+    from analysis.model.rig_sim import output_dofs
 
     spec = read_sweep_spec(sweep_dir)
     if spec["rig"] != rig.name:

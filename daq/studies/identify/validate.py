@@ -205,10 +205,10 @@ def parse_forces(text: str) -> list[float]:
 def simulate_relative(rig: Rig, dofs: Sequence[int], att: int, refs: Sequence[int], forces: Sequence[float],
                       duration: float, order: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The rig's hammer pulse at each force: (t, δ (B, n), δ' (B, n)) of the attachment (outputs: its DOFs only)."""
-    from daq.studies.sweep import _simulator
+    from analysis.model.rig_sim import rig_simulator
 
     out = [dofs[att], *(dofs[r] for r in refs)]
-    sim = _simulator(rig, out, order)
+    sim = rig_simulator(rig, out, order)
     res = sim.run(rig.hammer_force(), duration, rig.sample_rate, list(forces))
     ref_cols = list(range(1, len(out)))
     return res.t, relative(res.displacement, 0, ref_cols), relative(res.velocity, 0, ref_cols)
@@ -262,10 +262,10 @@ def _measured_force(reader, rig: Rig, infos: dict, end: int, fs: float) -> np.nd
 def _simulate_force(identified: Rig, dofs, force: np.ndarray, fs: float, progress) -> np.ndarray:
     """The identified rig's accelerations at ``dofs`` driven by ``force`` from rest, in segments."""
     from analysis.model.forces import ForceSeries
-    from daq.studies.sweep import _simulator
+    from analysis.model.rig_sim import rig_simulator
 
     end = force.size
-    sim = _simulator(identified, dofs, None)
+    sim = rig_simulator(identified, dofs, None)
     fser = ForceSeries(t=np.arange(end) / fs, force=force, peak=1.0)
     acc = np.empty((end, len(dofs)))
     for seg in sim.run_segments(fser, end / fs, fs, [1.0], segment=65536):
@@ -422,8 +422,8 @@ def sweep_validator(
     ident, rig: Rig, sweep_dir: Path, forces: Sequence[float] | None
 ) -> tuple[list[int], Callable[[Rig], Validation]]:
     """The sweep's output DOFs and the validation against its own rig at ``forces`` (default :func:`validation_forces`)."""
+    from analysis.model.rig_sim import output_dofs
     from daq.studies.identify.sweep import read_sweep_spec
-    from daq.studies.sweep import output_dofs
 
     spec = read_sweep_spec(sweep_dir)
     dofs = output_dofs(rig, spec["outputs"])

@@ -4,21 +4,21 @@ An m:n IR between two components is the failure of averaging over the slow angle
 Φ_{m:n} = m·θ̂_a − n·θ̂_b (eqs. 2.41, 2.56–2.58): while the fast phases satisfy m·ω_a ≈ n·ω_b, Φ stops
 drifting and its trajectory (Φ, Φ̇) becomes *non-time-like* — small loops about Φ̇ = 0 over a small phase
 range (eqs. 3.19, 3.28, 4.2, 4.4; L978–L986, L1275, L1298). The seed reads these loops off plots; this
-module turns that reading into a detector with named thresholds (spec §5 step 5 and its CHOICE).
+module turns that reading into a detector with named thresholds (method-wbemd-slowflow §5 step 5 and its CHOICE).
 
-Label convention (spec §4.3 DERIVED): ``Φ_{m:n} = m θ̂_low − n θ̂_high`` with the lower-frequency component
+Label convention (method-wbemd-slowflow §4.3 DERIVED): ``Φ_{m:n} = m θ̂_low − n θ̂_high`` with the lower-frequency component
 first, so an m:n label means ω_high ≈ (m/n)·ω_low (Φ_{3:1} = 3θ̂_1 − θ̂_2: ω_2 ≈ 3ω_1).
 
 Choices (the seed leaves them open; ``docs/slowflow.md`` says how they were calibrated):
 
 * θ̂ is the unwrapped four-quadrant Hilbert phase and ω̂ its derivative, low-passed with a zero-phase
   Butterworth (:func:`analysis.wavelet.analytic`; 1 Hz in the beam case, L961). Φ̇ is built from the
-  *filtered* frequencies (spec §5 step 3) and Φ is low-passed with the same filter before the range test,
+  *filtered* frequencies (method-wbemd-slowflow §5 step 3) and Φ is low-passed with the same filter before the range test,
   so the Hilbert ripple (L451–L452) neither adds spurious sign changes nor inflates the phase range.
 * Non-time-like = a chain of at least ``min_sign_changes`` reversals of Φ (sign changes of Φ̇ outside a
   dead band) whose successive Φ excursions stay under ``max_phase_range`` (loops, not a drift); [T1, T2]
   runs from the first to the last reversal of the chain. A first version used a fixed sliding window
-  (spec §5 CHOICE); it missed the beam's ~1 s capture because any window long enough to hold two loops of
+  (method-wbemd-slowflow §5 CHOICE); it missed the beam's ~1 s capture because any window long enough to hold two loops of
   the slower synthetic wobble also reached into the drift on both sides (docs/slowflow.md).
 * Net drift: a drift Φ = Dt + A·sin(ωt) with A·ω > D reverses every wobble period, and its short
   backward swings form chains, yet Φ advances every period; a captured Φ librates about a centre
@@ -58,7 +58,7 @@ MAX_TRAJECTORY_POINTS = 2000
 
 @dataclass(frozen=True)
 class DetectorParams:
-    """Thresholds of the non-time-like detector (spec §5 step 5 CHOICE); calibration in docs/slowflow.md.
+    """Thresholds of the non-time-like detector (method-wbemd-slowflow §5 step 5 CHOICE); calibration in docs/slowflow.md.
 
     ``max_phase_range``: largest Φ excursion (rad) between two successive reversals of Φ that still
     counts as one loop — a captured slow angle stays within one turn.
@@ -223,7 +223,7 @@ def trajectory(
     params: DetectorParams = DetectorParams(),
     t0: float = 0.0,
 ) -> Trajectory:
-    """Phase trajectory (Φ, Φ̇) of Φ_{m:n} between two components sampled at ``fs`` (spec §5 steps 3–5)."""
+    """Phase trajectory (Φ, Φ̇) of Φ_{m:n} between two components sampled at ``fs`` (method-wbemd-slowflow §5 steps 3–5)."""
     _check_ratio(m, n, "trajectory")
     a = np.asarray(comp_low, dtype=np.float64)
     b = np.asarray(comp_high, dtype=np.float64)
@@ -264,7 +264,7 @@ def end_guard_s(lowpass_hz: float, params: DetectorParams) -> float:
 
 
 def detect_non_time_like(traj: Trajectory, params: DetectorParams = DetectorParams()) -> tuple[Interval, ...]:
-    """Non-time-like intervals of a phase trajectory (spec §5 step 5).
+    """Non-time-like intervals of a phase trajectory (method-wbemd-slowflow §5 step 5).
 
     Why this rule: a time-like Φ drifts monotonically (Φ̇ of one sign, no reversal); a passage through
     the ratio without capture reverses Φ once; a capture makes Φ̇ oscillate about zero while Φ stays

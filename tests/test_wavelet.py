@@ -29,7 +29,7 @@ def test_fft_cwt_equals_the_direct_integral_of_eq_3_2():
 
 
 def test_amplitude_normalisation_reads_the_sinusoid_amplitude_and_literal_has_the_derived_gain():
-    """Digest §1.1 [DERIVED]: a cosine A·cos(Ωt) gives |Z(Ω,t)| = A (amplitude) and ≈ 0.9414·A·ω0/Ω (literal)."""
+    """method-wbemd-slowflow §1.1 [DERIVED]: a cosine A·cos(Ωt) gives |Z(Ω,t)| = A (amplitude) and ≈ 0.9414·A·ω0/Ω (literal)."""
     fs = 2048.0
     t = np.arange(4096) / fs
     A, f0 = 2.5, 100.0
@@ -40,7 +40,7 @@ def test_amplitude_normalisation_reads_the_sinusoid_amplitude_and_literal_has_th
     lit = np.abs(morlet_cwt(x, fs, [f0], normalization="literal")[0, mid])
     gain = np.pi**-0.25 * np.sqrt(2 * np.pi) / 2  # literal / amplitude peak ratio at ω0/Ω scale 1
     assert np.allclose(lit, A * gain * 2 * np.pi / (2 * np.pi * f0), rtol=1e-9)
-    assert gain == pytest.approx(0.9414, abs=1e-3)  # the digest's 0.9414 constant
+    assert gain == pytest.approx(0.9414, abs=1e-3)  # the method note's 0.9414 constant
 
 
 def test_mwt_peaks_at_the_components_and_ranks_them():

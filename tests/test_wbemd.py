@@ -54,7 +54,7 @@ def test_bound_exponent_closed_form_against_brute_force():
 
 
 def test_bound_area_matches_erf_form_and_decreases():
-    # Without the floor (ε = 0), eq. 3.10 integrates to ηZ̃Δ√(π/φ)·erf(√φ ω_i/Δ) (method spec §3.4 [DERIVED]).
+    # Without the floor (ε = 0), eq. 3.10 integrates to ηZ̃Δ√(π/φ)·erf(√φ ω_i/Δ) (method-wbemd-slowflow §3.4 [DERIVED]).
     wi, wnext, z_at, eta = 2 * np.pi * 975, 2 * np.pi * 750, 0.7, 1.1
     d = wi - wnext
     areas = []
@@ -72,7 +72,7 @@ def test_wbemd_separates_closely_spaced_pair(k):
     assert r.diagnostics[1].mask == "optimised" and r.diagnostics[0].mask == "residual"
     np.testing.assert_allclose(r.char_freqs_hz, [F1, k * F1])  # ascending, IMF 1 = lowest (L935)
     np.testing.assert_allclose(r.imfs.sum(axis=0) + r.residual, y1 + y2, atol=1e-9)
-    # Seed §3.4.1 suggested assert (method spec §6.1); measured min PCC 0.93–0.99 over these k.
+    # Seed §3.4.1 suggested assert (method-wbemd-slowflow §6.1); measured min PCC 0.93–0.99 over these k.
     assert pcc(r.imfs[1], y1) >= 0.9
     assert pcc(r.imfs[0], y2) >= 0.9
 

@@ -1,4 +1,4 @@
-"""Experimental-style NSI (seed Ch. 5 §5.3.3, L1704–L1750): windowed δ̄ and POMs from measured hits.
+"""Experimental-style NSI (seed Ch. 5 §5.3.4–5.3.5, L1704–L1750): windowed δ̄ and POMs from measured hits.
 
 The computational studies reduce each whole simulated run to one (δ̄, f) pair (``analysis/nsi.py``); the seed's
 experiment instead cuts each measured impact into non-overlapping windows and gets one pair per window

@@ -1,4 +1,4 @@
-"""gvtlink DAQ service: CLI, sessions, hit gate, MCAP log, replay.
+"""gvtlink DAQ: the service at the root (recording and replay), the offline studies (``studies``), the CLI (``cli``).
 
 Importing it imports :mod:`analysis` first, whose ``__init__`` sets the one-BLAS-thread default
 (docs/decisions.md D19) before anything loads numpy.

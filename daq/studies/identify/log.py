@@ -1,4 +1,4 @@
-"""``gvt identify LOG --rig RIG``: the seed's experimental-style NSI (Ch. 5 §5.3.3) from a session's recorded hits.
+"""``gvt identify LOG --rig RIG``: the seed's experimental-style NSI (Ch. 5 §5.3.4–5.3.5) from a session's recorded hits.
 
 Per accepted hit of ``/daq/hits`` the record of the rig's sensors is read from ``PRE_TRIGGER_S`` before the pulse
 for the rig's record length (shortened to the next hit's), one hit at a time (memory: one record), on one DAQ or

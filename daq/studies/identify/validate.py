@@ -4,7 +4,7 @@ The identified law α|δ|^β δ goes into the rig's TOML as a ``power`` nonlinea
 ``analysis/model/config.py``), with the rig's other entries, comments and the spring's ``to`` kept (tomlkit, as the
 RFS path's ``daq.studies.identify.rfs.identified_toml``). That rig and the reference are then compared at validation hit levels
 by R² of the attachment's relative displacement and velocity — the quantities the seed compared (displacement for
-the NES beam, Fig. 5.7; velocity for the store, Fig. 6.19; digest §1.10–1.12):
+the NES beam, Fig. 5.7; velocity for the store, Fig. 6.19; method-nsi §1.10–1.12):
 
 * a sweep's reference is the sweep's own rig (the simulated truth), simulated at forces between the sweep's
   smallest and largest that are not on its grid (:func:`validation_forces`);

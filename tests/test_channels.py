@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.model.channels import ChannelTableError, parse_direction, parse_sensitivity, read_channel_csv, rig_channels
+from analysis.model.channels import ChannelTableError, read_channel_csv, rig_channels
 from analysis.model.geometry import rig_geometry
 from analysis.model.loader import ConfigError
 from analysis.model.rig import load_rig
 from analysis.model.rigs import open_rig
+from analysis.model.units import parse_direction, parse_sensitivity
 
 G_N = 9.80665
 LBF = 4.4482216152605

@@ -237,13 +237,13 @@ MAX_GEOMETRY_NODES = 10_000
 
 def _sensitivity_from_text(data: object, quantity_default: str) -> object:
     """``sensitivity = "100 mV/g"`` (with ``gain = "1 mV/pC"`` for a charge sensor) -> ``sensitivity_mv_per_unit``,
-    converted by pint (analysis/model/channels.py); the unit must be of the channel's quantity. Both given: they
+    converted by pint (analysis/model/units.py); the unit must be of the channel's quantity. Both given: they
     must agree (a sensor array's expansion passes both)."""
     if not isinstance(data, dict) or data.get("sensitivity") is None:
         if isinstance(data, dict) and data.get("gain") is not None:
             raise ValueError("gain: applies to a 'sensitivity' written with its unit (e.g. sensitivity = \"10 pC/N\")")
         return data
-    from analysis.model.channels import parse_sensitivity
+    from analysis.model.units import parse_sensitivity
 
     text = data["sensitivity"]
     if not isinstance(text, str):
@@ -264,7 +264,7 @@ def _sensitivity_from_text(data: object, quantity_default: str) -> object:
 
 def _check_direction(v: str | None) -> str | None:
     if v is not None:
-        from analysis.model.channels import parse_direction
+        from analysis.model.units import parse_direction
 
         parse_direction(v)  # ValueError: "'+W' is not a direction; use one of +X, -X, ..."
     return v

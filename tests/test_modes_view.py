@@ -88,7 +88,7 @@ def test_gvt_modal_rrd_draws_each_mode_on_the_geometry(linear, tmp_path):
 
 def test_unmeasured_nodes_interpolate_along_lines_and_scale_is_ten_percent():
     from analysis.model.channels import Channel
-    from analysis.model.geometry import make_geometry
+    from analysis.model.wireframe import make_geometry
     from daq.view.modes import channel_displacements, deformed_frames, interpolate_unmeasured, mode_scale
 
     # chain 1-2-3 with node 2 at x = 0.5 of 2 m (not the midpoint), and node 4 joined to nothing measured

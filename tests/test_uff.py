@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from analysis.model.channels import Channel, rig_channels
-from analysis.model.geometry import make_geometry, rig_geometry
+from analysis.model.geometry import rig_geometry
 from analysis.model.rigs import open_rig
+from analysis.model.wireframe import make_geometry
 from daq.cli import run
 from daq.log.reader import LogReader
 from daq.studies.uff import datasets as uff

@@ -229,7 +229,7 @@ class DampingSpec(_Strict):
 
 
 Quantity = Literal["acceleration", "velocity", "displacement", "force"]
-#: A UFF node number (datasets 15/55/58/82 write I10; 0 is "pen up" in a trace line): analysis/model/geometry.py.
+#: A UFF node number (datasets 15/55/58/82 write I10; 0 is "pen up" in a trace line): analysis/model/wireframe.py.
 NodeId = Annotated[int, Field(ge=1, le=2_147_483_647)]
 #: Test geometry nodes: a measured structure has tens to hundreds of points; 10000 keeps a file's UFF 15 small.
 MAX_GEOMETRY_NODES = 10_000
@@ -368,7 +368,7 @@ class GeometryNode(_Strict):
 
 
 class GeometrySpec(_Strict):
-    """The test geometry (analysis/model/geometry.py): nodes and trace lines, for a structure the FE model does
+    """The test geometry (analysis/model/wireframe.py): nodes and trace lines, for a structure the FE model does
     not draw (a beam model of a frame); every sensor and the hammer then name their ``node``."""
 
     nodes: Annotated[
@@ -380,7 +380,7 @@ class GeometrySpec(_Strict):
     def _consistent(self) -> GeometrySpec:
         import numpy as np
 
-        from analysis.model.geometry import geometry_problem
+        from analysis.model.wireframe import geometry_problem
 
         ids = np.array([n.id for n in self.nodes], dtype=np.int64)
         xyz = np.array([[n.x, n.y, n.z] for n in self.nodes], dtype=float)

@@ -399,7 +399,7 @@ MAX_UPDATE_MODES = 50
 
 class UpdateParameter(_Strict):
     """One updating parameter (``[[update.parameters]]``): ``target`` names the value it sets, e.g.
-    ``structure.youngs_modulus``, ``point_masses[0].mass``, ``springs[0].k`` (analysis/model/updating.py TARGETS)."""
+    ``structure.youngs_modulus``, ``point_masses[0].mass``, ``springs[0].k`` (analysis/model/update_targets.py TARGETS)."""
 
     name: Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
     target: Annotated[str, Field(min_length=1)]
@@ -637,7 +637,7 @@ class RigConfig(_Strict):
                         raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
         self._check_nodes()
         if self.update is not None and self.update.parameters:
-            from analysis.model.updating import check_parameters  # numpy only at import; scipy when it optimises
+            from analysis.model.update_targets import check_parameters
 
             check_parameters(self, self.update.parameters)
         seen: set[str] = set()

@@ -35,36 +35,20 @@ the rig from its config each time.
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from analysis.errors import BadInput
-from analysis.model.loader import ConfigFieldError
+from analysis.model.update_targets import get_target, set_target
 
 if TYPE_CHECKING:
     from analysis.model.config import RigConfig, UpdateParameter
 
-#: The values a parameter may set: what changes the rig's linear M and K and nothing else (the nonlinear
-#: spring is not seen by linear modes; positions would move the mesh's nodes).
-TARGETS = {
-    r"structure\.youngs_modulus": "Young's modulus of the beam (Pa)",
-    r"structure\.density": "density of the beam (kg/m^3)",
-    r"structure\.height": "thickness of the beam (m)",
-    r"structure\.width": "width of the beam (m)",
-    r"structure\.masses\[\d+\]": "a lumped mass (kg)",
-    r"structure\.springs\[\d+\]\.k": "a lumped spring (N/m)",
-    r"point_masses\[\d+\]\.mass": "a point mass (kg)",
-    r"springs\[\d+\]\.k": "a grounded linear spring (N/m): an attachment or a boundary spring",
-    r"structure\.stiffness_parts\[\d+\]\.scale": "an imported rig's substructure stiffness scale p_i (K = sum p_i K_i)",
-}
-_TARGET_RE = re.compile("^(?:" + "|".join(TARGETS) + ")$")
-_STEP = re.compile(r"^([a-z_]+)((?:\[\d+\])*)$")
 #: A measured mode whose best FE partner has a lower MAC is left out (a spurious or badly measured mode); 0.6 is
 #: well below the 0.99 of the project's measured modes (tests/test_modal_cmd.py) and above any cross-MAC of
 #: beam_ch4_exp's FE modes at its 14 sensors (at most 0.3).
@@ -77,67 +61,6 @@ EXACT = 1e-6
 OPTIMISERS = ("de", "multistart")
 
 Progress = Callable[[str, float], None]
-
-
-# --- targets ------------------------------------------------------------------------------------------
-def _steps(target: str) -> list[str | int]:
-    out: list[str | int] = []
-    for part in target.split("."):
-        m = _STEP.match(part)
-        if m is None:
-            raise KeyError(target)
-        out.append(m.group(1))
-        out.extend(int(i) for i in re.findall(r"\[(\d+)\]", m.group(2)))
-    return out
-
-
-def get_target(data: Any, target: str) -> float:
-    """The value at ``target`` in a config's data (a dict from ``model_dump``, or a tomlkit document)."""
-    node = data
-    for s in _steps(target):
-        node = node[s]
-    return float(node)
-
-
-def set_target(data: Any, target: str, value: float) -> None:
-    *path, last = _steps(target)
-    node = data
-    for s in path:
-        node = node[s]
-    node[last] = value
-
-
-def check_parameters(cfg: RigConfig, params: Sequence[UpdateParameter], where: str = "update.parameters") -> None:
-    """Each parameter names a value this rig has (:data:`TARGETS`), once, with its nominal value in its bounds;
-    a problem is a :class:`ConfigFieldError` at the parameter's field."""
-    data = cfg.model_dump()
-    names: set[str] = set()
-    targets: set[str] = set()
-    for i, p in enumerate(params):
-        at = f"{where}[{i}]"
-        if p.name in names:
-            raise ConfigFieldError(f"{at}.name", f"parameter name {p.name!r} is used twice")
-        if not _TARGET_RE.match(p.target):
-            raise ConfigFieldError(
-                f"{at}.target", f"{p.target!r} is not an updatable value; use one of: " + ", ".join(_pretty_targets())
-            )
-        if p.target in targets:
-            raise ConfigFieldError(f"{at}.target", f"{p.target!r} is updated by two parameters")
-        try:
-            v = get_target(data, p.target)
-        except (KeyError, IndexError, TypeError):
-            raise ConfigFieldError(f"{at}.target", f"this rig has no {p.target!r}") from None
-        lo, hi = p.bounds
-        if not lo <= v <= hi:
-            raise ConfigFieldError(
-                f"{at}.bounds", f"the rig's value of {p.target} ({v:g}) is outside the bounds [{lo:g}, {hi:g}]"
-            )
-        names.add(p.name)
-        targets.add(p.target)
-
-
-def _pretty_targets() -> list[str]:
-    return [t.replace("\\", "").replace("[d+]", "[i]") for t in TARGETS]
 
 
 def default_parameters(cfg: RigConfig) -> list[UpdateParameter]:

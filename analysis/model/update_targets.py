@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from analysis.model.loader import ConfigFieldError
 
 if TYPE_CHECKING:
-    from analysis.model.config import RigConfig, UpdateParameter
+    from pydantic import BaseModel
 
 #: The values a parameter may set: what changes the rig's linear M and K and nothing else (the nonlinear
 #: spring is not seen by linear modes; positions would move the mesh's nodes).
@@ -35,6 +35,20 @@ TARGETS = {
 }
 _TARGET_RE = re.compile("^(?:" + "|".join(TARGETS) + ")$")
 _STEP = re.compile(r"^([a-z_]+)((?:\[\d+\])*)$")
+
+
+class Parameter(Protocol):
+    """What :func:`check_parameters` reads of an ``UpdateParameter`` (analysis/model/config.py): typed by its shape,
+    so that this module, which the schema imports, does not import the schema back."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def target(self) -> str: ...
+
+    @property
+    def bounds(self) -> tuple[float, float]: ...
 
 
 def _steps(target: str) -> list[str | int]:
@@ -64,9 +78,9 @@ def set_target(data: Any, target: str, value: float) -> None:
     node[last] = value
 
 
-def check_parameters(cfg: RigConfig, params: Sequence[UpdateParameter], where: str = "update.parameters") -> None:
-    """Each parameter names a value this rig has (:data:`TARGETS`), once, with its nominal value in its bounds;
-    a problem is a :class:`ConfigFieldError` at the parameter's field."""
+def check_parameters(cfg: BaseModel, params: Sequence[Parameter], where: str = "update.parameters") -> None:
+    """Each parameter names a value the rig ``cfg`` (a ``RigConfig``) has (:data:`TARGETS`), once, with its nominal
+    value in its bounds; a problem is a :class:`ConfigFieldError` at the parameter's field."""
     data = cfg.model_dump()
     names: set[str] = set()
     targets: set[str] = set()
@@ -97,4 +111,4 @@ def _pretty_targets() -> list[str]:
     return [t.replace("\\", "").replace("[d+]", "[i]") for t in TARGETS]
 
 
-__all__ = ["TARGETS", "check_parameters", "get_target", "set_target"]
+__all__ = ["TARGETS", "Parameter", "check_parameters", "get_target", "set_target"]

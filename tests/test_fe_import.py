@@ -1,4 +1,5 @@
-"""Rigs from FE matrices (analysis/model/imported.py, gvt model export) and the mode solver at fine meshes.
+"""Rigs from FE matrices (analysis/model/matrices.py; gvt model export: analysis/model/fe_export.py) and the mode
+solver at fine meshes.
 
 Oracles: the native rig itself (an export read back must be the same rig: same floats in M and K, so the same
 modes, response and detection events), Euler-Bernoulli's free-free frequencies, the digest's 749-element values
@@ -20,7 +21,7 @@ from analysis.errors import BadInput
 from analysis.exchange import ExchangeSettings, detect_exchanges
 from analysis.modal_filter import ModalFilterSettings, modal_basis
 from analysis.model.config import RigConfig
-from analysis.model.imported import export_plan, write_matrix
+from analysis.model.fe_export import export_plan, write_matrix
 from analysis.model.loader import ConfigError, validate
 from analysis.model.modal import modal_damping_matrix, structure_modes
 from analysis.model.rig import build_rig, load_rig

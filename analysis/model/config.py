@@ -81,7 +81,7 @@ class Located(_Strict):
 
 def _no_node(item: object) -> bool:
     """A sensor or the hammer of an imported (``kind = "matrices"``) rig may be placed by ``node`` (+ ``direction``)
-    alone, as the FE model's DOF map names it (analysis/model/imported.py)."""
+    alone, as the FE model's DOF map names it (analysis/model/matrices.py)."""
     return getattr(item, "node", None) is None
 
 
@@ -124,7 +124,7 @@ class LumpedSpec(_Strict):
         return self.dof_names or [f"x{i + 1}" for i in range(len(self.masses))]
 
 
-#: Matrix file formats an imported rig reads (analysis/model/imported.py): MatrixMarket (Ansys ``*EXPORT,,MMF``, any
+#: Matrix file formats an imported rig reads (analysis/model/matrices.py): MatrixMarket (Ansys ``*EXPORT,,MMF``, any
 #: code through scipy), MATLAB .mat (the usual way FE matrices leave Abaqus/Nastran DMAP scripts, as the seed's did)
 #: and Harwell-Boeing RUA (``HBMAT``), each read by scipy.io.
 MatrixFormat = Literal["matrixmarket", "matlab", "harwell-boeing"]
@@ -139,7 +139,7 @@ class MatrixPart(_Strict):
 
 
 class MatricesSpec(_Strict):
-    """A linear model exported by an FE code at the measured DOFs (analysis/model/imported.py, docs/fe-import.md).
+    """A linear model exported by an FE code at the measured DOFs (analysis/model/matrices.py, docs/fe-import.md).
 
     Paths are relative to the rig TOML; a .mat file names its variable as ``file.mat#K``. ``dofs`` is a CSV with
     one row per matrix row: ``node,direction[,x,y,z]``. Attachments, nonlinear springs, sensors and the hammer
@@ -613,7 +613,7 @@ class RigConfig(_Strict):
                         f"({half:g} m); move it onto the beam",
                     )
             self._check_supports(s, located)
-        elif isinstance(s, MatricesSpec):  # DOF names come from the DOF map: checked when it is read (imported.py)
+        elif isinstance(s, MatricesSpec):  # DOF names come from the DOF map: checked when it is read (matrices.py)
             for path, item in located:
                 if item.x is not None:
                     raise ConfigFieldError(f"{path}.x", "an imported rig places things by 'dof' ('<node>:<direction>') or 'node'")

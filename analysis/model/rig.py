@@ -119,8 +119,8 @@ def _place(
     node: int | None = None,
     field: str = "sensors",
 ) -> PlacedChannel:
-    if isinstance(cfg.structure, MatricesSpec):  # by "<node>:<direction>" or node + direction (imported.py)
-        from analysis.model.imported import resolve_dof
+    if isinstance(cfg.structure, MatricesSpec):  # by "<node>:<direction>" or node + direction (matrices.py)
+        from analysis.model.matrices import resolve_dof
 
         idx = resolve_dof(structure.dofs, field, dof, node, props.direction)
         d = structure.dofs[idx]
@@ -176,8 +176,8 @@ def build_rig(cfg: RigConfig, path: str | Path = "<config>") -> Rig:
             damping=damping,
             oscillators=[(o.name, o.x, o.mass, o.k) for o in cfg.oscillators],
         )
-    elif isinstance(s, MatricesSpec):  # matrices from an FE code, attachments added on top (imported.py)
-        from analysis.model.imported import build_imported
+    elif isinstance(s, MatricesSpec):  # matrices from an FE code, attachments added on top (matrices.py)
+        from analysis.model.matrices import build_imported
 
         structure = build_imported(cfg, Path(path).parent if str(path) != "<config>" else Path.cwd(), damping)
     else:

@@ -6,6 +6,10 @@ millivolts per SI unit (e.g. 1.02 mV/(m/s^2) for the seed's accelerometers, L132
 Every number must be finite (``inf``/``nan`` are refused with the field named), and the ones that size
 memory or time have a named limit below, with the measurement behind it: a config that would take an hour
 and 5 GB to load is refused in a line, before anything is allocated.
+
+The schema is data: it imports the loader and three leaves that convert or check what a rig file writes (units.py,
+wireframe.py, update_targets.py), never the modules that use it (rig, channel table, geometry, updater, export),
+so no import circle runs through it (issue 28).
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from analysis.model.loader import ConfigFieldError, at_least, at_most, at_most_items, check_limit
+from analysis.model.units import parse_direction, parse_sensitivity  # pint loads on the first conversion
+from analysis.model.update_targets import check_parameters
 
 # --- limits: what a config may ask for (measured on the 2-core dev machine, shared with other jobs) -----------
 #: Beam elements. load_rig + modes + ``gvt model modes`` (dense eigenproblem, 2 DOF a node) measured 0.01 s /
@@ -243,8 +249,6 @@ def _sensitivity_from_text(data: object, quantity_default: str) -> object:
         if isinstance(data, dict) and data.get("gain") is not None:
             raise ValueError("gain: applies to a 'sensitivity' written with its unit (e.g. sensitivity = \"10 pC/N\")")
         return data
-    from analysis.model.units import parse_sensitivity
-
     text = data["sensitivity"]
     if not isinstance(text, str):
         raise ValueError(f'sensitivity: write the value with its unit as text, e.g. "100 mV/g" (got {text!r})')
@@ -264,8 +268,6 @@ def _sensitivity_from_text(data: object, quantity_default: str) -> object:
 
 def _check_direction(v: str | None) -> str | None:
     if v is not None:
-        from analysis.model.units import parse_direction
-
         parse_direction(v)  # ValueError: "'+W' is not a direction; use one of +X, -X, ..."
     return v
 
@@ -378,7 +380,7 @@ class GeometrySpec(_Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> GeometrySpec:
-        import numpy as np
+        import numpy as np  # numpy only for a rig with [geometry]: loading a config stays light
 
         from analysis.model.wireframe import geometry_problem
 
@@ -637,8 +639,6 @@ class RigConfig(_Strict):
                         raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
         self._check_nodes()
         if self.update is not None and self.update.parameters:
-            from analysis.model.update_targets import check_parameters
-
             check_parameters(self, self.update.parameters)
         seen: set[str] = set()
         for sensor in self.all_sensors:

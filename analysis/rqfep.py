@@ -384,108 +384,192 @@ def flag_interactions(
     result (``i_lo``, ``i_hi``, ``i_peak``: the point that closes the gap most) refer to the input order.
     The result is ordered by energy.
     """
-    e = np.asarray(energy, dtype=float)
-    f = np.asarray(freqs, dtype=float)
-    if e.ndim != 1 or f.ndim != 2 or f.shape[0] != e.size or f.shape[1] < 2:
-        raise ValueError("energy must be (runs,) and freqs (runs, >= 2)")
-    n = e.size
-    p = np.full(n, np.nan) if amplitudes is None else np.asarray(amplitudes, dtype=float)
-    if n < settings.window:
+    sweep = _EnergyOrder.of(energy, freqs, amplitudes, modal_ratio, settings.window)
+    if sweep is None:
         return []
-    order = np.argsort(e, kind="stable")
-    e, f, p = e[order], f[order], p[order]
-    mr = None if modal_ratio is None else np.asarray(modal_ratio, dtype=float)
-    if mr is not None:
-        if mr.shape != (n,):
-            raise ValueError("modal_ratio must be (runs,), like energy")
-        mr = mr[order]
-    b1, r1, m1 = deviations(f[:, 0], settings, 0)
-    b2, r2, m2 = deviations(f[:, 1], settings, 1)
-    g = settings.partner_gap
+    dev = _Deviations.of(sweep.f, settings)
+    spikes = _spike_events(dev, settings)
+    bands = _band_events(dev, settings, spikes) if settings.band and sweep.n >= settings.band_window else []
+    in_band = np.zeros(sweep.n, dtype=bool)
+    for lo, hi, _ in bands:
+        in_band[lo : hi + 1] = True
+    off = ~(dev.m1 | dev.m2 | in_band)
+    flags = (_interaction(sweep, dev, off, lo, hi, kind, settings) for lo, hi, kind in sorted(spikes + bands))
+    return [fl for fl in flags if fl is not None]
 
-    def near(mask: np.ndarray, i: int, sign: float | None) -> bool:
-        lo, hi = max(0, i - g), min(n, i + g + 1)
-        seg = mask[lo:hi] if sign is None else mask[lo:hi] & (np.sign(r2[lo:hi] if mask is m2 else r1[lo:hi]) == sign)
-        return bool(seg.any())
 
-    cand = np.zeros(n, dtype=bool)
-    for i in range(n):
-        if m1[i] and near(m2, i, -np.sign(r1[i]) if settings.converging else None):
+@dataclass(frozen=True)
+class _EnergyOrder:
+    """The sweep's runs sorted by energy, the RQ-FEP's axis (L1251): energy ``e``, frequencies ``f``, amplitudes
+    ``p`` (NaN when not given) and modal ratios ``mr``, with ``order`` mapping each back to its input index."""
+
+    order: np.ndarray
+    e: FloatArray
+    f: FloatArray
+    p: FloatArray
+    mr: FloatArray | None
+
+    @property
+    def n(self) -> int:
+        return self.e.size
+
+    @classmethod
+    def of(cls, energy: FloatArray, freqs: FloatArray, amplitudes: FloatArray | None, modal_ratio: FloatArray | None,
+           window: int) -> _EnergyOrder | None:  # fmt: skip
+        """Checked and sorted; None when the sweep has fewer runs than the running median's ``window``."""
+        e = np.asarray(energy, dtype=float)
+        f = np.asarray(freqs, dtype=float)
+        if e.ndim != 1 or f.ndim != 2 or f.shape[0] != e.size or f.shape[1] < 2:
+            raise ValueError("energy must be (runs,) and freqs (runs, >= 2)")
+        n = e.size
+        p = np.full(n, np.nan) if amplitudes is None else np.asarray(amplitudes, dtype=float)
+        if n < window:
+            return None
+        order = np.argsort(e, kind="stable")
+        mr = None if modal_ratio is None else np.asarray(modal_ratio, dtype=float)
+        if mr is not None:
+            if mr.shape != (n,):
+                raise ValueError("modal_ratio must be (runs,), like energy")
+            mr = mr[order]
+        return cls(order, e[order], f[order], p[order], mr)
+
+
+@dataclass(frozen=True)
+class _Deviations:
+    """NNM1's and NNM2's running-median baselines ``b``, relative residuals ``r`` and deviating points ``m``
+    (:func:`deviations`), with the frequencies ``f`` they were taken from."""
+
+    f: FloatArray
+    b1: FloatArray
+    r1: FloatArray
+    m1: np.ndarray
+    b2: FloatArray
+    r2: FloatArray
+    m2: np.ndarray
+
+    @classmethod
+    def of(cls, f: FloatArray, settings: SpikeSettings) -> _Deviations:
+        b1, r1, m1 = deviations(f[:, 0], settings, 0)
+        b2, r2, m2 = deviations(f[:, 1], settings, 1)
+        return cls(f, b1, r1, m1, b2, r2, m2)
+
+    def closure(self, lo: int, hi: int) -> FloatArray:
+        """Fraction of the baseline gap f2 − f1 closed at each point of [lo, hi]."""
+        f, b1, b2 = self.f, self.b1, self.b2
+        gap = b2[lo : hi + 1] - b1[lo : hi + 1]
+        return ((f[lo : hi + 1, 0] - b1[lo : hi + 1]) - (f[lo : hi + 1, 1] - b2[lo : hi + 1])) / gap
+
+
+def _partner_near(mask: np.ndarray, resid: FloatArray, i: int, gap: int, sign: float | None) -> bool:
+    """Does the other curve deviate (``mask``) within ``gap`` points of ``i``, in direction ``sign`` of its
+    residual ``resid`` when one is asked for? The seed's partner criterion (L1393)."""
+    lo, hi = max(0, i - gap), min(mask.size, i + gap + 1)
+    seg = mask[lo:hi] if sign is None else mask[lo:hi] & (np.sign(resid[lo:hi]) == sign)
+    return bool(seg.any())
+
+
+def _spike_candidates(dev: _Deviations, settings: SpikeSettings) -> np.ndarray:
+    """Points where one curve deviates and the other has a partner deviation nearby (moving the other way when
+    ``converging``), kept, when ``converging``, only where NNM1 is up or NNM2 down: the RQs approach (L1259)."""
+    m1, m2, r1, r2, g = dev.m1, dev.m2, dev.r1, dev.r2, settings.partner_gap
+    cand = np.zeros(m1.size, dtype=bool)
+    for i in range(m1.size):
+        if m1[i] and _partner_near(m2, r2, i, g, -np.sign(r1[i]) if settings.converging else None):
             cand[i] = True
-        elif m2[i] and near(m1, i, -np.sign(r2[i]) if settings.converging else None):
+        elif m2[i] and _partner_near(m1, r1, i, g, -np.sign(r2[i]) if settings.converging else None):
             cand[i] = True
     if settings.converging:  # NNM1 up / NNM2 down: the RQs approach each other (similar POMs)
         for i in np.flatnonzero(cand):
             if not ((m1[i] and r1[i] > 0) or (m2[i] and r2[i] < 0)):
                 cand[i] = False
-    def closure(lo: int, hi: int) -> FloatArray:
-        """Fraction of the baseline gap f2 − f1 closed at each point of [lo, hi]."""
-        gap = b2[lo : hi + 1] - b1[lo : hi + 1]
-        return ((f[lo : hi + 1, 0] - b1[lo : hi + 1]) - (f[lo : hi + 1, 1] - b2[lo : hi + 1])) / gap
+    return cand
 
-    events = [
+
+def _spike_events(dev: _Deviations, settings: SpikeSettings) -> list[tuple[int, int, str]]:
+    """Adjacent candidates merged into one interaction (the seed's first spike spans several points, L1255),
+    each closing at least ``min_closure`` of the gap when ``converging``: (lo, hi, "spike")."""
+    return [
         (lo, hi, "spike")
-        for lo, hi in true_runs(cand, settings.merge_gap)
-        if not settings.converging or closure(lo, hi).max() >= settings.min_closure
+        for lo, hi in true_runs(_spike_candidates(dev, settings), settings.merge_gap)
+        if not settings.converging or dev.closure(lo, hi).max() >= settings.min_closure
     ]
-    in_band = np.zeros(n, dtype=bool)
-    if settings.band and n >= settings.band_window:
-        h = settings.band_window // 2
-        for c_lo, c_hi in true_runs(band_windows(r1, r2, settings)):
-            if c_hi - c_lo + 1 < settings.band_min_run:
-                continue
-            pts = [j for j in range(c_lo - h, c_hi + h + 1) if abs(r1[j]) >= settings.band_min_rel[0]]
-            lo, hi = pts[0], pts[-1]  # non-empty: a qualifying window has RMS >= the floor
-            if settings.converging and not np.any((r1[lo : hi + 1] >= settings.band_min_rel[0]) & (r2[lo : hi + 1] < 0)):
-                continue  # anti-correlated but only ever diverging (NNM1 down, NNM2 up): not "similar POMs"
-            if any(lo <= s_hi and s_lo <= hi for s_lo, s_hi, _ in events):
-                continue
-            events.append((lo, hi, "band"))
-            in_band[lo : hi + 1] = True
-    events.sort()
-    off = ~(m1 | m2 | in_band)
-    out = []
-    for lo, hi, kind in events:
-        left = [j for j in range(lo - 1 - settings.guard, -1, -1) if off[j]][: settings.n_side]
-        right = [j for j in range(hi + 1 + settings.guard, n) if off[j]][: settings.n_side]
-        if not left or not right:
-            continue  # an interaction at the edge of the sweep has no "outside" to read the ratio from
-        rl = float(np.median(f[left, 1] / f[left, 0]))
-        rr = float(np.median(f[right, 1] / f[right, 0]))
-        label, bracketed = nearest_ratio(rl, rr, settings.ratios)
-        closed = closure(lo, hi)  # a band is many small moves: it is not held to the spike's min_closure
-        k = lo + int(np.argmax(closed))
-        modal: dict = {}
-        if mr is not None:
-            below = [j for j in range(lo - 1, -1, -1) if np.isfinite(mr[j])][:1]
-            above = [j for j in range(hi + 1, n) if np.isfinite(mr[j])][:1]
-            if below and above:
-                ml, mh = float(mr[below[0]]), float(mr[above[0]])
-                mlab, mbr = nearest_ratio(ml, mh, settings.ratios)
-                modal = {"modal_ratio": mlab, "modal_ratio_left": ml, "modal_ratio_right": mh,
-                         "modal_ratio_peak": float(mr[k]), "modal_bracketed": mbr}  # fmt: skip
-        out.append(
-            SweepInteraction(
-                i_lo=int(order[lo]),
-                i_hi=int(order[hi]),
-                i_peak=int(order[k]),
-                p_lo=float(np.nanmin(p[lo : hi + 1])) if np.isfinite(p[lo : hi + 1]).any() else float("nan"),
-                p_hi=float(np.nanmax(p[lo : hi + 1])) if np.isfinite(p[lo : hi + 1]).any() else float("nan"),
-                energy_lo=float(e[lo]),
-                energy_hi=float(e[hi]),
-                f1_hz=float(f[k, 0]),
-                f2_hz=float(f[k, 1]),
-                ratio=label,
-                ratio_left=rl,
-                ratio_right=rr,
-                bracketed=bracketed,
-                n_points=int(hi - lo + 1),
-                score=float(np.max(closed)),
-                kind=kind,
-                **modal,
-            )
-        )
-    return out
+
+
+def _band_events(dev: _Deviations, settings: SpikeSettings, spikes: list[tuple[int, int, str]]) -> list[tuple[int, int, str]]:
+    """Runs of ≥ ``band_min_run`` qualifying windows (:func:`band_windows`), trimmed to the outermost points whose
+    NNM1 residual reaches ``band_min_rel[0]``; dropped when only diverging (with ``converging``) or when they
+    overlap a spike or an earlier band (already reported): (lo, hi, "band")."""
+    r1, r2, h = dev.r1, dev.r2, settings.band_window // 2
+    bands: list[tuple[int, int, str]] = []
+    for c_lo, c_hi in true_runs(band_windows(r1, r2, settings)):
+        if c_hi - c_lo + 1 < settings.band_min_run:
+            continue
+        pts = [j for j in range(c_lo - h, c_hi + h + 1) if abs(r1[j]) >= settings.band_min_rel[0]]
+        lo, hi = pts[0], pts[-1]  # non-empty: a qualifying window has RMS >= the floor
+        if settings.converging and not np.any((r1[lo : hi + 1] >= settings.band_min_rel[0]) & (r2[lo : hi + 1] < 0)):
+            continue  # anti-correlated but only ever diverging (NNM1 down, NNM2 up): not "similar POMs"
+        if any(lo <= s_hi and s_lo <= hi for s_lo, s_hi, _ in (*spikes, *bands)):
+            continue
+        bands.append((lo, hi, "band"))
+    return bands
+
+
+def _outside_ratios(f: FloatArray, off: np.ndarray, lo: int, hi: int, settings: SpikeSettings) -> tuple[float, float] | None:
+    """Median f2/f1 of the ``n_side`` nearest points outside any spike or band, ``guard`` points away, below and
+    above [lo, hi] (L1298, L1313); None at the edge of the sweep, where one side has no such point."""
+    left = [j for j in range(lo - 1 - settings.guard, -1, -1) if off[j]][: settings.n_side]
+    right = [j for j in range(hi + 1 + settings.guard, off.size) if off[j]][: settings.n_side]
+    if not left or not right:
+        return None
+    return float(np.median(f[left, 1] / f[left, 0])), float(np.median(f[right, 1] / f[right, 0]))
+
+
+def _modal_labels(mr: FloatArray | None, lo: int, hi: int, k: int, settings: SpikeSettings) -> dict:
+    """The flag's second label, from the modal f2/f1 at the nearest measured points just below and above it (no
+    guard: POD mixing on a spike disturbs the RQs, not the modal phases); empty when either side has none."""
+    if mr is None:
+        return {}
+    below = [j for j in range(lo - 1, -1, -1) if np.isfinite(mr[j])][:1]
+    above = [j for j in range(hi + 1, mr.size) if np.isfinite(mr[j])][:1]
+    if not (below and above):
+        return {}
+    ml, mh = float(mr[below[0]]), float(mr[above[0]])
+    mlab, mbr = nearest_ratio(ml, mh, settings.ratios)
+    return {"modal_ratio": mlab, "modal_ratio_left": ml, "modal_ratio_right": mh,
+            "modal_ratio_peak": float(mr[k]), "modal_bracketed": mbr}  # fmt: skip
+
+
+def _interaction(sweep: _EnergyOrder, dev: _Deviations, off: np.ndarray, lo: int, hi: int, kind: str,
+                 settings: SpikeSettings) -> SweepInteraction | None:  # fmt: skip
+    """The interaction over sorted points [lo, hi], labelled from the ratios outside it and peaking where it
+    closes the gap most; indices mapped back to the input order. None at the edge of the sweep."""
+    ratios = _outside_ratios(sweep.f, off, lo, hi, settings)
+    if ratios is None:
+        return None  # an interaction at the edge of the sweep has no "outside" to read the ratio from
+    rl, rr = ratios
+    label, bracketed = nearest_ratio(rl, rr, settings.ratios)
+    closed = dev.closure(lo, hi)  # a band is many small moves: it is not held to the spike's min_closure
+    k = lo + int(np.argmax(closed))
+    p, e, f, order = sweep.p[lo : hi + 1], sweep.e, sweep.f, sweep.order
+    return SweepInteraction(
+        i_lo=int(order[lo]),
+        i_hi=int(order[hi]),
+        i_peak=int(order[k]),
+        p_lo=float(np.nanmin(p)) if np.isfinite(p).any() else float("nan"),
+        p_hi=float(np.nanmax(p)) if np.isfinite(p).any() else float("nan"),
+        energy_lo=float(e[lo]),
+        energy_hi=float(e[hi]),
+        f1_hz=float(f[k, 0]),
+        f2_hz=float(f[k, 1]),
+        ratio=label,
+        ratio_left=rl,
+        ratio_right=rr,
+        bracketed=bracketed,
+        n_points=int(hi - lo + 1),
+        score=float(np.max(closed)),
+        kind=kind,
+        **_modal_labels(sweep.mr, lo, hi, k, settings),
+    )
 
 
 def _ls_slope(x: FloatArray, y: FloatArray) -> float:

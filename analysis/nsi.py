@@ -489,98 +489,142 @@ def fit_power_law(
     (eqs. 5.9–5.10, L1505) unless ``settings.use_intersection`` is False. Otherwise log10 α and β are fitted
     together (L2120). Global search: ``differential_evolution`` (seeded, deterministic); uncertainty: pairs
     bootstrap of the points, each replicate a bounded local least-squares from the optimum."""
-    import scipy.optimize
+    d, f = _usable_points(dbar, freq_hz, omega_n, mass)
+    law = _FitLaw.of(d, f, omega_n, mass, f_linear, settings)
+    theta, nfev = _global_fit(law, d, f, settings)
+    alpha, beta = law.params(theta, law.inter)
+    boots, boot_nfev = _bootstrap(law, d, f, theta, settings)
+    return PowerLawFit(
+        alpha=float(alpha),
+        beta=float(beta),
+        r2=float(r_squared(f, law.hz(theta, d, law.inter))),
+        n_points=int(d.size),
+        omega_n=float(law.omega_n),
+        mass=float(law.mass),
+        kappa=settings.kappa,
+        mode="intersection" if law.inter is not None else "two-parameter",
+        intersection=None if law.inter is None else {"f_hz": law.inter[0], "dbar_m": law.inter[1]},
+        evaluations=nfev + boot_nfev,
+        extra={} if law.modal is None else {"modal_modes": int(law.modal.omega2.size), "modal_exact": law.modal.exact},
+        modal_law=law.modal,
+        **_bootstrap_spread(boots),
+    )
 
+
+def _usable_points(dbar: FloatArray, freq_hz: FloatArray, omega_n: float, mass: float) -> tuple[FloatArray, FloatArray]:
+    """The finite points with δ̄ > 0; a one-line refusal for fewer than 4 or an impossible attachment."""
     d = np.asarray(dbar, float)
     f = np.asarray(freq_hz, float)
     ok = np.isfinite(d) & np.isfinite(f) & (d > 0)
     d, f = d[ok], f[ok]
-    s = settings
     if d.size < 4:
         raise BadInput(f"the RQ-FDP has {d.size} usable points; a fit needs at least 4")
     if mass <= 0 or omega_n < 0:
         raise BadInput("the attachment's mass must be positive and ω_n non-negative")
-    inter = None
-    modal = None
-    if s.kappa in MODAL_KINDS:  # the law carries the linear modes the curve meets: no eq. 5.9 pin (docs/nsi.md)
-        if s.modal is None:
-            raise BadInput(f"law {s.kappa!r} needs the rig's modal basis (FitSettings.modal)")
-        modal = ModalLaw(s.modal, exact=s.kappa == "modal-exact")
-        omega_n, mass = modal.omega_n, modal.mass
-    if s.use_intersection and modal is None:
-        for fl in sorted(f_linear):
-            if fl > omega_n / (2 * np.pi) * (1 + 1e-9):
-                di = find_intersection(d, f, fl)
-                if di is not None:
-                    inter = (float(fl), di)
-                    break
-    if inter is not None:
-        bounds = [s.beta_bounds]
-    else:
-        bounds = [tuple(np.log10(s.alpha_bounds)), s.beta_bounds]
+    return d, f
 
-    def sse(theta, dd=d, ff=f):
-        r = _model(np.asarray(theta), dd, omega_n, mass, s.kappa, inter, modal) - ff
+
+def _intersection_pin(d: FloatArray, f: FloatArray, f_linear: tuple[float, ...], omega_n: float) -> tuple[float, float] | None:
+    """(f_i, δ̄_i) where the curve first crosses a linear frequency above the attachment's own, which pins α by
+    eq. 5.9 (L1505); None when it crosses none."""
+    for fl in sorted(f_linear):
+        if fl > omega_n / (2 * np.pi) * (1 + 1e-9):
+            di = find_intersection(d, f, fl)
+            if di is not None:
+                return (float(fl), di)
+    return None
+
+
+@dataclass(frozen=True)
+class _FitLaw:
+    """Eq. 5.8 as it is fitted: κ, ω_n and m (a modal law's own when it carries the rig's modes, which takes no
+    eq. 5.9 pin: docs/nsi.md), the pin (f_i, δ̄_i) if the curve crosses a linear frequency, and the search box
+    over θ = (β) with a pin, else (log10 α, β)."""
+
+    omega_n: float
+    mass: float
+    kappa: Kappa
+    inter: tuple[float, float] | None
+    modal: ModalLaw | None
+    bounds: list
+
+    @classmethod
+    def of(cls, d: FloatArray, f: FloatArray, omega_n: float, mass: float, f_linear: tuple[float, ...],
+           s: FitSettings) -> _FitLaw:  # fmt: skip
+        modal = None
+        if s.kappa in MODAL_KINDS:
+            if s.modal is None:
+                raise BadInput(f"law {s.kappa!r} needs the rig's modal basis (FitSettings.modal)")
+            modal = ModalLaw(s.modal, exact=s.kappa == "modal-exact")
+            omega_n, mass = modal.omega_n, modal.mass
+        inter = _intersection_pin(d, f, f_linear, omega_n) if s.use_intersection and modal is None else None
+        bounds = [s.beta_bounds] if inter is not None else [tuple(np.log10(s.alpha_bounds)), s.beta_bounds]
+        return cls(omega_n, mass, s.kappa, inter, modal, bounds)
+
+    def hz(self, theta: FloatArray, d: FloatArray, inter: tuple[float, float] | None) -> FloatArray:
+        """The law's f(δ̄) at ``theta``, pinned at ``inter`` (a bootstrap replicate re-locates it)."""
+        return _model(theta, d, self.omega_n, self.mass, self.kappa, inter, self.modal)
+
+    def params(self, theta: FloatArray, inter: tuple[float, float] | None) -> tuple[float, float]:
+        """(α, β) of ``theta``: α by eq. 5.9 from the pin, else 10^θ₀."""
+        if inter is None:
+            return 10.0 ** theta[0], float(theta[1])
+        return alpha_from_intersection(inter[0], inter[1], float(theta[0]), self.mass, self.omega_n, self.kappa), float(theta[0])
+
+
+def _global_fit(law: _FitLaw, d: FloatArray, f: FloatArray, s: FitSettings) -> tuple[FloatArray, int]:
+    """θ minimising the squared error (maximising R², L1608) by seeded ``differential_evolution`` over the box (the
+    seed used MATLAB's GlobalSearch), and its function evaluations."""
+    import scipy.optimize
+
+    def sse(theta):
+        r = law.hz(np.asarray(theta), d, law.inter) - f
         v = float(r @ r)
         return v if np.isfinite(v) else 1e300
 
-    de = scipy.optimize.differential_evolution(sse, bounds, seed=s.seed, tol=s.tol, polish=True, maxiter=2000)
-    theta = np.asarray(de.x, float)
-    nfev = int(de.nfev)
+    de = scipy.optimize.differential_evolution(sse, law.bounds, seed=s.seed, tol=s.tol, polish=True, maxiter=2000)
+    return np.asarray(de.x, float), int(de.nfev)
 
-    def params(th: FloatArray) -> tuple[float, float]:
-        if inter is None:
-            return 10.0 ** th[0], float(th[1])
-        return alpha_from_intersection(inter[0], inter[1], float(th[0]), mass, omega_n, s.kappa), float(th[0])
 
-    alpha, beta = params(theta)
-    r2 = r_squared(f, _model(theta, d, omega_n, mass, s.kappa, inter, modal))
-    boots = []
-    if s.n_boot > 0:
-        rng = np.random.default_rng(s.seed)
-        lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
-        for _ in range(s.n_boot):
-            k = rng.integers(0, d.size, d.size)
-            dd, ff = d[k], f[k]
-            bi = inter
-            if inter is not None:  # the intersection is re-located on the resampled curve
-                o = np.argsort(dd)
-                di = find_intersection(dd[o], ff[o], inter[0])
-                bi = (inter[0], di) if di is not None else inter
-            res = scipy.optimize.least_squares(
-                lambda th, dd=dd, ff=ff, bi=bi: _model(th, dd, omega_n, mass, s.kappa, bi, modal) - ff,
-                np.clip(theta, lo, hi), bounds=(lo, hi), method="trf",
-            )  # fmt: skip
-            nfev += int(res.nfev)
-            th = res.x
-            if bi is None:
-                boots.append((10.0 ** th[0], th[1]))
-            else:
-                boots.append((alpha_from_intersection(bi[0], bi[1], float(th[0]), mass, omega_n, s.kappa), th[0]))
-    kw: dict = {}
-    if boots:
-        b = np.asarray(boots)
-        kw = {
-            "alpha_ci": tuple(float(x) for x in np.percentile(b[:, 0], [2.5, 97.5])),
-            "beta_ci": tuple(float(x) for x in np.percentile(b[:, 1], [2.5, 97.5])),
-            "alpha_sd": float(np.std(b[:, 0], ddof=1)),
-            "beta_sd": float(np.std(b[:, 1], ddof=1)),
-        }
-    return PowerLawFit(
-        alpha=float(alpha),
-        beta=float(beta),
-        r2=float(r2),
-        n_points=int(d.size),
-        omega_n=float(omega_n),
-        mass=float(mass),
-        kappa=s.kappa,
-        mode="intersection" if inter is not None else "two-parameter",
-        intersection=None if inter is None else {"f_hz": inter[0], "dbar_m": inter[1]},
-        evaluations=nfev,
-        extra={} if modal is None else {"modal_modes": int(modal.omega2.size), "modal_exact": modal.exact},
-        modal_law=modal,
-        **kw,
-    )
+def _bootstrap(law: _FitLaw, d: FloatArray, f: FloatArray, theta: FloatArray, s: FitSettings) -> tuple[list, int]:
+    """``n_boot`` pairs-bootstrap replicates of (α, β), each a bounded local least-squares from the global optimum
+    with the pin re-located on the resampled curve (kept when it no longer crosses), and their evaluations."""
+    import scipy.optimize
+
+    boots: list = []
+    nfev = 0
+    if s.n_boot <= 0:
+        return boots, nfev
+    rng = np.random.default_rng(s.seed)
+    lo, hi = np.array([b[0] for b in law.bounds]), np.array([b[1] for b in law.bounds])
+    for _ in range(s.n_boot):
+        k = rng.integers(0, d.size, d.size)
+        dd, ff = d[k], f[k]
+        bi = law.inter
+        if law.inter is not None:  # the intersection is re-located on the resampled curve
+            o = np.argsort(dd)
+            di = find_intersection(dd[o], ff[o], law.inter[0])
+            bi = (law.inter[0], di) if di is not None else law.inter
+        res = scipy.optimize.least_squares(
+            lambda th, dd=dd, ff=ff, bi=bi: law.hz(th, dd, bi) - ff,
+            np.clip(theta, lo, hi), bounds=(lo, hi), method="trf",
+        )  # fmt: skip
+        nfev += int(res.nfev)
+        boots.append(law.params(res.x, bi))
+    return boots, nfev
+
+
+def _bootstrap_spread(boots: list) -> dict:
+    """The replicates' 2.5/97.5 % percentiles and standard deviations of α and β (none without replicates)."""
+    if not boots:
+        return {}
+    b = np.asarray(boots)
+    return {
+        "alpha_ci": tuple(float(x) for x in np.percentile(b[:, 0], [2.5, 97.5])),
+        "beta_ci": tuple(float(x) for x in np.percentile(b[:, 1], [2.5, 97.5])),
+        "alpha_sd": float(np.std(b[:, 0], ddof=1)),
+        "beta_sd": float(np.std(b[:, 1], ddof=1)),
+    }
 
 
 def fit_rq_fdp(

@@ -567,13 +567,38 @@ class RigConfig(_Strict):
                 raise ConfigFieldError(path, f"node {node} is not among the [geometry] nodes; add it there or correct the id")
 
     def check(self) -> None:
-        """Cross-field checks, each raising a :class:`ConfigFieldError` at the offending path."""
+        """Cross-field checks, each raising a :class:`ConfigFieldError` at the offending path: sensors and their
+        count, where each thing sits on this kind of structure, geometry nodes, update parameters, sensor names,
+        then the hammer pulse and the record against the sample rate."""
+        n_sensors = self._check_sensor_count()
+        located = self._located()
         s = self.structure
+        if self.oscillators and not isinstance(s, BeamSpec):
+            raise ConfigFieldError("oscillators", "[[oscillators]] attach to a beam; a lumped rig lists the mass and its spring")
+        if isinstance(s, BeamSpec):
+            self._check_on_beam(s, located)
+        elif isinstance(s, MatricesSpec):
+            self._check_on_matrices(s, located)
+        else:
+            self._check_on_lumped(s, located)
+        self._check_nodes()
+        if self.update is not None and self.update.parameters:
+            check_parameters(self, self.update.parameters)
+        self._check_sensor_names()
+        self._check_timing(n_sensors)
+
+    def _check_sensor_count(self) -> int:
+        """At least one sensor and at most :data:`MAX_SENSORS`, counted before any array is expanded."""
         if not self.sensors and not self.sensor_arrays:
             raise ConfigFieldError("sensors", "a rig needs at least one sensor")
         n_sensors = len(self.sensors) + sum(a.count for a in self.sensor_arrays)  # before any array is expanded
         where = "sensor_arrays" if self.sensor_arrays else "sensors"
         check_limit(where, n_sensors, MAX_SENSORS, "sensors", f"{MAX_CHANNELS} channels with the hammer")
+        return n_sensors
+
+    def _located(self) -> list[tuple[str, Located | SensorSpec]]:
+        """Everything placed on the structure, with the path its errors name: attachments, sensors, the hammer,
+        then each array's expanded sensors."""
         located: list[tuple[str, Located | SensorSpec]] = [
             *((f"point_masses[{i}]", p) for i, p in enumerate(self.point_masses)),
             *((f"springs[{i}]", p) for i, p in enumerate(self.springs)),
@@ -585,66 +610,85 @@ class RigConfig(_Strict):
         for a, arr in enumerate(self.sensor_arrays):
             for sensor in arr.expand():
                 located.append((f"sensor_arrays[{a}]", sensor))
-        if self.oscillators and not isinstance(s, BeamSpec):
-            raise ConfigFieldError("oscillators", "[[oscillators]] attach to a beam; a lumped rig lists the mass and its spring")
-        if isinstance(s, BeamSpec):
-            half = 0.5 * s.length / s.elements
-            osc = [o.name for o in self.oscillators]
-            if len(set(osc)) != len(osc):
-                raise ConfigFieldError("oscillators", "each oscillator needs its own name")
-            located += [(f"oscillators[{i}]", Located(x=o.x)) for i, o in enumerate(self.oscillators)]
-            for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
-                for i, p in enumerate(items):
-                    if isinstance(p.to, str) and p.to not in osc:
-                        raise ConfigFieldError(f"{kind}[{i}].to", f"unknown oscillator {p.to!r}; this rig has {osc}")
-                    if isinstance(p.to, float):
-                        located.append((f"{kind}[{i}].to", Located(x=p.to)))
-            for path, item in located:
-                if item.dof is not None and item.dof in osc:
-                    continue  # on an oscillator's own DOF
-                if item.dof is not None:
-                    raise ConfigFieldError(
-                        f"{path}.dof", f"a beam rig places things by 'x' (m), or by an oscillator's name {osc}, not by DOF name"
-                    )
-                if item.x is None:
-                    raise ConfigFieldError(f"{path}.x", "a beam rig places things by 'x' (m along the beam)")
-                if item.x < -half or item.x > s.length + half:
-                    raise ConfigFieldError(
-                        f"{path}.x",
-                        f"position {item.x:g} m is off the beam [0, {s.length:g}] m by more than half an element "
-                        f"({half:g} m); move it onto the beam",
-                    )
-            self._check_supports(s, located)
-        elif isinstance(s, MatricesSpec):  # DOF names come from the DOF map: checked when it is read (matrices.py)
-            for path, item in located:
-                if item.x is not None:
-                    raise ConfigFieldError(f"{path}.x", "an imported rig places things by 'dof' ('<node>:<direction>') or 'node'")
-            if s.damping is not None and "damping" in self.model_fields_set:
-                raise ConfigFieldError("damping", "the model brings its damping matrix (structure.damping); drop [damping]")
-        else:
-            names = s.names
-            for path, item in located:
-                if item.x is not None:
-                    raise ConfigFieldError(f"{path}.x", "a lumped rig places things by 'dof' name, not by 'x'")
-                if item.dof not in names:
-                    raise ConfigFieldError(f"{path}.dof", f"unknown DOF {item.dof!r}; this rig has {names}")
-            for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
-                for i, p in enumerate(items):
-                    if p.to is not None and (not isinstance(p.to, str) or p.to not in names or p.to == p.dof):
-                        raise ConfigFieldError(f"{kind}[{i}].to", f"{p.to!r} is not another DOF of this rig ({names})")
-            for i, sp in enumerate(s.springs):
-                for end in ("i", "j"):
-                    v = getattr(sp, end)
-                    if v is not None and v not in names:
-                        raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
-        self._check_nodes()
-        if self.update is not None and self.update.parameters:
-            check_parameters(self, self.update.parameters)
+        return located
+
+    def _check_on_beam(self, s: BeamSpec, located: list[tuple[str, Located | SensorSpec]]) -> None:
+        """On a beam everything sits at ``x`` within half an element of the beam, or on an oscillator's own DOF by
+        its name, and nothing that needs a DOF on a support's constrained deflection."""
+        half = 0.5 * s.length / s.elements
+        osc = [o.name for o in self.oscillators]
+        if len(set(osc)) != len(osc):
+            raise ConfigFieldError("oscillators", "each oscillator needs its own name")
+        located = located + self._beam_anchors(osc)
+        for path, item in located:
+            if item.dof is not None and item.dof in osc:
+                continue  # on an oscillator's own DOF
+            if item.dof is not None:
+                raise ConfigFieldError(
+                    f"{path}.dof", f"a beam rig places things by 'x' (m), or by an oscillator's name {osc}, not by DOF name"
+                )
+            if item.x is None:
+                raise ConfigFieldError(f"{path}.x", "a beam rig places things by 'x' (m along the beam)")
+            if item.x < -half or item.x > s.length + half:
+                raise ConfigFieldError(
+                    f"{path}.x",
+                    f"position {item.x:g} m is off the beam [0, {s.length:g}] m by more than half an element "
+                    f"({half:g} m); move it onto the beam",
+                )
+        self._check_supports(s, located)
+
+    def _beam_anchors(self, osc: list[str]) -> list[tuple[str, Located | SensorSpec]]:
+        """The other points a beam rig places: each oscillator's tie to the beam, and the ``to`` end of a nonlinear
+        spring or damper given as a position (one given as a name must be an oscillator's)."""
+        anchors: list[tuple[str, Located | SensorSpec]] = [
+            (f"oscillators[{i}]", Located(x=o.x)) for i, o in enumerate(self.oscillators)
+        ]
+        for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
+            for i, p in enumerate(items):
+                if isinstance(p.to, str) and p.to not in osc:
+                    raise ConfigFieldError(f"{kind}[{i}].to", f"unknown oscillator {p.to!r}; this rig has {osc}")
+                if isinstance(p.to, float):
+                    anchors.append((f"{kind}[{i}].to", Located(x=p.to)))
+        return anchors
+
+    def _check_on_matrices(self, s: MatricesSpec, located: list[tuple[str, Located | SensorSpec]]) -> None:
+        """An imported rig places things by DOF (names come from the DOF map: checked when it is read, matrices.py)
+        and brings its own damping matrix or the ``[damping]`` ratios, not both."""
+        for path, item in located:
+            if item.x is not None:
+                raise ConfigFieldError(f"{path}.x", "an imported rig places things by 'dof' ('<node>:<direction>') or 'node'")
+        if s.damping is not None and "damping" in self.model_fields_set:
+            raise ConfigFieldError("damping", "the model brings its damping matrix (structure.damping); drop [damping]")
+
+    def _check_on_lumped(self, s: LumpedSpec, located: list[tuple[str, Located | SensorSpec]]) -> None:
+        """A lumped rig places things, and ends its springs, nonlinear springs and dampers, on its own DOF names."""
+        names = s.names
+        for path, item in located:
+            if item.x is not None:
+                raise ConfigFieldError(f"{path}.x", "a lumped rig places things by 'dof' name, not by 'x'")
+            if item.dof not in names:
+                raise ConfigFieldError(f"{path}.dof", f"unknown DOF {item.dof!r}; this rig has {names}")
+        for kind, items in (("nonlinear_springs", self.nonlinear_springs), ("dampers", self.dampers)):
+            for i, p in enumerate(items):
+                if p.to is not None and (not isinstance(p.to, str) or p.to not in names or p.to == p.dof):
+                    raise ConfigFieldError(f"{kind}[{i}].to", f"{p.to!r} is not another DOF of this rig ({names})")
+        for i, sp in enumerate(s.springs):
+            for end in ("i", "j"):
+                v = getattr(sp, end)
+                if v is not None and v not in names:
+                    raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
+
+    def _check_sensor_names(self) -> None:
+        """Each sensor, listed or expanded from an array, has its own name (a channel is found by it)."""
         seen: set[str] = set()
         for sensor in self.all_sensors:
             if sensor.name in seen:
                 raise ConfigFieldError("sensors", f"sensor name {sensor.name!r} is used twice")
             seen.add(sensor.name)
+
+    def _check_timing(self, n_sensors: int) -> None:
+        """The hammer pulse and the record span at least two samples, the pulse fits in the record, and the
+        simulated record stays under :data:`MAX_SIMULATED_CHANNEL_SAMPLES`."""
         fs = self.daq.sample_rate
         if self.hammer.pulse_duration * fs < 2.0:
             raise ConfigFieldError(

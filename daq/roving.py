@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from analysis.model.channels import direction_label, parse_direction
 from analysis.model.loader import ConfigFieldError
+from analysis.model.units import direction_label, parse_direction
 
 if TYPE_CHECKING:
     from analysis.model.rig import Rig

@@ -20,8 +20,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from analysis.errors import BadInput
-
-# parse_direction and direction_label are imported from here by daq/roving.py and daq/config/session.py
 from analysis.model.units import SI_UNITS, direction_label, parse_direction, sensitivity_si
 
 if TYPE_CHECKING:
@@ -185,9 +183,7 @@ __all__ = [
     "Channel",
     "ChannelTableError",
     "by_name",
-    "direction_label",  # re-exported from analysis.model.units for daq/roving.py
     "parse_channel_csv",
-    "parse_direction",  # re-exported from analysis.model.units for daq/roving.py, daq/config/session.py
     "read_channel_csv",
     "rig_channels",
 ]

@@ -15,7 +15,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-# Geometry and make_geometry are imported from here by daq/uff.py, daq/uff_export.py and daq/view/modes.py
 from analysis.model.wireframe import Geometry, chain_lines, make_geometry
 
 if TYPE_CHECKING:
@@ -71,8 +70,6 @@ def rig_geometry(rig: Rig) -> Geometry:
 
 
 __all__ = [
-    "Geometry",  # re-exported from analysis.model.wireframe for daq/uff.py, daq/uff_export.py, daq/view/modes.py
-    "make_geometry",  # re-exported from analysis.model.wireframe for daq/uff.py, daq/uff_export.py
     "rig_geometry",
     "rig_nodes",
 ]

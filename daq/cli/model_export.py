@@ -2,7 +2,7 @@
 
 Writes M and K (or the named stiffness parts, and C when the rig has a damping matrix) at the rig's DOFs without
 its attachments, the DOF map (``node,direction,x,y,z``) and a ``kind = "matrices"`` rig TOML that references them
-with the attachments, sensors and hammer placed at ``"<node>:<direction>"`` DOFs (analysis/model/imported.py).
+with the attachments, sensors and hammer placed at ``"<node>:<direction>"`` DOFs (analysis/model/fe_export.py).
 Loaded back it is the same rig: same modes, same simulated response (tests/test_fe_import.py).
 """
 
@@ -30,7 +30,7 @@ def model_export(
     json_out: Annotated[bool, typer.Option("--json", help="Print the written files as JSON.")] = False,
 ) -> None:
     """Export the rig's M, K (C) at its DOFs, the DOF map and a rig TOML that reads them back."""
-    from analysis.model.imported import export_plan, write_matrix
+    from analysis.model.fe_export import export_plan, write_matrix
     from daq.outputs import atomic_output
 
     if fmt not in FORMATS:

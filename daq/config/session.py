@@ -250,7 +250,7 @@ class HitPointSpec(_Strict):
         if self.sensor is None and self.node is None and self.dof is None:
             raise ValueError("a hit point needs sensor, node or dof")
         if self.direction is not None:
-            from analysis.model.channels import parse_direction
+            from analysis.model.units import parse_direction
 
             try:
                 parse_direction(self.direction)

@@ -30,7 +30,7 @@ import numpy as np
 
 from analysis.errors import BadInput
 from analysis.model.channels import Channel
-from analysis.model.geometry import Geometry
+from analysis.model.wireframe import Geometry
 
 ROOT = "/modes"
 GEOMETRY = "/modes/geometry"

@@ -26,7 +26,7 @@ import numpy as np
 
 from analysis.errors import BadInput
 from analysis.model.channels import Channel
-from analysis.model.geometry import Geometry, make_geometry
+from analysis.model.wireframe import Geometry, make_geometry
 
 #: UFF specific data types (dataset 58 records 8-11, dataset 55 record 6 field 4).
 SPEC_DATA_TYPE = {"displacement": 8, "velocity": 11, "acceleration": 12, "force": 13}

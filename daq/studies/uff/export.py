@@ -21,7 +21,8 @@ import numpy as np
 
 from analysis.errors import BadInput
 from analysis.model.channels import Channel, by_name, read_channel_csv, rig_channels
-from analysis.model.geometry import Geometry, make_geometry, rig_geometry
+from analysis.model.geometry import rig_geometry
+from analysis.model.wireframe import Geometry, make_geometry
 from analysis.records import HITS_TOPIC, PLAN_TOPIC
 from daq.log.reader import LogReader
 from daq.studies.uff import datasets as uff

@@ -39,11 +39,14 @@ def device(rigs):
 
 def run_link(device, faults, *, n_samples, fmt="int24", frame_samples=64, timeout=5.0, arrivals=None, **server_kw):
     """Serve the device over a pty and read it with SerialDriver until sample n_samples (or timeout).
-    ``arrivals``: a list to append each block's host arrival time to."""
+    ``arrivals``: a list to append each block's host arrival time to. The device clock starts once the port is
+    open (``hold``, as a session does): pyserial flushes the input buffer on open, so frames written before would
+    be lost to the test harness, not the link (on a busy host the open came after frame 0, and the first block
+    read was at index 64)."""
     from drivers.serial.sim_server import SerialSimServer
 
     srv = SerialSimServer(device, faults, fmt=fmt, frame_samples=frame_samples, **server_kw)
-    info = srv.start()
+    info = srv.start(hold=True)
     assert srv.path in info
     chans = [device.channels[c] for c in srv.channels]
     cfg = {"port": srv.path, "usb_cdc": True, "sample_rate": srv.fs, "channels": chans}
@@ -55,6 +58,7 @@ def run_link(device, faults, *, n_samples, fmt="int24", frame_samples=64, timeou
     blocks = []
     try:
         with drv:
+            srv.go()
             for b in drv.blocks(timeout=timeout):
                 blocks.append(b)
                 if arrivals is not None:

@@ -21,8 +21,10 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 run: $(VENV)/.installed
 	$(BIN)/gvt demo --overwrite  # replaces its own demo_session.mcap / .rrd from an earlier run
 
+# Two phases: everything else on every core, then the host_timing tests alone (pyproject.toml's markers say why).
 test: $(VENV)/.installed-dev
-	$(BIN)/python -m pytest -n auto
+	$(BIN)/python -m pytest -n auto -m "not host_timing"
+	$(BIN)/python -m pytest -m host_timing
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .

@@ -2,7 +2,7 @@
 
 Issue 20 item 3: "every figure is drawn twice and the report of a 60 s log takes 8 s and 440 MB". Why twice:
 ``savefig(bbox_inches="tight")`` (and ``savefig`` with any layout engine) makes ``print_figure`` draw the
-whole figure once to measure it, then again to write it; ``daq/studies/report/build.py::_png`` now draws each once.
+whole figure once to measure it, then again to write it; ``daq/studies/report/page.py::png`` now draws each once.
 
 The log: ``gvt simulate beam_ch4_exp --hits 10 --spacing 5 --duration 15`` = 0.1 + 9 x 5 + 15 = 60.1 s of
 15 channels at 16384 Hz (the rig with its cubic spring, rising force to the nominal hit). Each report runs in a
@@ -81,9 +81,9 @@ def frf_seconds(log: Path) -> float:
     code = (
         "import time, matplotlib; matplotlib.use('Agg')\n"
         "from daq.log.reader import LogReader; from daq.log.rig import rig_from_log\n"
-        "from daq.studies.report.build import _png, _table; from daq.studies.report.frf import frf_section\n"
+        "from daq.studies.report.page import png, table; from daq.studies.report.frf import frf_section\n"
         f"rig = rig_from_log(LogReader({str(log)!r})); t = time.perf_counter()\n"
-        f"s = frf_section({str(log)!r}, rig, _table); [_png(f) for _, f in s.figures]\n"
+        f"s = frf_section({str(log)!r}, rig, table); [png(f) for _, f in s.figures]\n"
         "print(time.perf_counter() - t)"
     )
     return float(subprocess.run([PY, "-c", code], cwd=ROOT, env=env_for(ROOT), capture_output=True, text=True, check=True).stdout)

@@ -10,7 +10,7 @@ energies, the RQ-FEP (RQ frequency against windowed modal energy, seed Ch. 4), a
 spectrum of a hit record (eq. 3.2, amplitude normalisation), POM shapes of IR events and slow-flow phase
 trajectories of confirmations; and the FRF section (``daq/studies/report/frf.py``): FRF magnitude and phase, coherence,
 hammer spectra with their −10 dB points, averages, refused hits and the modes against the FE modes. Each figure
-is drawn once (:func:`_png`).
+is drawn once (:func:`daq.studies.report.page.png`).
 
 Results come from the log's ``/analysis/*`` topics, or from a batch run of the same kernels when the
 session did not run the analysis (:func:`daq.studies.analyze.rrd.log_results`).
@@ -18,9 +18,7 @@ session did not run the analysis (:func:`daq.studies.analyze.rrd.log_results`).
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +28,7 @@ import numpy as np
 from daq.log import layout
 from daq.log.reader import LogReader
 from daq.log.tools import log_info
+from daq.studies.report.page import num, png, table
 
 
 @dataclass
@@ -40,46 +39,6 @@ class ReportSummary:
     results_from: str = "log"
     rig_note: str | None = None  # why the log's attached rig was not used (the report is drawn without it)
     frf_absent: str | None = None  # why the report has no FRFs (no rig, no hits, no accepted hit); None: it has them
-
-
-def _png(fig, dpi: float = 90.0) -> str:
-    """The figure as a PNG data URI, drawn exactly once.
-
-    Why not ``fig.savefig``: with ``bbox_inches="tight"`` (what this used) or with any layout engine,
-    ``FigureCanvasBase.print_figure`` draws the whole figure once to measure it and then again to write
-    it, so every report figure was drawn twice (counted in tests/test_report.py). Here the constrained
-    layout engine runs inside the single ``Figure.draw`` (where it runs on screen too: matplotlib's
-    "Constrained layout guide") and the Agg buffer is encoded as the PNG ``savefig`` would write
-    (``backend_agg.print_png`` does the same ``imsave`` of ``buffer_rgba``)."""
-    import matplotlib.image as mimage
-    import matplotlib.pyplot as plt
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    if fig.get_layout_engine() is None:
-        fig.set_layout_engine("constrained")
-    fig.set_dpi(dpi)
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    buf = io.BytesIO()
-    mimage.imsave(buf, canvas.buffer_rgba(), format="png", dpi=dpi)
-    plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
-
-
-def _table(title: str, cols: list[str], rows: list[list], empty: str = "none") -> str:
-    h = f"<h2>{html.escape(title)}</h2>"
-    if not rows:
-        return h + f"<p class='none'>{html.escape(empty)}</p>"
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in r) + "</tr>" for r in rows)
-    return h + f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _f(x, fmt: str = ".3f") -> str:
-    try:
-        return format(float(x), fmt)
-    except (TypeError, ValueError):
-        return "—"
 
 
 def _envelope(t: np.ndarray, y: np.ndarray, n: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -151,7 +110,7 @@ def build_report(
             axes[0].annotate(f"{h.get('hit', '')} {h.get('verdict', '')}", (h["t_s"], h.get("peak_force_N", 0.0)), fontsize=7)
         axes[1].set_xlabel("time [s]")
         axes[0].set_title("hammer force (min/max envelope) with hits by verdict; driving-point response")
-        figs.append(("signals", _png(fig)))
+        figs.append(("signals", png(fig)))
 
     # --- RQ per NNM with IR events, modal energies -------------------------------------------------
     rq = res.get(layout.RQ_TOPIC, [])
@@ -180,7 +139,7 @@ def build_report(
             axes[1].legend(fontsize=7, loc="upper right")
         axes[1].set_ylabel("modal energy [J]")
         axes[1].set_xlabel("time [s]")
-        figs.append(("RQ and modal energies", _png(fig)))
+        figs.append(("RQ and modal energies", png(fig)))
     if rq and modal:
         from daq.view.recording import rqfep_points
 
@@ -196,7 +155,7 @@ def build_report(
             ax.set_ylabel("RQ frequency [Hz]")
             ax.set_title("RQ-FEP (RQ frequency against energy)")
             ax.legend(fontsize=7)
-            figs.append(("RQ-FEP", _png(fig)))
+            figs.append(("RQ-FEP", png(fig)))
 
     # --- wavelet spectrum of the strongest accepted hit at the driving point --------------------------
     good = [h for h in hits if h.get("verdict") == "accepted"] or hits
@@ -218,7 +177,7 @@ def build_report(
             ax.set_title(
                 f"Morlet |Z| (amplitude normalisation) of {dp}, hit {h.get('hit', '')} ({h.get('peak_force_N', 0):.0f} N)"
             )
-            figs.append(("wavelet spectrum", _png(fig)))
+            figs.append(("wavelet spectrum", png(fig)))
 
     # --- POM shapes of IR events, slow-flow trajectories ----------------------------------------------
     sensor_stream = next(
@@ -244,7 +203,7 @@ def build_report(
             ax.set_title(f"IR {e.get('id', '')} {e.get('ratio', '')} {e['start_s']:.2f}–{e['end_s']:.2f} s", fontsize=8)
             ax.set_xlabel("sensor position [m]")
             ax.legend(fontsize=6)
-        figs.append(("POM shapes over IR events (acceleration POD)", _png(fig)))
+        figs.append(("POM shapes over IR events (acceleration POD)", png(fig)))
     confs = res.get(layout.CONFIRMATIONS_TOPIC, [])
     if not confs:  # gvt confirm / gvt replay write theirs next to the log (docs/decisions.md D22)
         from daq.studies.confirm import read_confirmations
@@ -260,44 +219,44 @@ def build_report(
         ax.set_ylabel("φ̇ [rad/s]")
         ax.set_title("slow-flow phase trajectories of confirmations")
         ax.legend(fontsize=7)
-        figs.append(("slow flow", _png(fig)))
+        figs.append(("slow flow", png(fig)))
 
     # --- tables -----------------------------------------------------------------------------------------
     meta = reader.metadata()
     sess = meta.get("gvtlink.session", {})
-    parts.append(_table("streams and loss counters", STREAM_COLS, [_stream_row(s) for s in info["streams"]]))
+    parts.append(table("streams and loss counters", STREAM_COLS, [_stream_row(s) for s in info["streams"]]))
     ev_rows = [[k, v] for k, v in sorted(info["events"].items())]
-    parts.append(_table("driver and session events by kind", ["kind", "count"], ev_rows, "no events (no gaps, CRC errors)"))
-    parts.append(_table("hits and verdicts", HIT_COLS, [_hit_row(h) for h in hits]))
+    parts.append(table("driver and session events by kind", ["kind", "count"], ev_rows, "no events (no gaps, CRC errors)"))
+    parts.append(table("hits and verdicts", HIT_COLS, [_hit_row(h) for h in hits]))
     from daq.studies.report.frf import frf_section
 
-    sec = frf_section(log, rig, _table, channel=frf_channel, band_hz=band_hz, rig_note=rig_note)
+    sec = frf_section(log, rig, table, channel=frf_channel, band_hz=band_hz, rig_note=rig_note)
     parts += sec.tables
-    figs += [(name, _png(fig)) for name, fig in sec.figures]
+    figs += [(name, png(fig)) for name, fig in sec.figures]
     summary.frf_absent = sec.absent
     if identification:
         from daq.studies.report.identify import identify_section
 
-        id_parts, id_figs = identify_section(identification, _table)
+        id_parts, id_figs = identify_section(identification, table)
         parts += ["<h2>Identification</h2>", *id_parts]
         summary.figures += id_figs
     from daq.view.scores import MODAL_EXCHANGE, ROBUST_RQ_SPIKES, SCORE_COLS, score_note, score_rows
 
     # what each output is worth, measured on the simulator (issue 21): before the outputs themselves
-    parts.append(_table("detectors and their measured scores", SCORE_COLS, score_rows()))
-    parts.append(_table(f"internal-resonance events (near-live analysis, results from {source})", IR_COLS,
+    parts.append(table("detectors and their measured scores", SCORE_COLS, score_rows()))
+    parts.append(table(f"internal-resonance events (near-live analysis, results from {source})", IR_COLS,
                         [_ir_row(k, e) for k, e in enumerate(ir)]))  # fmt: skip
     parts.append(f"<p class='note'>{html.escape(score_note(MODAL_EXCHANGE))}. Confidence: calibrated probability that "
                  "the event is a true major exchange; label conf.: that it is one with this m:n (docs/evaluation.md §6); "
                  "1:1 = receiving frequency near the giving mode's, a leak, not an m:n resonance.</p>")  # fmt: skip
-    spikes = [[_f(s["start_s"]), _f(s["end_s"]), _f(s.get("agreement"), ".2f")] for s in res.get(layout.RQ_SPIKES_TOPIC, [])]
-    parts.append(_table("window-robust RQ spikes (supporting evidence, not a detector)", ["start [s]", "end [s]", "agreement"],
+    spikes = [[num(s["start_s"]), num(s["end_s"]), num(s.get("agreement"), ".2f")] for s in res.get(layout.RQ_SPIKES_TOPIC, [])]
+    parts.append(table("window-robust RQ spikes (supporting evidence, not a detector)", ["start [s]", "end [s]", "agreement"],
                         spikes))  # fmt: skip
     parts.append(f"<p class='note'>{html.escape(score_note(ROBUST_RQ_SPIKES))}.</p>")
-    parts.append(_table("confirmations (WBEMD + slow flow)", CONF_COLS, [_conf_row(c) for c in confs],
+    parts.append(table("confirmations (WBEMD + slow flow)", CONF_COLS, [_conf_row(c) for c in confs],
                         "none (no /analysis/confirmations in this log)"))  # fmt: skip
     warns = [[w.get("kind"), w.get("message")] for w in res.get(layout.WARNINGS_TOPIC, [])]
-    parts.append(_table("analysis warnings", ["kind", "message"], warns))
+    parts.append(table("analysis warnings", ["kind", "message"], warns))
     summary.tables = [p.split("</h2>")[0][4:] for p in parts if p.startswith("<h2>")]
     summary.figures = [name for name, _ in figs] + summary.figures
     header = (
@@ -323,23 +282,23 @@ CONF_COLS = ["event", "status", "evidence", "m:n", "start [s]", "end [s]", "orth
 
 
 def _stream_row(s: dict) -> list:
-    return [s["stream"], len(s["channels"]), _f(s["sample_rate"], "g"), _f(s["duration_s"]), s["samples"], len(s["gaps"]),
+    return [s["stream"], len(s["channels"]), num(s["sample_rate"], "g"), num(s["duration_s"]), s["samples"], len(s["gaps"]),
             s["missing_samples"], s["overrun_samples"], s["undecodable_blocks"]]  # fmt: skip
 
 
 def _hit_row(h: dict) -> list:
-    return [h.get("hit"), _f(h.get("t_s")), _f(h.get("peak_force_N"), ".0f"), _f(1000 * h.get("pulse_width_s", 0), ".2f"),
-            _f(h.get("input_energy_J"), ".3g"), h.get("verdict"), h.get("reason", "")]  # fmt: skip
+    return [h.get("hit"), num(h.get("t_s")), num(h.get("peak_force_N"), ".0f"), num(1000 * h.get("pulse_width_s", 0), ".2f"),
+            num(h.get("input_energy_J"), ".3g"), h.get("verdict"), h.get("reason", "")]  # fmt: skip
 
 
 def _ir_row(k: int, e: dict) -> list:
-    return [e.get("id", k), _f(e["start_s"]), _f(e["end_s"]), "→".join(str(m) for m in e.get("modes", [])), e.get("ratio"),
-            f"{_f(e.get('f_give_hz'), '.1f')} / {_f(e.get('f_recv_hz'), '.1f')}", _f(e.get("gain"), ".1f"),
-            _f(e.get("confidence"), ".2f"), _f(e.get("label_confidence"), ".2f"), e.get("source", "")]  # fmt: skip
+    return [e.get("id", k), num(e["start_s"]), num(e["end_s"]), "→".join(str(m) for m in e.get("modes", [])), e.get("ratio"),
+            f"{num(e.get('f_give_hz'), '.1f')} / {num(e.get('f_recv_hz'), '.1f')}", num(e.get("gain"), ".1f"),
+            num(e.get("confidence"), ".2f"), num(e.get("label_confidence"), ".2f"), e.get("source", "")]  # fmt: skip
 
 
 def _conf_row(c: dict) -> list:
     cands = "; ".join(f"{d.get('ratio')} {100 * d.get('captured_fraction', 0):.0f} %" for d in c.get("candidates") or [])
-    freqs = ", ".join(_f(f, ".1f") for f in c.get("imf_freqs_hz") or [])
-    return [c.get("event_id"), c.get("status"), c.get("evidence") or "—", c.get("ratio") or "—", _f(c.get("start_s")),
-            _f(c.get("end_s")), _f(c.get("orthogonality_index"), ".3f"), freqs, cands, c.get("reason") or ""]  # fmt: skip
+    freqs = ", ".join(num(f, ".1f") for f in c.get("imf_freqs_hz") or [])
+    return [c.get("event_id"), c.get("status"), c.get("evidence") or "—", c.get("ratio") or "—", num(c.get("start_s")),
+            num(c.get("end_s")), num(c.get("orthogonality_index"), ".3f"), freqs, cands, c.get("reason") or ""]  # fmt: skip

@@ -23,7 +23,7 @@ from __future__ import annotations
 import itertools
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +109,7 @@ def simulate_session(
     Returns the summary ``gvt simulate`` prints."""
     fs = rig.sample_rate
     hits = plan.hit_times
-    force = pulse_train(hits, plan.forces, rig.config.hammer.pulse_duration)
+    dur = rig.config.hammer.pulse_duration
     seed = rig.config.simulation.seed if seed is None else seed
     sim = rig.simulator
     n = sim.n_samples(plan.duration, fs)
@@ -118,85 +118,140 @@ def simulate_session(
     adc = AdcModel(bits=rig.config.daq.adc_bits, input_range_volts=rig.config.daq.input_range_volts)
     noise = channel_noise(seed, models, n)
     names = tuple(m.name for m in models)
-    dur = rig.config.hammer.pulse_duration
-    # the input work is kept only at the samples the hit records and the summary read
-    spans = [(int(np.ceil(t0 * fs)), min(n - 1, int(np.floor((t0 + dur) * fs)) + 1)) for t0 in hits]
-    ends = [min(n - 1, int((t + dur) * fs) + 1) for t in hits]
-    wanted = {i for i0, i1 in spans for i in (max(i0 - 1, 0), i1)} | set(ends)
-    work_at: dict[int, float] = {}
+    work = _InputWork.at_hits(hits, dur, fs, n)
     clip_counts = np.zeros(len(models), dtype=np.int64)
     if progress:
         progress("simulating", 0.0)
-    segments = sim.run_segments(force, plan.duration, fs, amplitudes=[1.0], segment=seg)
+    segments = sim.run_segments(pulse_train(hits, plan.forces, dur), plan.duration, fs, amplitudes=[1.0], segment=seg)
     first = next(segments)
     with LogWriter(out, **(writer_kwargs or {})) as w:
-        w.add_stream(STREAM, channel_infos(rig), fs, offset_ns=0)  # origin 0 (the writer's default): see below
-        w.add_metadata(
-            "gvtlink.simulation",
-            {
-                "rig": rig.name,
-                "seed": str(seed),
-                "forces_N": json.dumps(list(plan.forces)),
-                "hit_times_s": json.dumps(hits),
-                "mode_frequencies_hz": json.dumps(first.mode_frequencies_hz[:10].tolist()),
-            },
-        )
-        rig_path = Path(rig.path)
-        if rig_path.exists():
-            w.add_attachment(f"rig/{rig_path.name}", rig_path.read_bytes(), "application/toml")
+        _write_setup(w, rig, plan, seed, first)
         n_modes = min(10, first.modal_q.shape[-1])
         for res in itertools.chain([first], segments):
-            n0, m = res.first_index, res.t.size
-            _, physical = channel_signals(rig, res)
-            meas = measure_segment(physical, models, adc, noise)
-            del physical
+            meas = _measure(rig, res, models, adc, noise)
             clip_counts += meas.clipped.sum(axis=0)
-            e = res.energy
-            for i in wanted:
-                if n0 <= i < n0 + m:
-                    work_at[i] = float(e.input_work[0, i - n0])
-            for start in range(0, m, plan.block_size):
-                stop = min(m, start + plan.block_size)
-                status = BlockStatus.CLIPPED if meas.clipped[start:stop].any() else BlockStatus.OK
-                block = SampleBlock(STREAM, n0 + start, fs, names, meas.data[start:stop], status)
-                w.write_block(block, wait=True)  # offline: back-pressure
-                last = stop - 1
-                w.write_json(
-                    layout.SIM_ENERGY_TOPIC,
-                    SimEnergy(
-                        index=int(n0 + last),
-                        modal_energy_J=tuple(res.modal_energy[0, last, :n_modes].tolist()),
-                        kinetic_J=float(e.kinetic[0, last]),
-                        potential_linear_J=float(e.potential_linear[0, last]),
-                        potential_nonlinear_J=float(e.potential_nonlinear[0, last]),
-                        dissipated_J=float(e.dissipated[0, last]),
-                        input_work_J=float(e.input_work[0, last]),
-                    ),
-                    log_time_ns=round((n0 + last) * 1e9 / fs),
-                )
+            work.keep(res)
+            _write_segment(w, res, meas, names, fs, plan.block_size, n_modes)
             if progress:
-                progress("simulating", (n0 + m) / n)
-        for k, ((i0, i1), peak) in enumerate(zip(spans, plan.forces, strict=True)):
-            hit = Hit(
-                hit=k,
-                index=i0,
-                t_s=i0 / fs,
-                peak_force_N=float(peak),
-                pulse_width_s=dur,
-                input_energy_J=work_at[i1] - work_at[max(i0 - 1, 0)],
-                verdict="accepted",
-                source="simulator",
-            )
-            w.write_hit(hit, log_time_ns=round(i0 * 1e9 / fs))
-            w.write_json(layout.SIM_HITS_TOPIC, hit, log_time_ns=round(i0 * 1e9 / fs))
-        clipped = {name: int(c) for name, c in zip(names, clip_counts, strict=True) if c}
-        for name, count in clipped.items():
-            w.write_event("overload", stream=STREAM, count=count, message=f"channel {name} clipped on {count} samples")
+                progress("simulating", (res.first_index + res.t.size) / n)
+        _write_hits(w, plan, work, dur, fs)
+        clipped = _write_clipping(w, names, clip_counts)
     return {
         "samples": n,
         "channels": len(names),
         "hits": len(hits),
         "duration_s": n / fs,
         "clipped": clipped,
-        "energies_J": [float(x) for x in np.diff(np.concatenate([[0.0], [work_at[i] for i in ends]]))],
+        "energies_J": work.hit_energies(),
     }
+
+
+@dataclass
+class _InputWork:
+    """The simulator's cumulative input work, kept only at the samples the hit records and the summary read
+    (a session's whole energy budget would be as large as its samples): around each pulse (``spans``, first
+    and last sample) and one past each pulse's end (``ends``, the summary's energies)."""
+
+    spans: list[tuple[int, int]]
+    ends: list[int]
+    wanted: set[int]
+    at: dict[int, float] = field(default_factory=dict)
+
+    @classmethod
+    def at_hits(cls, hits: list[float], dur: float, fs: float, n: int) -> _InputWork:
+        spans = [(int(np.ceil(t0 * fs)), min(n - 1, int(np.floor((t0 + dur) * fs)) + 1)) for t0 in hits]
+        ends = [min(n - 1, int((t + dur) * fs) + 1) for t in hits]
+        wanted = {i for i0, i1 in spans for i in (max(i0 - 1, 0), i1)} | set(ends)
+        return cls(spans, ends, wanted)
+
+    def keep(self, res) -> None:
+        """Keep the wanted samples of segment ``res``."""
+        n0, m = res.first_index, res.t.size
+        for i in self.wanted:
+            if n0 <= i < n0 + m:
+                self.at[i] = float(res.energy.input_work[0, i - n0])
+
+    def of_pulse(self, k: int) -> float:
+        """The work pulse ``k`` put in, from the sample before it to its last."""
+        i0, i1 = self.spans[k]
+        return self.at[i1] - self.at[max(i0 - 1, 0)]
+
+    def hit_energies(self) -> list[float]:
+        """The work put in up to one sample past each pulse, less that up to the previous one."""
+        return [float(x) for x in np.diff(np.concatenate([[0.0], [self.at[i] for i in self.ends]]))]
+
+
+def _write_setup(w: LogWriter, rig: Rig, plan: SessionPlan, seed: int, first) -> None:
+    """The stream, the simulation's metadata (the first segment gives the mode frequencies) and the rig file."""
+    w.add_stream(STREAM, channel_infos(rig), rig.sample_rate, offset_ns=0)  # origin 0 (the writer's default): module doc
+    w.add_metadata(
+        "gvtlink.simulation",
+        {
+            "rig": rig.name,
+            "seed": str(seed),
+            "forces_N": json.dumps(list(plan.forces)),
+            "hit_times_s": json.dumps(plan.hit_times),
+            "mode_frequencies_hz": json.dumps(first.mode_frequencies_hz[:10].tolist()),
+        },
+    )
+    rig_path = Path(rig.path)
+    if rig_path.exists():
+        w.add_attachment(f"rig/{rig_path.name}", rig_path.read_bytes(), "application/toml")
+
+
+def _measure(rig: Rig, res, models, adc: AdcModel, noise: list[np.random.Generator]) -> Measurement:
+    """Segment ``res`` as the DAQ records it: the channels' physical signals through the sensor/DAQ model (the
+    physical signals are dropped on return: one segment of them is held at a time)."""
+    _, physical = channel_signals(rig, res)
+    return measure_segment(physical, models, adc, noise)
+
+
+def _write_segment(w: LogWriter, res, meas: Measurement, names: tuple[str, ...], fs: float, block_size: int,
+                   n_modes: int) -> None:  # fmt: skip
+    """The segment's sample blocks, each followed by the ground truth at its last sample (``/sim/energy``)."""
+    n0, m = res.first_index, res.t.size
+    e = res.energy
+    for start in range(0, m, block_size):
+        stop = min(m, start + block_size)
+        status = BlockStatus.CLIPPED if meas.clipped[start:stop].any() else BlockStatus.OK
+        block = SampleBlock(STREAM, n0 + start, fs, names, meas.data[start:stop], status)
+        w.write_block(block, wait=True)  # offline: back-pressure
+        last = stop - 1
+        w.write_json(
+            layout.SIM_ENERGY_TOPIC,
+            SimEnergy(
+                index=int(n0 + last),
+                modal_energy_J=tuple(res.modal_energy[0, last, :n_modes].tolist()),
+                kinetic_J=float(e.kinetic[0, last]),
+                potential_linear_J=float(e.potential_linear[0, last]),
+                potential_nonlinear_J=float(e.potential_nonlinear[0, last]),
+                dissipated_J=float(e.dissipated[0, last]),
+                input_work_J=float(e.input_work[0, last]),
+            ),
+            log_time_ns=round((n0 + last) * 1e9 / fs),
+        )
+
+
+def _write_hits(w: LogWriter, plan: SessionPlan, work: _InputWork, dur: float, fs: float) -> None:
+    """One hit record per pulse, at its first sample, on ``/daq/hits`` and as ground truth on ``/sim/hits``."""
+    for k, ((i0, _i1), peak) in enumerate(zip(work.spans, plan.forces, strict=True)):
+        hit = Hit(
+            hit=k,
+            index=i0,
+            t_s=i0 / fs,
+            peak_force_N=float(peak),
+            pulse_width_s=dur,
+            input_energy_J=work.of_pulse(k),
+            verdict="accepted",
+            source="simulator",
+        )
+        w.write_hit(hit, log_time_ns=round(i0 * 1e9 / fs))
+        w.write_json(layout.SIM_HITS_TOPIC, hit, log_time_ns=round(i0 * 1e9 / fs))
+
+
+def _write_clipping(w: LogWriter, names: tuple[str, ...], clip_counts: np.ndarray) -> dict[str, int]:
+    """An ``overload`` event per channel that clipped, with its count; returns them by channel."""
+    clipped = {name: int(c) for name, c in zip(names, clip_counts, strict=True) if c}
+    for name, count in clipped.items():
+        w.write_event("overload", stream=STREAM, count=count, message=f"channel {name} clipped on {count} samples")
+    return clipped

@@ -426,9 +426,18 @@ def _span(lo: float, hi: float, fmt: str) -> str:
 def report_tables(rep: SweepReport, width: int | None = None) -> list:
     """The terminal tables of a sweep (asymptotes, flags, locks, captures), each fitting ``width`` (default:
     the console's): wide ones continue in a second part that repeats their key columns."""
+    tables = [_asymptote_table(rep, width), _flag_table(rep, width)]
+    if rep.modal_hz is not None:  # the locks are plateaus of the modal ratio: none without the modal probe
+        tables.append(_lock_table(rep, width))
+    if rep.capture is not None:
+        tables.append(_capture_table(rep, width))
+    return tables
+
+
+def _asymptote_table(rep: SweepReport, width: int | None):
+    """The RQ at each end of the sweep against the fixed-free and fixed-pinned frequencies (L1244)."""
     from daq.terminal import Col, FitTable
 
-    tables = []
     t = FitTable(
         f"{rep.rig}: RQ asymptotes (median of {rep.asymptotes[0]['runs']} runs at each end)",
         [Col("end", key=True), Col("NNM", "right", key=True), Col("limit [Hz]", "right"), Col("RQ median [Hz]", "right"),
@@ -445,7 +454,13 @@ def report_tables(rep: SweepReport, width: int | None = None) -> list:
             f"{a['min_hz']:.3f}",
             "yes" if a["pass"] else "NO",
         )
-    tables.append(t)
+    return t
+
+
+def _flag_table(rep: SweepReport, width: int | None):
+    """The flagged NNM1–NNM2 interactions, with both labels (RQ and modal ratio) and the 1 ppm re-check."""
+    from daq.terminal import Col, FitTable
+
     t = FitTable(
         f"flagged NNM1–NNM2 interactions ({len(rep.flags)})",
         [Col("kind", key=True), Col("P [N]", "right", key=True), Col("energy [J]", "right"), Col("points", "right"),
@@ -468,46 +483,55 @@ def report_tables(rep: SweepReport, width: int | None = None) -> list:
             f"{100 * f.score:.0f} %",
             "robust" if ok else "not robust",
         )
-    tables.append(t)
-    if rep.modal_hz is not None:
-        s = rep.spec.settings
-        t = FitTable(
-            f"modal-ratio locks ({len(rep.locks)}): |f2/f1 − m/n| ≤ {100 * s.lock_tol:g} % over ≥ {s.lock_min_points} "
-            f"points, slope ≤ {s.lock_flatness:g} × each side's",
-            [Col("kind", key=True), Col("m:n", key=True), Col("P [N]", "right"), Col("energy [J]", "right"),
-             Col("points", "right"), Col("modal f2/f1 mean (min–max)", "right"),
-             Col("slope in / below / above [per decade of E]", "right")],
-            width=width,
-        )  # fmt: skip
-        for lk in rep.locks:
-            t.add_row(lk.kind, lk.label, f"{lk.p_lo:.4g}–{lk.p_hi:.4g}", f"{lk.energy_lo:.3g}–{lk.energy_hi:.3g}",
-                      lk.n_points, f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
-                      f"{lk.slope_in:.3f} / {lk.slope_below:.3f} / {lk.slope_above:.3f}")  # fmt: skip
-        tables.append(t)
-    if rep.capture is not None:
-        c = rep.capture
-        g = rep.spec.capture.end_guard_s
-        t = FitTable(
-            f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like (reversals ≥ {g:g} s from the record ends), "
-            f"(m∓1):n bracketing (slowflow.test_ratios); {c.runs} runs re-simulated at {len(c.passages)} passages "
-            f"within {100 * rep.spec.capture.passage_tol:g} % of m:n, {len(c.untested)} untested, {c.wall_s:.1f} s",
-            [Col("kind", key=True), Col("m:n", key=True), Col("P [N] confirmed", "right", key=True),
-             Col("energy [J]", "right"), Col("runs ok / tested", "right"), Col("passage P [N]", "right"),
-             Col("passage f2/f1", "right"), Col("interval [s]", "right"), Col("chain [s]", "right"),
-             Col("strength", "right"), Col("reversals", "right"), Col("Φ range [rad]", "right"),
-             Col("Φ̇ (m−1) / (m+1) [rad/s]", "right")],
-            width=width,
-        )  # fmt: skip
-        for cp in c.captures:
-            br = list(cp.bracket.values())
-            t.add_row(cp.kind, cp.label, _span(cp.p_lo, cp.p_hi, ".4g"), _span(cp.energy_lo, cp.energy_hi, ".3g"),
-                      f"{cp.n_confirmed} / {cp.n_tested}", f"{cp.passage_p[0]:.4g}–{cp.passage_p[1]:.4g}",
-                      f"{cp.passage_ratio[0]:.3f}–{cp.passage_ratio[1]:.3f}",
-                      f"{cp.interval_s[0]:.2f}–{cp.interval_s[1]:.2f}", f"{cp.chain_s[0]:.2f}–{cp.chain_s[1]:.2f}",
-                      f"{cp.strength:.2f}", cp.sign_changes, f"{cp.phase_range:.2f}",
-                      " / ".join(f"{v:+.0f}" for v in br))  # fmt: skip
-        tables.append(t)
-    return tables
+    return t
+
+
+def _lock_table(rep: SweepReport, width: int | None):
+    """The plateaus of the modal ratio at an m:n, with the rule that found them in the title."""
+    from daq.terminal import Col, FitTable
+
+    s = rep.spec.settings
+    t = FitTable(
+        f"modal-ratio locks ({len(rep.locks)}): |f2/f1 − m/n| ≤ {100 * s.lock_tol:g} % over ≥ {s.lock_min_points} "
+        f"points, slope ≤ {s.lock_flatness:g} × each side's",
+        [Col("kind", key=True), Col("m:n", key=True), Col("P [N]", "right"), Col("energy [J]", "right"),
+         Col("points", "right"), Col("modal f2/f1 mean (min–max)", "right"),
+         Col("slope in / below / above [per decade of E]", "right")],
+        width=width,
+    )  # fmt: skip
+    for lk in rep.locks:
+        t.add_row(lk.kind, lk.label, f"{lk.p_lo:.4g}–{lk.p_hi:.4g}", f"{lk.energy_lo:.3g}–{lk.energy_hi:.3g}",
+                  lk.n_points, f"{lk.ratio_mean:.3f} ({lk.ratio_min:.3f}–{lk.ratio_max:.3f})",
+                  f"{lk.slope_in:.3f} / {lk.slope_below:.3f} / {lk.slope_above:.3f}")  # fmt: skip
+    return t
+
+
+def _capture_table(rep: SweepReport, width: int | None):
+    """The slow-flow stage's confirmed captures, with what it tested (and left untested) in the title."""
+    from daq.terminal import Col, FitTable
+
+    c = rep.capture
+    g = rep.spec.capture.end_guard_s
+    t = FitTable(
+        f"slow-flow captures ({len(c.captures)}): Φ_m:n non-time-like (reversals ≥ {g:g} s from the record ends), "
+        f"(m∓1):n bracketing (slowflow.test_ratios); {c.runs} runs re-simulated at {len(c.passages)} passages "
+        f"within {100 * rep.spec.capture.passage_tol:g} % of m:n, {len(c.untested)} untested, {c.wall_s:.1f} s",
+        [Col("kind", key=True), Col("m:n", key=True), Col("P [N] confirmed", "right", key=True),
+         Col("energy [J]", "right"), Col("runs ok / tested", "right"), Col("passage P [N]", "right"),
+         Col("passage f2/f1", "right"), Col("interval [s]", "right"), Col("chain [s]", "right"),
+         Col("strength", "right"), Col("reversals", "right"), Col("Φ range [rad]", "right"),
+         Col("Φ̇ (m−1) / (m+1) [rad/s]", "right")],
+        width=width,
+    )  # fmt: skip
+    for cp in c.captures:
+        br = list(cp.bracket.values())
+        t.add_row(cp.kind, cp.label, _span(cp.p_lo, cp.p_hi, ".4g"), _span(cp.energy_lo, cp.energy_hi, ".3g"),
+                  f"{cp.n_confirmed} / {cp.n_tested}", f"{cp.passage_p[0]:.4g}–{cp.passage_p[1]:.4g}",
+                  f"{cp.passage_ratio[0]:.3f}–{cp.passage_ratio[1]:.3f}",
+                  f"{cp.interval_s[0]:.2f}–{cp.interval_s[1]:.2f}", f"{cp.chain_s[0]:.2f}–{cp.chain_s[1]:.2f}",
+                  f"{cp.strength:.2f}", cp.sign_changes, f"{cp.phase_range:.2f}",
+                  " / ".join(f"{v:+.0f}" for v in br))  # fmt: skip
+    return t
 
 
 def print_report(console, rep: SweepReport, paths: dict[str, Path], width: int | None = None) -> None:

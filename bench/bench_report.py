@@ -53,7 +53,8 @@ def env_for(tree: Path) -> dict:
 
 
 def ensure_base(base: Path) -> None:
-    if not (base / "daq" / "report.py").exists():
+    """A worktree of HEAD at ``base`` to compare against, added once (any tree that has the daq package)."""
+    if not (base / "daq" / "__init__.py").exists():
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base), "HEAD"], check=True)
 
 

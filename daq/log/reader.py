@@ -52,6 +52,8 @@ from daq.log.verify import (  # noqa: F401  (read_summary, chunk_payload, MAX_*:
     _OP_ATTACHMENT,
     _OP_CHANNEL,
     _OP_CHUNK,
+    _OP_DATA_END,
+    _OP_FOOTER,
     _OP_MESSAGE,
     _OP_MESSAGE_INDEX,
     _OP_METADATA,
@@ -187,6 +189,26 @@ def block_problem(b: DecodedBlock, info: StreamInfo, log_time: int) -> str | Non
     return None
 
 
+@dataclass
+class _ScanState:
+    """What the linear scan carries from record to record: the damage still open (a failed chunk waits for its
+    message indexes), whether DataEnd was seen, and the messages seen (a duplicated chunk's are dropped)."""
+
+    pending: Damage | None = None
+    data_end: bool = False
+    seen: set[tuple[int, int, int, int]] = field(default_factory=set)
+
+
+def _note_lost_times(d: Damage, body: bytes) -> None:
+    """Add a message index's log times (one channel's) to the damage of the chunk it indexes."""
+    try:
+        cid, n = struct.unpack_from("<HI", body, 0)
+        times = [t for t, _o in struct.iter_unpack("<QQ", body[6 : 6 + n])]
+        d.lost = {**(d.lost or {}), cid: times}
+    except struct.error:
+        pass
+
+
 class LogReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -302,82 +324,99 @@ class LogReader:
         is skipped by searching for the next chunk that passes its CRC. Messages seen before (a duplicated
         chunk) are dropped and counted. Sets ``rep.stopped_because`` only when the data section was not read
         to its end (DataEnd): a cut in the summary loses nothing."""
-        seen: set[tuple[int, int, int, int]] = set()
-        pending: Damage | None = None
-        data_end = False
+        scan = _ScanState()
         with open(self.path, "rb") as f:
-            pos = 8
-            while True:
-                f.seek(pos)
-                head = f.read(9)
-                if len(head) < 9:
-                    if not data_end:
-                        rep.stopped_because = (
-                            "the file ends inside its data section" if head else "the file ends before its data end"
-                        )
-                    break
-                op, length = head[0], _u64(head, 1)
-                rep.bytes_scanned = pos
-                if op not in self._KNOWN or length > MAX_RECORD_BYTES or pos + 9 + length > self.file_size:
-                    if pos + 9 + length > self.file_size and op in self._KNOWN and length <= MAX_RECORD_BYTES:
-                        if not data_end:
-                            rep.stopped_because = "the file ends inside a record"
-                        break
-                    nxt = self._resync(f, pos + 1)
-                    if pending is None:
-                        rep.chunks_bad += 1
-                        pending = Damage(pos, "unreadable bytes", -1, -1, None)
-                    if nxt is None:
-                        rep.stopped_because = rep.stopped_because or f"unreadable bytes from {pos} on"
-                        break
-                    pos = nxt
+            for offset, op, body in self._file_records(f, rep, scan):
+                if op == _OP_MESSAGE_INDEX and scan.pending is not None:
+                    _note_lost_times(scan.pending, body)  # the damaged chunk's message indexes follow it
                     continue
-                body = f.read(length)
-                pos += 9 + length
-                if op == _OP_MESSAGE_INDEX and pending is not None:
-                    try:
-                        cid, n = struct.unpack_from("<HI", body, 0)
-                        times = [t for t, _o in struct.iter_unpack("<QQ", body[6 : 6 + n])]
-                        pending.lost = {**(pending.lost or {}), cid: times}
-                    except struct.error:
-                        pass
-                    continue
-                if pending is not None:
-                    self.damage.setdefault((pending.offset, -1), pending)
-                    yield pending
-                    pending = None
-                if op == _OP_CHUNK:
-                    try:
-                        chunk = parse_chunk(body)
-                        records = chunk_records(chunk_payload(chunk))
-                    except _EXPECTED_ERRORS as exc:
-                        rep.chunks_bad += 1
-                        pending = Damage(pos - 9 - length, _reason(exc), -1, -1, None)
-                        continue
-                    rep.chunks_ok += 1
-                    for r in records:
-                        if isinstance(r, Message):
-                            key = (r.channel_id, r.sequence, r.log_time, hash(r.data))
-                            if key in seen:
-                                rep.duplicates += 1
-                                continue
-                            seen.add(key)
-                        yield r
-                elif op == _OP_MESSAGE and length >= 22:  # an unchunked log: no CRC; block_problem still checks
-                    cid, seq, lt, pt = struct.unpack_from("<HIQQ", body, 0)
-                    yield Message(channel_id=cid, log_time=lt, data=body[22:], publish_time=pt, sequence=seq)
-                elif op == 0x0F:  # DataEnd: the data section is whole up to here
-                    data_end = True
-                elif op in (_OP_METADATA, _OP_ATTACHMENT, _OP_SCHEMA, _OP_CHANNEL):
-                    rec = self._loose_record(op, body)
-                    if rec is not None:
-                        yield rec
-                elif op == 0x02:
+                yield from self._release_pending(scan)
+                yield from self._record_items(offset, op, body, rep, scan)
+        yield from self._release_pending(scan)
+
+    def _file_records(self, f: BinaryIO, rep: SalvageReport, scan: _ScanState) -> Iterator[tuple[int, int, bytes]]:
+        """(offset, opcode, body) of each record from the magic to the footer. Garbage where a record header
+        should be opens a damage (``scan.pending``) and the walk goes on at the next chunk that passes its CRC;
+        a cut or an unreadable tail ends it, and why goes to ``rep.stopped_because`` unless DataEnd was seen."""
+        pos = 8
+        while True:
+            f.seek(pos)
+            head = f.read(9)
+            if len(head) < 9:
+                if not scan.data_end:
+                    rep.stopped_because = "the file ends inside its data section" if head else "the file ends before its data end"
+                break
+            op, length = head[0], _u64(head, 1)
+            rep.bytes_scanned = pos
+            sane = op in self._KNOWN and length <= MAX_RECORD_BYTES
+            if sane and pos + 9 + length > self.file_size:
+                if not scan.data_end:
+                    rep.stopped_because = "the file ends inside a record"
+                break
+            if not sane:
+                nxt = self._skip_garbage(f, pos, rep, scan)
+                if nxt is None:
                     break
-            rep.bytes_scanned = min(pos, self.file_size)
-        if pending is not None:
-            self.damage.setdefault((pending.offset, -1), pending)
-            yield pending
+                pos = nxt
+                continue
+            body = f.read(length)
+            yield pos, op, body
+            pos += 9 + length
+            if op == _OP_FOOTER:
+                break
+        rep.bytes_scanned = min(pos, self.file_size)
+
+    def _skip_garbage(self, f: BinaryIO, pos: int, rep: SalvageReport, scan: _ScanState) -> int | None:
+        """Where the walk goes on after a garbled record header at ``pos`` (None: nowhere), counted as one damaged
+        chunk (together with a failed chunk just before it) whose message times are unknown."""
+        nxt = self._resync(f, pos + 1)
+        if scan.pending is None:
+            rep.chunks_bad += 1
+            scan.pending = Damage(pos, "unreadable bytes", -1, -1, None)
+        if nxt is None:
+            rep.stopped_because = rep.stopped_because or f"unreadable bytes from {pos} on"
+        return nxt
+
+    def _release_pending(self, scan: _ScanState) -> Iterator[Damage]:
+        """The open damage, once its message indexes (if any) have been read: remembered and yielded."""
+        if scan.pending is not None:
+            self.damage.setdefault((scan.pending.offset, -1), scan.pending)
+            yield scan.pending
+            scan.pending = None
+
+    def _record_items(self, offset: int, op: int, body: bytes, rep: SalvageReport, scan: _ScanState) -> Iterator[Any]:
+        """What one record of the data section gives a reader: a chunk's messages (or its damage, left open for
+        its message indexes), a loose message, schema, channel, metadata or attachment; DataEnd is noted."""
+        if op == _OP_CHUNK:
+            yield from self._chunk_messages(offset, body, rep, scan)
+        elif op == _OP_MESSAGE and len(body) >= 22:  # an unchunked log: no CRC; block_problem still checks
+            cid, seq, lt, pt = struct.unpack_from("<HIQQ", body, 0)
+            yield Message(channel_id=cid, log_time=lt, data=body[22:], publish_time=pt, sequence=seq)
+        elif op == _OP_DATA_END:  # the data section is whole up to here
+            scan.data_end = True
+        elif op in (_OP_METADATA, _OP_ATTACHMENT, _OP_SCHEMA, _OP_CHANNEL):
+            rec = self._loose_record(op, body)
+            if rec is not None:
+                yield rec
+
+    def _chunk_messages(self, offset: int, body: bytes, rep: SalvageReport, scan: _ScanState) -> Iterator[Any]:
+        """A chunk's records, verified, each message once (a duplicated chunk's are counted, not yielded); a chunk
+        that fails becomes the open damage."""
+        try:
+            records = chunk_records(chunk_payload(parse_chunk(body)))
+        except _EXPECTED_ERRORS as exc:
+            rep.chunks_bad += 1
+            scan.pending = Damage(offset, _reason(exc), -1, -1, None)
+            return
+        rep.chunks_ok += 1
+        for r in records:
+            if isinstance(r, Message):
+                key = (r.channel_id, r.sequence, r.log_time, hash(r.data))
+                if key in scan.seen:
+                    rep.duplicates += 1
+                    continue
+                scan.seen.add(key)
+            yield r
 
     def _loose_record(self, op: int, body: bytes) -> Any:
         """A schema, channel, metadata or attachment record outside a chunk; None (noted) when it is garbled."""

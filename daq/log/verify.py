@@ -57,6 +57,7 @@ _FOOTER = 1 + 8 + 20  # opcode, length, summary_start, summary_offset_start, sum
 _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_ATTACHMENT, _OP_METADATA = 0x06, 0x07, 0x09, 0x0C
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
 _OP_CHUNK_INDEX, _OP_ATTACHMENT_INDEX, _OP_STATISTICS, _OP_METADATA_INDEX = 0x08, 0x0A, 0x0B, 0x0D
+_OP_FOOTER, _OP_DATA_END = 0x02, 0x0F
 
 
 class _Damaged(Exception):

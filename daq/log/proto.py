@@ -199,7 +199,9 @@ class DecodedBlock:
     stream: str
     first_index: int
     sample_rate: float
-    data: np.ndarray  # float32 (n_samples, n_channels), C-contiguous (format 1: a read-only view of the message)
+    #: float32 (n_samples, n_channels); format 2: a C-contiguous copy (decoded with ``view``: a transposed view of
+    #: the message); format 1: a read-only C-contiguous view of the message
+    data: np.ndarray
     status: int
     t0_ns: int
 
@@ -224,19 +226,20 @@ def _signed(v: int) -> int:
     return v - (1 << 64) if v >= 1 << 63 else v
 
 
-def _channels_fast(buf: memoryview, pos: int, n_c: int, n_s: int) -> np.ndarray | None:
+def _channels_fast(buf: memoryview, pos: int, n_c: int, n_s: int, view: bool = False) -> np.ndarray | None:
     """The usual case, checked rather than assumed: channels 0..n_c-1 in order, each exactly n_s samples,
-    up to the end of the message (what encode_block and protobuf libraries write). One transposing copy."""
+    up to the end of the message (what encode_block and protobuf libraries write). One transposing copy, or
+    none with ``view`` (the caller copies it where it wants it)."""
     if n_c <= 0 or n_s <= 0 or n_c > MAX_CHANNELS or 4 * n_s * n_c > len(buf) - pos:
         return None  # also keeps a hostile n_channels / n_samples from sizing anything
     h, hdrs = _channel_headers(n_c, n_s)
     stride = h + 4 * n_s
     if hdrs is None or pos + n_c * stride != len(buf):
         return None
-    if not np.array_equal(np.ndarray((n_c, h), np.uint8, buffer=buf, offset=pos, strides=(stride, 1)), hdrs):
+    if not (np.ndarray((n_c, h), np.uint8, buffer=buf, offset=pos, strides=(stride, 1)) == hdrs).all():  # same shape
         return None
-    view = np.ndarray((n_c, n_s), "<f4", buffer=buf, offset=pos + h, strides=(stride, 4))
-    return np.ascontiguousarray(view.T)
+    cols = np.ndarray((n_c, n_s), "<f4", buffer=buf, offset=pos + h, strides=(stride, 4))
+    return cols.T if view else np.ascontiguousarray(cols.T)
 
 
 def _assemble(chans: dict[int, memoryview | list[float]], n_c: int, n_s: int) -> np.ndarray:
@@ -255,11 +258,12 @@ def _assemble(chans: dict[int, memoryview | list[float]], n_c: int, n_s: int) ->
     return out
 
 
-def decode_block(raw: bytes | memoryview) -> DecodedBlock:
+def decode_block(raw: bytes | memoryview, view: bool = False) -> DecodedBlock:
     """Parse either layout schema-free by field numbers (field order free, unknown fields skipped).
 
-    Format 2: fields 16.. are channels, returned as one C-contiguous copy. Format 1: field 6 is the
-    row-major payload, returned as a read-only view of ``raw`` (no copy)."""
+    Format 2: fields 16.. are channels, returned as one C-contiguous copy; with ``view``, as a transposed
+    view of ``raw`` (the usual layout; no copy, for a reader that copies each block straight into its output).
+    Format 1: field 6 is the row-major payload, returned as a read-only view of ``raw`` (no copy)."""
     buf = memoryview(raw).cast("B")
     pos = 0
     stream, first_index, fs, n_c, n_s, status, t0 = "", 0, 0.0, 0, 0, 0, 0
@@ -272,7 +276,7 @@ def decode_block(raw: bytes | memoryview) -> DecodedBlock:
         key, pos = _read_varint(buf, pos)
         field, wire = key >> 3, key & 7
         if field >= CHANNEL_FIELD_BASE and not chans and fast is None and data_bytes is None:
-            fast = _channels_fast(buf, start, n_c, n_s)
+            fast = _channels_fast(buf, start, n_c, n_s, view)
             if fast is not None:
                 break
         if wire == 0:

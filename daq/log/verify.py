@@ -89,7 +89,7 @@ def parse_chunk(raw: bytes | memoryview) -> Chunk:
         raise _Damaged("chunk data longer than its record")
     return Chunk(
         compression=comp,
-        data=bytes(raw[at : at + dlen]),
+        data=memoryview(raw)[at : at + dlen],  # no copy: zstd, lz4 and crc32 take any buffer
         message_end_time=end,
         message_start_time=start,
         uncompressed_crc=ucrc,
@@ -97,7 +97,7 @@ def parse_chunk(raw: bytes | memoryview) -> Chunk:
     )
 
 
-def chunk_payload(chunk: Chunk) -> bytes:
+def chunk_payload(chunk: Chunk) -> bytes | memoryview:
     """The chunk's records, decompressed against its declared size (capped) and CRC-checked; _Damaged if not."""
     size = chunk.uncompressed_size
     if size > MAX_CHUNK_BYTES:
@@ -131,9 +131,11 @@ def chunk_payload(chunk: Chunk) -> bytes:
     return data
 
 
-def chunk_records(data: bytes) -> list[Schema | Channel | Message]:
+def chunk_records(data: bytes | memoryview, views: bool = False) -> list[Schema | Channel | Message]:
     """The schemas, channels and messages in a chunk's uncompressed bytes (others skipped); _Damaged when a
-    record runs past the end (a chunk without a CRC can still be cut or garbled)."""
+    record runs past the end (a chunk without a CRC can still be cut or garbled). ``views``: a message's data is
+    a memoryview of ``data`` instead of a copy (``read_stream`` copies each block once, into its output; a
+    message kept longer would keep the whole chunk alive)."""
     out: list[Schema | Channel | Message] = []
     view, pos, n = memoryview(data), 0, len(data)
     while pos < n:
@@ -147,8 +149,9 @@ def chunk_records(data: bytes) -> list[Schema | Channel | Message]:
             if length < 22:
                 raise _Damaged("message record too short")
             cid, seq, lt, pt = struct.unpack_from("<HIQQ", view, body)
+            payload = view[body + 22 : body + length]
             out.append(
-                Message(channel_id=cid, log_time=lt, data=bytes(view[body + 22 : body + length]), publish_time=pt, sequence=seq)
+                Message(channel_id=cid, log_time=lt, data=payload if views else bytes(payload), publish_time=pt, sequence=seq)
             )
         elif op in (_OP_SCHEMA, _OP_CHANNEL):
             s = ReadDataStream(io.BytesIO(view[body : body + length]))

@@ -166,3 +166,19 @@ def test_out_of_order_duplicated_and_overlapping_blocks(tmp_path, layout):
     m = (index >= 700) & (index < 3300)
     assert np.array_equal(d.index, index[m]) and d.data.tobytes() == np.ascontiguousarray(truth[index[m]][:, [2]]).tobytes()
     assert d.gaps == [(50 * 64, 51 * 64)]
+
+
+def test_a_large_first_block_does_not_size_the_result_for_every_block(tmp_path):
+    """The result array is sized from the first block times the block count, but never beyond what the chunks hold:
+    a 60000-sample block followed by 2000 one-sample blocks is not 120 M rows."""
+    import tracemalloc
+
+    p = tmp_path / "uneven.mcap"
+    blocks = [(0, 60_000, 0)] + [(60_000 + k, 1, 60_000 + k) for k in range(2000)]
+    truth = _raw_log(p, blocks, 2)
+    tracemalloc.start()
+    d = LogReader(p).read_stream("dev0")
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert d.data.tobytes() == truth.tobytes() and np.array_equal(d.index, np.arange(62_000))
+    assert peak < 20 * truth.nbytes  # 120 M rows of 2 channels would be 960 MB

@@ -725,7 +725,7 @@ class LogReader:
         info = self._stream_info(stream)
         sel = self._channel_indices(info, channels)
         start_ns, end_ns = _fetch_window(info, start, end)
-        samples = _Samples(sel, len(info.channels), self.message_count(info.topic), _rows_between(info, start_ns, end_ns))
+        samples = _Samples(sel, len(info.channels), self.message_count(info.topic), self._max_rows(info, start_ns, end_ns))
         tracker = DamageRanges(info, self._channel_ids(info))
         for item in self._verified_blocks(info, start_ns, end_ns, view=True):
             if isinstance(item, Damage):
@@ -741,6 +741,18 @@ class LogReader:
         if damaged and on_damage == "refuse":
             raise self._damaged_error(info, damaged)
         return samples.assemble(info, [info.channels[i] for i in sel], start, end, damaged)
+
+    def _max_rows(self, info: StreamInfo, start_ns: int | None, end_ns: int | None) -> int | None:
+        """At most how many samples the blocks logged in [start_ns, end_ns) hold, whatever their sizes: what their
+        chunks hold uncompressed at 4 bytes a value, and what their log times span plus a block (None: no index, a
+        damaged log)."""
+        if self.summary is None:
+            return None
+        plan = self._chunk_plan(self._channel_ids(info), start_ns, end_ns, False)
+        rows = sum(ci.uncompressed_size for ci in plan) // (4 * len(info.channels))
+        if start_ns is not None and end_ns is not None:
+            rows = min(rows, int(np.ceil((end_ns - start_ns) * info.sample_rate / 1e9)) + MAX_BLOCK_SAMPLES)
+        return rows
 
     def _stream_info(self, stream: str) -> StreamInfo:
         infos = self.streams()
@@ -773,13 +785,6 @@ def _fetch_window(info: StreamInfo, start: float | None, end: float | None) -> t
     start_ns = None if start is None else info.t0_ns + int(np.floor(start * 1e9)) - int(1e9 * 65536 / info.sample_rate)
     end_ns = None if end is None else info.t0_ns + int(np.ceil(end * 1e9)) + 1
     return start_ns, end_ns
-
-
-def _rows_between(info: StreamInfo, start_ns: int | None, end_ns: int | None) -> int | None:
-    """How many samples the blocks logged in [start_ns, end_ns) hold at most, less their last block (None: no bound)."""
-    if start_ns is None or end_ns is None:
-        return None
-    return max(0, int(np.ceil((end_ns - start_ns) * info.sample_rate / 1e9)) + 1)
 
 
 class DamageRanges:
@@ -842,13 +847,14 @@ class _Samples:
     straight from its chunk, the one transposing copy a format-2 block needs anyway. A copy per block and another
     to concatenate them, plus a per-sample index built from two ``np.repeat``, were 38 % of a read (issue 28).
 
-    The first block sizes the array for the stream's message count (bounded by the time window), so a log as
-    written is never copied again; anything else grows it by doubling. :meth:`assemble` puts the blocks in
+    The first block sizes the array for the stream's message count (within ``max_rows``, what the chunks can hold;
+    a damaged log has no index to say: doubling from there), so a log as written is never copied again; anything
+    else grows it by doubling. :meth:`assemble` puts the blocks in
     index order (nothing to do in a log as written) and drops a block overlapping an earlier one."""
 
-    def __init__(self, sel: list[int], n_channels: int, n_messages: int, window_rows: int | None) -> None:
+    def __init__(self, sel: list[int], n_channels: int, n_messages: int, max_rows: int | None) -> None:
         self.sel = None if sel == list(range(n_channels)) else np.asarray(sel, np.intp)
-        self.n_messages, self.window_rows = n_messages, window_rows
+        self.n_messages, self.max_rows = n_messages, max_rows
         self.buf = np.empty((0, len(sel)), np.float32)
         self.rows = 0
         self.firsts: list[int] = []
@@ -873,8 +879,8 @@ class _Samples:
         if self.rows + n <= len(self.buf):
             return
         guess = 0
-        if not len(self.buf):  # the first block: as many rows as its size times the stream's blocks, within the window
-            guess = n * self.n_messages if self.window_rows is None else min(n * self.n_messages, self.window_rows + n)
+        if not len(self.buf) and self.max_rows is not None:  # the first block: its size times the stream's blocks
+            guess = min(n * self.n_messages, self.max_rows)
         grown = np.empty((max(self.rows + n, guess, 2 * len(self.buf)), self.buf.shape[1]), np.float32)
         grown[: self.rows] = self.buf[: self.rows]
         self.buf = grown

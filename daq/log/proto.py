@@ -261,9 +261,8 @@ def _assemble(chans: dict[int, memoryview | list[float]], n_c: int, n_s: int) ->
 def decode_block(raw: bytes | memoryview, view: bool = False) -> DecodedBlock:
     """Parse either layout schema-free by field numbers (field order free, unknown fields skipped).
 
-    Format 2: fields 16.. are channels, returned as one C-contiguous copy; with ``view``, as a transposed
-    view of ``raw`` (the usual layout; no copy, for a reader that copies each block straight into its output).
-    Format 1: field 6 is the row-major payload, returned as a read-only view of ``raw`` (no copy)."""
+    Format 2: fields 16.. are channels, returned as one C-contiguous copy (``view``: a transposed view of ``raw``,
+    for a reader that copies it into its result). Format 1: field 6 is the row-major payload, a read-only view."""
     buf = memoryview(raw).cast("B")
     pos = 0
     stream, first_index, fs, n_c, n_s, status, t0 = "", 0, 0.0, 0, 0, 0, 0

@@ -22,13 +22,31 @@ abs(#zeros−#extrema) ≤ 1    the same three thresholds;      subtracting the 
                             PyEMD keeps its own             more (small, below-threshold) mean removed than
                             |#ext − #zero| < 2 test         emd.m's
 MAXITERATIONS = 2000        ``MAX_ITERATION = 2000``        none
-stop when residual has      PyEMD: residual with ≤ 2        ``range_thr``/``total_power_thr`` (absolute,
-< 3 extrema                 extrema is the trend            PyEMD-only) are disabled (set to 0)
+stop when residual has      PyEMD: residual with ≤ 2        full :func:`emd` also ends, as PyEMD does by
+< 3 extrema                 extrema is the trend; plus      default, when the residual is numerically gone
+                            ``end_thresholds`` (PyEMD's     (below); the first-IMF sifts under WBEMD and
+                            range/total-power test)         :func:`eemd` keep them at 0, as before
 ==========================  ==============================  =====================================================
 
+The decomposition's end (issue 28). emd.m ends when the residual has < 3 extrema; the seed writes the end as a
+tolerance on the residual, max R_{N+1} < τ (eq. 2.34, L468–L474), and gives no τ. On a residual that is a
+constant plus floating-point dust (a tone on an offset, resolved exactly by IMF 1) "< 3 extrema" never holds:
+the rounding noise has thousands of extrema, and that rule alone sifts it into IMF after IMF (measured here: 660
+IMFs after 60 s on 100 Hz + 0.3, stopped by hand; the ``emd`` package with the same rule ran past 30 s too). Full
+:func:`emd` therefore keeps PyEMD's default end test, range_thr 0.001 and total_power_thr 0.005
+(``PYEMD_END_THRESHOLDS``): it ends once the residual's peak-to-peak is < 0.001 or its Σ|r| < 0.005. They act on
+the record divided by std(x), so they are relative (0.1 % of std(x) peak to peak), and the reason they were once
+set to 0 — absolute values end early on displacements in metres (PyEMD on bench_wbemd's beam record in metres: 4
+IMFs; standardised: 7) — does not apply. Elsewhere they change nothing: on clean two-tone records and on the beam
+record the residual that end effects leave is 1–8 % of std(x), far above them, and the rows equal the
+zero-threshold run's (bench/bench_emd.py; on the seed's §3.4.1 grid 142 of 143 decompositions are identical and
+the other ends one IMF of 0.04 % early, with the same scores). The per-IMF test stays Rilling's (the seed's emd.m),
+so full EMD still sifts more IMFs, for longer, than PyEMD's lax default test: docs/wbemd.md §1.1 has the
+measurements and why.
+
 Scale: every input is divided by its standard deviation before sifting and the output multiplied back.
-Rilling's criterion is scale-free, but PyEMD keeps absolute guards (e.g. Σ imf² < 1e-10), which would
-misbehave on displacement records in metres (~1e-5).
+Rilling's criterion is scale-free, but PyEMD keeps absolute guards (e.g. Σ imf² < 1e-10, and the end test above),
+which would misbehave on displacement records in metres (~1e-5).
 
 Mirror imaging of the record ends (Lee et al. 2009b, seed L487, §2.3 [CHOICE]) is available as
 ``mirror=`` (number of samples reflected evenly at each end before sifting, then cut off); default 0,
@@ -66,14 +84,24 @@ RILLING_STOP = (0.05, 0.5, 0.05)
 """emd.m's default stop thresholds [θ1, θ2, tol] (Rilling, Flandrin & Gonçalves 2003)."""
 MAX_ITERATION = 2000
 """emd.m's MAXITERATIONS."""
+PYEMD_END_THRESHOLDS = (0.001, 0.005)
+"""PyEMD's default end of decomposition (``range_thr``, ``total_power_thr``; EMD-signal 1.10), used by full
+:func:`emd` on the standardised record; ``tests/test_emd_stop.py`` checks they still equal PyEMD's defaults."""
+NO_END_THRESHOLDS = (0.0, 0.0)
+"""The end test off (emd.m's rule alone): the first-IMF sifts under WBEMD and :func:`eemd`."""
 
 
 class _RillingEMD(EMD):
-    """PyEMD's EMD with emd.m's stop test; only the IMF test and the envelope bookkeeping change."""
+    """PyEMD's EMD with emd.m's stop test; only the IMF test and the envelope bookkeeping change.
 
-    def __init__(self, stop: tuple[float, float, float] = RILLING_STOP) -> None:
+    ``end_thresholds`` = (range_thr, total_power_thr), PyEMD's end of decomposition: :func:`emd` passes
+    ``PYEMD_END_THRESHOLDS``, everything else keeps ``NO_END_THRESHOLDS`` (the configuration before issue 28).
+    """
+
+    def __init__(self, stop: tuple[float, float, float] = RILLING_STOP,
+                 end_thresholds: tuple[float, float] = NO_END_THRESHOLDS) -> None:
         super().__init__(spline_kind="cubic", nbsym=2, extrema_detection="simple", MAX_ITERATION=MAX_ITERATION,
-                         range_thr=0.0, total_power_thr=0.0)
+                         range_thr=float(end_thresholds[0]), total_power_thr=float(end_thresholds[1]))
         self._stop = stop
         self._amp: NDArray[np.float64] | None = None
 
@@ -123,19 +151,26 @@ def _unmirror(c: NDArray[np.float64], m: int, n: int) -> NDArray[np.float64]:
 
 
 def emd(x: ArrayLike, fs: float, max_imf: int | None = None, *, mirror: int = 0,
-        stop: tuple[float, float, float] = RILLING_STOP) -> NDArray[np.float64]:
+        stop: tuple[float, float, float] = RILLING_STOP,
+        end_thresholds: tuple[float, float] = PYEMD_END_THRESHOLDS) -> NDArray[np.float64]:
     """EMD of ``x`` (eq. 2.34): rows = IMFs from highest to lowest frequency, last row the residual.
 
-    ``max_imf`` limits the number of IMFs (None: until the residual has < 3 extrema). The output always
-    has the residual as last row (zeros if PyEMD's IMFs sum exactly to ``x``). ``fs`` is only checked:
-    PyEMD sifts on the sample index, which is equivalent for uniform sampling.
+    ``max_imf`` limits the number of IMFs (None: until the residual has < 3 extrema or is numerically gone).
+    The output always has the residual as last row (zeros if PyEMD's IMFs sum exactly to ``x``). ``fs`` is
+    only checked: PyEMD sifts on the sample index, which is equivalent for uniform sampling.
+
+    ``end_thresholds`` (range_thr, total_power_thr) end the decomposition once the residual of the record
+    divided by std(x) has a peak-to-peak below the first or Σ|r| below the second. Default PyEMD's
+    (0.001, 0.005): the seed's residual tolerance τ of eq. 2.34 (L468–L474), which emd.m's "< 3 extrema" rule lacks
+    and without which a residual of floating-point dust (a tone on an offset) is sifted without end (module
+    docstring). ``NO_END_THRESHOLDS`` gives the configuration before issue 28 (emd.m's rule alone).
     """
     x = _check_signal(x, fs, "emd")
     n = x.size
     scale = float(np.std(x))
     if scale == 0:
         return np.vstack([np.zeros(n), x])
-    sifter = _RillingEMD(stop)
+    sifter = _RillingEMD(stop, end_thresholds)
     sifter.emd(_mirror(x / scale, mirror), max_imf=-1 if max_imf is None else int(max_imf))
     imfs, _ = sifter.get_imfs_and_residue()
     imfs = _unmirror(np.atleast_2d(imfs), mirror, n) * scale
@@ -144,12 +179,17 @@ def emd(x: ArrayLike, fs: float, max_imf: int | None = None, *, mirror: int = 0,
 
 
 def first_imf(x: NDArray[np.float64], mirror: int = 0, stop: tuple[float, float, float] = RILLING_STOP) -> NDArray[np.float64]:
-    """Only the first (highest-frequency) IMF: PyEMD stops after one sifting loop (``max_imf=1``)."""
+    """Only the first (highest-frequency) IMF: PyEMD stops after one sifting loop (``max_imf=1``).
+
+    WBEMD's sifts (seed Fig. 3.2, eqs. 3.6–3.7) run here. They keep ``NO_END_THRESHOLDS``, the configuration
+    WBEMD's results were produced with; PyEMD consults its end test only after an IMF is complete, so with
+    ``max_imf=1`` the thresholds could not change IMF 1 anyway (``tests/test_emd_stop.py`` checks both).
+    """
     n = x.size
     scale = float(np.std(x))
     if scale == 0:
         return np.zeros(n)
-    out = _RillingEMD(stop).emd(_mirror(x / scale, mirror), max_imf=1)
+    out = _RillingEMD(stop, NO_END_THRESHOLDS).emd(_mirror(x / scale, mirror), max_imf=1)
     return _unmirror(out[0], mirror, n) * scale
 
 
@@ -177,7 +217,9 @@ def eemd(x: ArrayLike, fs: float, *, trials: int = 100, noise_width: float = 0.2
     ``noise_width`` is the noise standard deviation relative to std(x) (Wu & Huang 2009 suggest 0.2,
     method-wbemd-slowflow.md §2.4 [EXT]); PyEMD's own ``noise_width`` is relative to the range
     max(x) − min(x), so it is converted. Serial (``parallel=False``) and seeded, so results repeat.
-    The inner EMD is the emd.m-configured one of :func:`emd`.
+    The inner EMD is the emd.m-configured one of :func:`emd`, without the end thresholds
+    (``NO_END_THRESHOLDS``), so the EEMD baselines of docs/wbemd.md §5 stay as computed; the trials carry white
+    noise, which keeps their residuals far from the numerical dust the thresholds are for.
     """
     x = _check_signal(x, fs, "eemd")
     if trials < 1:
@@ -187,7 +229,8 @@ def eemd(x: ArrayLike, fs: float, *, trials: int = 100, noise_width: float = 0.2
         return np.vstack([np.zeros(x.size), x])
     xs = x / scale
     rng_range = float(np.ptp(xs))
-    e = EEMD(trials=trials, noise_width=noise_width / rng_range, ext_EMD=_RillingEMD(), parallel=False)
+    e = EEMD(trials=trials, noise_width=noise_width / rng_range, ext_EMD=_RillingEMD(RILLING_STOP, NO_END_THRESHOLDS),
+             parallel=False)
     e.noise_seed(seed)
     imfs = e.eemd(xs, max_imf=-1 if max_imf is None else int(max_imf)) * scale
     resid = x - imfs.sum(axis=0)

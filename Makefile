@@ -44,6 +44,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_cwt.py
 	$(BIN)/python bench/eval_confirm.py
 	$(BIN)/python bench/bench_wbemd.py
+	$(BIN)/python bench/bench_emd.py
 	$(BIN)/python bench/eval_wbemd_grid.py
 	$(BIN)/python bench/eval_beam_ch3.py
 	$(BIN)/python bench/bench_view.py

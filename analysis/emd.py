@@ -1,4 +1,4 @@
-"""Empirical mode decomposition (seed §2.5.2, L462–L474), EEMD (L481) and masked EMD (L485) on PyEMD.
+"""Empirical mode decomposition (seed §2.6, L462–L474), EEMD (L481) and masked EMD (L485) on PyEMD.
 
 Why PyEMD and not an in-house sifter: the sifting itself (extrema, mirrored end extrema, cubic-spline
 envelopes, mean removal) is PyEMD's (package ``EMD-signal``); this module only configures it as close

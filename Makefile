@@ -23,7 +23,7 @@ run: $(VENV)/.installed
 
 # Two phases: everything else on every core, then the host_timing tests alone (pyproject.toml's markers say why).
 test: $(VENV)/.installed-dev
-	$(BIN)/python -m pytest -n auto -m "not host_timing"
+	$(BIN)/python -m pytest -n auto --dist loadfile -m "not host_timing"
 	$(BIN)/python -m pytest -m host_timing
 
 lint: $(VENV)/.installed-dev

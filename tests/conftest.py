@@ -37,3 +37,20 @@ def gvt_command() -> list[str]:
 def pytest_configure(config):
     # the `browser` marker (issue 8): tests that open a file in headless Chromium; they skip when it is absent
     config.addinivalue_line("markers", "browser: renders in headless Chromium (/usr/bin/chromium); skips when it is absent")
+
+
+#: Test files by their time on 2 cores, longest first (make test's durations, issue 28). ``make test`` hands
+#: whole files to its workers (``--dist loadfile``: a module's fixtures are set up once, not on both workers)
+#: and the longest start first, so the two workers end together instead of one waiting on a late soak.
+LONGEST_FIRST = (
+    "test_soak.py", "test_record_matrix.py", "test_log_integrity.py", "test_session.py", "test_can.py",
+    "test_sweep_cmd.py", "test_serial.py", "test_analysis_session.py", "test_roving.py", "test_identify_validate.py",
+    "test_record_failures.py", "test_confirm.py", "test_modbus.py", "test_simulator.py", "test_beam_ch3_confirm.py",
+    "test_rfs.py", "test_cli.py", "test_sequence.py", "test_model_update.py", "test_store.py", "test_sim_session.py",
+    "test_nsi_log.py", "test_frf_lab.py",
+)  # fmt: skip
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(Path(str(item.fspath)).name, len(rank)))  # stable: a file stays in order

@@ -21,10 +21,13 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 run: $(VENV)/.installed
 	$(BIN)/gvt demo --overwrite  # replaces its own demo_session.mcap / .rrd from an earlier run
 
-# Two phases: everything else on every core, then the host_timing tests alone (pyproject.toml's markers say why).
+# numba's cache built first, one group a core (tests/warm_numba.py says why); then two phases: everything else on
+# every core, then the host_timing tests alone (pyproject.toml's markers say why).
+HOST_TIMING_FILES := tests/test_two_devices.py tests/test_record_matrix.py tests/test_frf_lab.py
 test: $(VENV)/.installed-dev
+	$(BIN)/python tests/warm_numba.py sweep & p=$$!; $(BIN)/python tests/warm_numba.py analysis && wait $$p
 	$(BIN)/python -m pytest -n auto --dist loadfile -m "not host_timing"
-	$(BIN)/python -m pytest -m host_timing
+	$(BIN)/python -m pytest -m host_timing $(HOST_TIMING_FILES)
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .

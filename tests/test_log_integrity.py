@@ -218,7 +218,8 @@ def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
 def _rss_run(args: list[str]) -> tuple[int, float, subprocess.CompletedProcess]:
     """(peak resident kB, CPU seconds, the process) of one ``gvt`` run. The time bound is on CPU time (user +
     system of the child), the work the input made it do: wall time also counts whatever else the machine is
-    running (under the suite's own two workers and a busy host, ``gvt report`` took 14 s of wall for ~4 s of CPU)."""
+    running (under the suite's own two workers and a busy host, ``gvt report`` took 14 s of wall; on a quiet machine
+    every verb here costs at most 2.5 s of CPU)."""
     code = (
         "import resource,subprocess,sys;"
         "p=subprocess.run(sys.argv[1:],capture_output=True,text=True);"

@@ -33,6 +33,7 @@ lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
 
 bench: $(VENV)/.installed-dev
+	GVT_SOAK_SECONDS=3600 $(BIN)/python -m pytest -q -p no:xdist tests/test_soak.py  # the hour of data (issue 18)
 	$(BIN)/python bench/bench_simulator.py
 	$(BIN)/python bench/bench_log.py
 	$(BIN)/python bench/bench_log_info.py

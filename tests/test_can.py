@@ -330,18 +330,18 @@ def test_fuzz_frame_decoder(frames, dt):
     assert drv.stats.frames_ok <= _fuzz_state["accepted"]
 
 
-def test_cantools_vs_fast_speed_recorded():
-    """Smoke-check both decoders run; the speeds themselves are in bench/bench_can.py."""
+def test_fast_decode_equals_cantools_on_random_frames():
+    """The vectorised decoder and cantools read the same 200 random FD frames to the same samples (float32,
+    so exact: both compute raw * scale + offset from the same integers). Their speeds are compared in
+    bench/bench_can.py, not here: a wall-clock ratio on a shared 2-core machine is a coin toss."""
     lay = load_layouts(DEFAULT_DBC, ["GVT_FD3"])[0]
     frames = np.random.default_rng(1).integers(0, 256, (200, 64), dtype=np.uint8).tobytes()
-    t0 = time.perf_counter()
-    lay.decode_frames(frames, 200)
-    t_fast = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    for i in range(200):
-        lay.decode_cantools(frames[64 * i : 64 * (i + 1)])
-    t_ct = time.perf_counter() - t0
-    assert t_fast < t_ct
+    fast = lay.decode_frames(frames, 200)
+    ref = np.concatenate([lay.decode_cantools(frames[64 * i : 64 * (i + 1)])[1] for i in range(200)])
+    assert fast.shape == ref.shape == (200 * lay.spf, lay.n_channels)
+    np.testing.assert_allclose(fast, ref, rtol=1e-6, atol=float(np.max(np.abs(lay.scales))) * 1e-3)
+    counters = [lay.decode_cantools(frames[64 * i : 64 * (i + 1)])[0] for i in range(200)]
+    assert counters == [lay.counter_of(frames[64 * i : 64 * (i + 1)]) for i in range(200)]
     assert Path(DEFAULT_DBC).exists()
 
 

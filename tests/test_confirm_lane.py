@@ -105,7 +105,7 @@ def test_a_gap_inside_an_event_skips_it_with_the_reason():
 
 def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said():
     """Confirmations take 1 s each in the worker; publishing 200 blocks and offering 6 events must not wait
-    for them (each publish is a put_nowait: < 50 ms even on a loaded 2-core machine), and with
+    for them (each publish is a put_nowait, far under the 1 s a confirmation takes, however loaded the machine), and with
     max_pending=2 the events beyond two are skipped with the reason, not lost."""
     fan, out = FanOut(), []
     lane = _lane(fan, lambda *a: out.append(a), slow_confirm, max_pending=2)
@@ -115,7 +115,7 @@ def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said()
         lane.submit({"id": i, "start_s": 1.0 + 0.2 * i, "end_s": 1.1 + 0.2 * i})
     worst = _publish(fan, data)
     wall = time.perf_counter() - t0
-    assert worst < 0.05 and wall < 2.0
+    assert worst < 0.5 and wall < 0.9 * 6  # waiting on even one 1 s confirmation would show; load alone will not
     recs = sorted(lane.join(timeout=60), key=lambda r: r["event_id"])
     assert [r["status"] for r in recs].count("confirmed") >= 2
     behind = [r for r in recs if r["status"] == "skipped"]

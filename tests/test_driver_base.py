@@ -135,7 +135,7 @@ def test_sim_driver_paced_follows_the_device_clock():
         blocks = list(drv.blocks(timeout=2))
         took = time.monotonic() - t0
     assert sum(b.n_samples for b in blocks) == 8192 and blocks[0].data.shape[1] == 2
-    assert 0.4 <= took <= 1.5  # real time, not full speed
+    assert 0.4 <= took <= 10.0  # real time, not full speed (full speed: ~0.05 s); the top only says it ends
     assert not make_driver("sim", {"rig": "beam_ch4_exp"}).realtime
 
 

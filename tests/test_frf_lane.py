@@ -172,7 +172,7 @@ def test_a_slow_frf_lane_never_holds_up_the_publisher():
     gate.set()
     fan.close()
     lane.finish(time.monotonic() + 10)
-    assert publish_s < 0.1 and lane.sub.dropped_blocks >= 150
+    assert publish_s < 2.0 and lane.sub.dropped_blocks >= 150  # blocked on the sink it would be >= 5 s
     frf = [o for t, o in got if t == FRF_TOPIC]
     assert [r["verdict"] for r in frf] == ["refused", "refused"] and frf[0]["reason"] == "hit gate: double_hit"
     assert frf[1]["reason"].startswith("record incomplete")

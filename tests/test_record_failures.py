@@ -64,7 +64,7 @@ def test_a_device_that_stops_delivering_ends_the_session_at_duration_plus_grace_
     assert p.returncode == 3, p.stderr
     line = one_line(p)
     assert "no more data within 1 s" in line and f"of {3 * FS} samples" in line
-    assert took < 20  # duration 3 s + grace 1 s + start-up: never the old silent early end, never a hang
+    assert took < 50  # duration 3 s + grace 1 s + start-up, never the 60 s the device stays silent: no hang
     r = LogReader(out)
     assert r.report.complete
     kinds = [e["kind"] for e in r.json_messages("/daq/events")]

@@ -55,6 +55,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_view.py --path record --duty 2 --seconds 60 --repeats 4
 	$(BIN)/python bench/bench_frf.py
 	$(BIN)/python bench/bench_modal_id.py
+	$(BIN)/python bench/bench_quality.py
 	$(BIN)/python bench/bench_report.py
 	$(BIN)/python bench/bench_confirm.py
 	$(BIN)/python bench/bench_model_update.py

@@ -15,6 +15,7 @@ written against) first; the estimators follow.
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,10 @@ class FRFSet:
     ``quantity`` "accelerance" | "mobility" | "receptance"; ``units`` e.g. "m/s^2/N"; ``n_averages``
     (n_ref,) hits averaged per reference; ``window`` the windows used, with at least ``force`` (name of the
     force window), ``tau_s`` (exponential decay constant of the response window, s; ``None`` if none)
-    and ``sigma_added`` (= 1/tau, 1/s: the decay rate every pole gained; see :func:`remove_window_damping`).
+    and ``sigma_added`` (= 1/tau, 1/s: the decay rate every pole gained; see :func:`remove_window_damping`);
+    ``quality`` how far to trust them, as ``gvt frf`` judged it (docs/frf.md, "Quality"): the force ``levels`` and
+    which was averaged, the ``linearity`` check between levels, the coherence at each mode (``mode_coherence``),
+    hammer ``pulse`` notes and the one-line ``warnings`` (empty: not judged, e.g. an older file).
     """
 
     freq: np.ndarray
@@ -49,6 +53,7 @@ class FRFSet:
     units: str = "m/s^2/N"
     n_averages: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     window: dict = field(default_factory=dict)
+    quality: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n_out, n_ref, n_f = np.shape(self.H)
@@ -73,6 +78,7 @@ class FRFSet:
             "quantity": self.quantity,
             "units": self.units,
             "window": self.window,
+            "quality": self.quality,
         }
         with open(path, "wb") as fh:
             np.savez(
@@ -282,6 +288,16 @@ class FRFAccumulator:
         self.count += 1
         self.counts += m
 
+    def merge(self, other: FRFAccumulator) -> FRFAccumulator:
+        """A new accumulator holding this one's hits and ``other``'s (same record, outputs and window): linear
+        averaging is a sum, so the hits of several force levels average as if added one by one."""
+        if (other.n, other.fs, other.outputs, other.n_f) != (self.n, self.fs, self.outputs, self.n_f):
+            raise BadInput("FRF: accumulators of different records or outputs cannot be merged")
+        m = copy.copy(self)
+        m.gff, m.gfx, m.gxx = self.gff + other.gff, self.gfx + other.gfx, self.gxx + other.gxx
+        m.count, m.counts = self.count + other.count, self.counts + other.counts
+        return m
+
     def frf(self, kind: str = "H1", quantity: str = "accelerance") -> FRFSet:
         """The averaged FRFs so far as an :class:`FRFSet` (one reference)."""
         if self.count == 0:
@@ -314,7 +330,8 @@ def stack_references(sets: list[FRFSet]) -> FRFSet:
     return FRFSet(freq=a.freq, H=np.concatenate([s.H for s in sets], axis=1),
                   coherence=np.concatenate([s.coherence for s in sets], axis=1), outputs=a.outputs,
                   references=[r for s in sets for r in s.references], kind=a.kind, quantity=a.quantity, units=a.units,
-                  n_averages=np.concatenate([s.n_averages for s in sets]), window=_fewest_averages(sets))  # fmt: skip
+                  n_averages=np.concatenate([s.n_averages for s in sets]), window=_fewest_averages(sets),
+                  quality=a.quality)  # fmt: skip
 
 
 def _fewest_averages(sets: list[FRFSet]) -> dict:

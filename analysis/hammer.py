@@ -19,6 +19,12 @@ What a test engineer checks before a hit joins the average (Brandt, *Noise and V
   hits; this one leaves them alone.
 * **Overload**: a sample at or above ``0.999`` of the channel's full scale (the sensor's range or the ADC's,
   whichever is lower): a clipped force underestimates the input at every frequency.
+* **Pulse too short for the sample rate** (a note, not a refusal): a pulse over fewer than ``MIN_PULSE_SAMPLES``
+  samples, or whose spectrum is still above −20 dB at the usable band's top ``fs / 2.56``, is not resolved: its
+  peak is read low (a half-sine sampled ``k`` times over its width is read up to ``1 - cos(pi / (2 k))`` low:
+  29 % at 2 samples, 4.9 % at 5) and its energy above the band aliases or is filtered away. The note names the
+  rate that would do: ``MIN_PULSE_SAMPLES`` samples over the pulse, and ``2.56 x`` its −20 dB frequency
+  (the pulse measured here, so after an anti-alias filter it is a lower bound).
 
 Arrays in, verdict out; the log and the rig are read by ``daq/studies/frf.py``.
 """
@@ -37,6 +43,10 @@ RISE_DB = 2.0
 FLOOR_DB = -20.0
 #: the force spectrum of the checks keeps this long after the main pulse (force_spectrum)
 KEEP_S = 0.05
+#: samples a hammer pulse needs (over its width at 2 % of its peak) to be resolved: its peak read within 5 %
+MIN_PULSE_SAMPLES = 5
+#: usable band = fs / this (an analyser's anti-alias convention; analysis/frf_setup.py default_band)
+BAND_FACTOR = 2.56
 
 
 def pulse_span(force: np.ndarray, level: float = 0.02) -> tuple[int, int]:
@@ -119,6 +129,9 @@ class HammerCheck:
     band_hz: float
     verdict: str
     reason: str
+    pulse_samples: int = 0
+    rate_needed_hz: float = float("nan")  # NaN: the pulse is resolved at this rate
+    note: str = ""  # one line when the pulse is too short for the sample rate
 
     def as_dict(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
@@ -146,11 +159,31 @@ def check_hit(force: np.ndarray, fs: float, band_hz: float, full_scale: float | 
                        f"(second impact ~{1e3 / (2 * notch):.1f} ms later)")  # fmt: skip
     if bw10 < band_hz:
         reasons.append(f"bandwidth below band: -10 dB at {bw10:.0f} Hz < {band_hz:g} Hz (softer tip than the band needs)")
+    need, note = pulse_resolution(i1 - i0, fs, bw20)
     return HammerCheck(
         peak_N=float(np.max(np.abs(force))), bw10_hz=bw10, bw20_hz=bw20, rise_db=rise, notch_hz=notch, clipped=clipped,
         band_hz=float(band_hz), verdict="refused" if reasons else "accepted", reason="; ".join(reasons) or "ok",
+        pulse_samples=int(i1 - i0), rate_needed_hz=need, note=note,
     )  # fmt: skip
 
 
-__all__ = ["CLIP_FRACTION", "FLOOR_DB", "KEEP_S", "RISE_DB", "HammerCheck", "bandwidth", "check_hit", "clipped_samples",
-           "force_spectrum", "level_db", "pulse_span", "spectral_rise"]  # fmt: skip
+def pulse_resolution(samples: int, fs: float, bw20_hz: float) -> tuple[float, str]:
+    """The sample rate a pulse ``samples`` long (at ``fs``) with its −20 dB point at ``bw20_hz`` needs, and a one-line
+    note, when this rate does not resolve it (``(nan, "")`` when it does): fewer than ``MIN_PULSE_SAMPLES`` samples,
+    or the spectrum above −20 dB at ``fs / 2.56``. A half-sine's −20 dB point is ``1.3 / T``: when the spectrum never
+    gets there below Nyquist, that is the estimate from the pulse's width."""
+    top = fs / BAND_FACTOR
+    if samples >= MIN_PULSE_SAMPLES and bw20_hz <= top:
+        return float("nan"), ""
+    width_s = max(samples, 1) / fs
+    bw = bw20_hz if bw20_hz < 0.5 * fs * 0.999 else 1.3 / width_s
+    need = float(np.ceil(max(MIN_PULSE_SAMPLES / width_s, BAND_FACTOR * bw) / 1024.0) * 1024.0)
+    note = (f"hammer pulse too short for {fs:g} Hz: {samples} samples ({1e3 * width_s:.2f} ms), force spectrum above "
+            f"-20 dB up to {bw:.0f} Hz; its peak is read low and its content above {top:.0f} Hz is lost: sample at "
+            f">= {need:g} Hz or use a softer tip")  # fmt: skip
+    return need, note
+
+
+__all__ = ["BAND_FACTOR", "CLIP_FRACTION", "FLOOR_DB", "KEEP_S", "MIN_PULSE_SAMPLES", "RISE_DB", "HammerCheck",
+           "bandwidth", "check_hit", "clipped_samples", "force_spectrum", "level_db", "pulse_resolution", "pulse_span",
+           "spectral_rise"]  # fmt: skip

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, Progress, check_output, err, open_rig, out
+from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out
 
 
 def frf(
@@ -25,7 +25,11 @@ def frf(
     ] = None,
     kind: Annotated[str, typer.Option(help="Estimator: H1, H2 or Hv.")] = "H1",
     quantity: Annotated[str, typer.Option(help="accelerance, mobility or receptance.")] = "accelerance",
-    peaks: Annotated[int, typer.Option(min=1, max=50, help="Peaks in the table.")] = 6,
+    peaks: Annotated[int, typer.Option(min=1, max=50, help="Peaks in the table (and modes judged).")] = 6,
+    level: Annotated[
+        str | None,
+        typer.Option(help="Force level averaged: a number (1 = lowest) or 'all'; default the lowest with 2 hits."),
+    ] = None,
     overwrite: OverwriteOpt = False,
 ) -> None:
     """FRFs (H1/H2/Hv) and coherence of the accepted hits, averaged; each hit's hammer checks and verdict."""
@@ -41,9 +45,12 @@ def frf(
             check_output(p, overwrite, what, inputs=[log])
     r = open_rig(rig) if rig is not None else rig_from_log(LogReader(log))
     chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
+    if level is not None and level != "all" and not level.isdigit():
+        fail(f"--level {level!r}: give a level number (1 = the lowest force) or 'all'")
     console = err if json_out else out
     with Progress(console) as report:
         run = frf_from_log(log, r, reference=reference, channels=chans, band_hz=band, kind=kind, quantity=quantity,
+                           level=level if level in (None, "all") else int(level), n_peaks=peaks,
                            progress=lambda f: report("hits", f))  # fmt: skip
     s = summary(run, peaks)
     if json_out:
@@ -58,6 +65,8 @@ def frf(
         with atomic_output(plot_path) as tmp:
             plot(run, tmp, show)
         console.print(f"wrote {plot_path}", markup=False)
+    if run.frf is None:
+        fail(f"{log}: no accepted hit, no FRF ({len(run.hits)} hit(s) refused: the lines above say why)")
 
 
 def _print(s: dict) -> None:
@@ -75,6 +84,9 @@ def _print(s: dict) -> None:
             who = f"reference {s['reference']}, {s['averages']} averages"
         out.print(f"{s['rig']} · {s['log']}: {s['kind']} {s['quantity']} [{s['units']}], {who}; record {s['record_s']:.3f} s "
                   f"(df {s['df_hz']:.3f} Hz), exponential window {tau}", markup=False)  # fmt: skip
+    q = s.get("quality") or {}
+    if len(q.get("levels", [])) > 1:
+        out.print("force levels: " + "; ".join(_level_text(lv) for lv in q["levels"]), markup=False)
     for p in s.get("plan_points", []):
         if p.get("accepted", 0) < p["averages"]:
             out.print(f"hit point {p['name']}: {p.get('accepted', 0)} of {p['averages']} averages", markup=False)
@@ -92,4 +104,12 @@ def _print(s: dict) -> None:
     for h in s["hits"]:
         if h["verdict"] != "accepted":
             at = f" at {h['point']}" if h.get("point") else ""
-            out.print(f"hit {h['hit']}{at} (t = {h['t_s']:.2f} s): refused: {h['reason']}", markup=False)
+            out.print(f"hit {h['hit']}{at} (t = {h['t_s']:.2f} s): {h['verdict']}: {h['reason']}", markup=False)
+    for w in s.get("warnings", []):
+        out.print(f"warning: {w}", markup=False)
+
+
+def _level_text(lv: dict) -> str:
+    a, b = lv["force_min_N"], lv["force_max_N"]
+    span = f"{a:.0f}" if b <= a * 1.005 else f"{a:.0f}-{b:.0f}"
+    return f"{lv['level']}: {span} N, {lv['accepted']} accepted" + (" (averaged)" if lv["averaged"] else "")

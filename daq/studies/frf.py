@@ -15,7 +15,7 @@ or no window if the structure does that alone. Its added decay rate ``1 / tau`` 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,7 @@ from analysis.hammer import HammerCheck, check_hit
 from analysis.model.rig import Rig
 from analysis.records import HITS_TOPIC, PLAN_TOPIC, Hit, PlanRecord
 from daq.log.reader import LogReader, LogReadError
+from daq.studies.frf_judge import Levels, damage_error, judge, merged, pick_levels
 
 QUANTITY_OF_UNIT = {"m/s^2": "acceleration", "m/s": "velocity", "m": "displacement", "N": "force"}
 
@@ -137,10 +138,12 @@ def _record_samples(rig: Rig, hits: Sequence[Hit], fs: float) -> int:
 
 def frf_from_log(path: str | Path, rig: Rig, *, reference: str | None = None, channels: Sequence[str] | None = None,
                  band_hz: float | None = None, kind: str = "H1", quantity: str = "accelerance", end_level: float = 1e-3,
+                 level: str | int | None = None, n_peaks: int = 6,
                  progress: Callable[[float], None] | None = None) -> FRFRun:  # fmt: skip
     """FRFs of the accepted hits of the log at ``path``: the force channel against every response, on one DAQ
     or two (the responses read on the hits' grid through the time base), one reference per hit point of a
-    roving-hammer plan."""
+    roving-hammer plan; averaged within one force ``level`` (daq/studies/frf_judge.py says which and why) and
+    judged (``FRFSet.quality``). Damage met in the hits' records: :class:`LogDamagedError` (exit 3)."""
     try:
         reader = LogReader(path)
     except LogReadError as exc:
@@ -151,35 +154,68 @@ def frf_from_log(path: str | Path, rig: Rig, *, reference: str | None = None, ch
     band_hz = default_band(fs) if band_hz is None else band_hz
     quantities = [QUANTITY_OF_UNIT.get(units[c], "acceleration") for c in outs]
     hits = [Hit.from_json(h) for h in reader.json_messages(HITS_TOPIC)]
-    if not hits:
+    if not hits and not reader.damage:
         raise BadInput(f"{path}: the log has no hits ({HITS_TOPIC}); record or simulate a session with hits")
     points, at = plan_of_hits(reader, hits)
     n, pre = _record_samples(rig, hits, fs), round(PRE_TRIGGER_S * fs)
     tau = choose_tau(lowest_decay_rate(rig), n / fs, end_level)
     names = [p["name"] for p in points] or [ref]
-    accs = {r: FRFAccumulator(fs, n, outs, r, tau=tau, t0=pre / fs, f_max=band_hz, quantities=quantities, end_level=end_level)
-            for r in names}  # fmt: skip
+    levels = Levels.of(hits)
+
+    def acc(r: str) -> FRFAccumulator:
+        return FRFAccumulator(fs, n, outs, r, tau=tau, t0=pre / fs, f_max=band_hz, quantities=quantities, end_level=end_level)
+
+    accs: dict[tuple[str, int], FRFAccumulator] = {}
     run = FRFRun(str(path), rig.name, sources[0].stream, None, n / fs, pre / fs, tau, band_hz, points=points,
                  streams={s.stream: s.offset for s in sources})  # fmt: skip
-    full_scale = force_full_scale(rig)
+    full_scale, notes, damaged = force_full_scale(rig), [], []
     for k, hit in enumerate(hits):
-        verdict, reason, chk = _judge(reader, sources, [ref, *outs], hit, n, pre, fs, band_hz, full_scale, run)
-        if verdict == "accepted":
-            d = chk[1]
-            accs[at.get(hit.hit, ref)].add(d[:, 0], d[:, 1:], use=[o not in (hit.excluded_channels or ()) for o in outs])
+        verdict, reason, chk = _judge(reader, sources, [ref, *outs], hit, n, pre, fs, band_hz, full_scale, run, damaged)
         row = {"hit": hit.hit, "t_s": hit.t_s, "peak_force_N": hit.peak_force_N, "verdict": verdict, "reason": reason,
-               "checks": chk[0].as_dict() if chk[0] is not None else None}  # fmt: skip
+               "checks": chk[0].as_dict() if chk[0] is not None else None, "level": _level_no(levels, hit.hit)}  # fmt: skip
+        if verdict == "accepted":
+            d, key = chk[1], (at.get(hit.hit, ref), levels.of_hit[hit.hit])
+            accs.setdefault(key, acc(key[0])).add(d[:, 0], d[:, 1:], use=[o not in (hit.excluded_channels or ()) for o in outs])
+        if chk[0] is not None and chk[0].note:
+            notes.append((hit.hit, chk[0].note))
         if points:
             row["point"] = at.get(hit.hit)
         run.hits.append(row)
         if progress:
             progress((k + 1) / len(hits))
-    for p in points:
-        p["accepted"] = accs[p["name"]].count
-    sets = [accs[r].frf(kind, quantity) for r in names if accs[r].count]
-    run.frf = stack_references(sets) if sets else None
+    if damaged or reader.damage:
+        lost = sorted({h for *_x, h in damaged if h is not None})
+        what = f"the record of hit(s) {', '.join(map(str, lost))} lies in them" if lost else "hit records may be lost with them"
+        raise damage_error(reader, [d[:4] for d in damaged], what)
+    _average(run, accs, names, levels, level, band_hz, n_peaks, notes, kind, quantity)
     run.driving = _driving(rig, ref, points, outs)
     return run
+
+
+def _level_no(levels: Levels, hit: int) -> int | None:
+    lv = levels.of_hit.get(hit)
+    return None if lv is None else lv + 1
+
+
+def _average(run: FRFRun, accs: dict, names: list[str], levels: Levels, level: str | int | None, band: float,
+             n_peaks: int, notes: list[tuple[int, str]], kind: str, quantity: str) -> None:  # fmt: skip
+    """The FRFs of the levels averaged (one set per hit point), their quality, and why each other hit was left out."""
+    counts = [sum(a.count for (_r, lv), a in accs.items() if lv == k) for k in range(len(levels.ranges))]
+    chosen = pick_levels(levels, counts, level)
+    for p in run.points:
+        m = merged(accs, p["name"], chosen)
+        p["accepted"] = m.count if m is not None else 0
+    sets = [m.frf(kind, quantity) for r in names if (m := merged(accs, r, chosen)) is not None]
+    if not sets:
+        return
+    frf = stack_references(sets)
+    q = judge(frf, accs, names, levels, chosen, counts, band, n_peaks, notes, kind, quantity)
+    run.frf = replace(frf, quality=q)
+    for row in run.hits:
+        if row["verdict"] == "accepted" and row["level"] is not None and row["level"] - 1 not in chosen:
+            row["verdict"] = "left out"
+            row["reason"] = (f"force {levels.label(row['level'] - 1)}: averaged "
+                             f"{', '.join(levels.label(lv) for lv in chosen)} (--level all averages every level)")  # fmt: skip
 
 
 def _driving(rig: Rig, ref: str, points: list[dict], outs: list[str]) -> dict[str, str]:
@@ -190,13 +226,16 @@ def _driving(rig: Rig, ref: str, points: list[dict], outs: list[str]) -> dict[st
     return {ref: at} if at else {}
 
 
-def _read_record(reader: LogReader, sources: list[Source], cols: list[str], i0: int, n: int, fs: float) -> np.ndarray | None:
+def _read_record(reader: LogReader, sources: list[Source], cols: list[str], i0: int, n: int, fs: float,
+                 damaged: list | None = None, hit: int | None = None) -> np.ndarray | None:  # fmt: skip
     """``cols`` over ``[i0, i0 + n)`` of the hits' grid, each stream read on its own clock; None if any stream
-    lacks a sample there (end of log, gap, restart, damage)."""
+    lacks a sample there (end of log, gap, restart, damage: its ranges go to ``damaged`` with ``hit``)."""
     parts: dict[str, np.ndarray] = {}
     for src in sources:
         j0 = i0 - src.offset
         d = reader.read_stream(src.stream, list(src.channels), start=j0 / fs, end=(j0 + n) / fs, on_damage="skip")
+        if d.damaged and damaged is not None:
+            damaged += [(src.stream, a, b, why, hit) for a, b, why in d.damaged]
         if d.data.shape[0] != n or d.gaps or d.damaged or (n and (d.index[0] != j0 or d.index[-1] != j0 + n - 1)):
             return None
         parts.update({c: d.data[:, k] for k, c in enumerate(src.channels)})
@@ -204,11 +243,12 @@ def _read_record(reader: LogReader, sources: list[Source], cols: list[str], i0: 
 
 
 def _judge(reader: LogReader, sources: list[Source], cols: list[str], hit: Hit, n: int, pre: int, fs: float, band: float,
-           full_scale: float, run: FRFRun) -> tuple[str, str, tuple[HammerCheck | None, np.ndarray | None]]:  # fmt: skip
-    """Verdict, reason and (checks, record) of one hit."""
+           full_scale: float, run: FRFRun,
+           damaged: list) -> tuple[str, str, tuple[HammerCheck | None, np.ndarray | None]]:  # fmt: skip
+    """Verdict, reason and (checks, record) of one hit; damage met in its record is added to ``damaged``."""
     if hit.verdict != "accepted":
         return "refused", f"hit gate: {hit.reason or hit.verdict}", (None, None)
-    data = _read_record(reader, sources, cols, hit.index - pre, n, fs)
+    data = _read_record(reader, sources, cols, hit.index - pre, n, fs, damaged, hit.hit)
     if data is None:
         why = f"record incomplete: not all {n} samples of every stream (end of log, gap, restart or damage)"
         return "refused", why, (None, None)
@@ -254,6 +294,8 @@ def summary(run: FRFRun, n_peaks: int = 6) -> dict:
         # responses the hit gate left out of some hits (clipped, dead): averaged over the hits they were good on
         "fewer_averages": {o: int(c) for o, c in zip(f.outputs, f.window.get("averages_per_output", []), strict=False)
                            if c < f.n_averages[0]} if f is not None and f.n_averages.size == 1 else {},
+        # how far to trust it (daq/studies/frf_judge.py): levels, linearity, coherence per mode, pulses, warnings
+        "quality": f.quality if f is not None else {}, "warnings": f.quality.get("warnings", []) if f is not None else [],
     }  # fmt: skip
 
 

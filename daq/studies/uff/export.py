@@ -148,6 +148,13 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
     record_s = rig.config.daq.record_length if rig is not None else 2.0
     stream = _force_stream(reader, chans)
     hit_sets, hits, skipped = _hit_sets(reader, stream, chans, record_s, binary)
+    if reader.damage:  # a chunk of hit records (or samples) failed: hits may be missing, as gvt frf says (exit 3)
+        from daq.studies.frf_judge import damage_error
+
+        raise damage_error(reader, [], "hit records may be lost with them")
+    if not hits:
+        raise BadInput(f"{log}: no accepted hit in the log ({HITS_TOPIC}); a UFF of the geometry alone is not a test: "
+                       "record or simulate a session with hits")  # fmt: skip
     sets = [uff.units_set(), *uff.geometry_sets(geometry), *uff.trace_line_sets(geometry)]
     parts = [
         f"{geometry.ids.size} nodes",

@@ -205,6 +205,10 @@ class TriggerSettings:
     suspect_after: int = 3
     required: tuple[str, ...] = ()  # response channels whose failure (clipped or dead) rejects the hit
     exclude: tuple[str, ...] = ()  # channels the gate ignores entirely (known bad or unused): never judged, never suspect
+    # a roving-hammer plan's points in order, (the sensor at the point or None, its averages): the input energy is
+    # computed where the hammer hits, each point until its accepted hits are in (as daq/roving.py PlanTracker), not
+    # at the fixed ``driving_point`` (at another point F v integrates to any sign: negative energies, issue 29)
+    roving: tuple[tuple[str | None, int], ...] = ()
 
     def __post_init__(self) -> None:
         if self.level <= 0 or self.pre_trigger < 0 or self.record_length <= 0 or not 0 < self.hysteresis <= 1:
@@ -328,6 +332,26 @@ class HitDetector:
         self._next = None  # expected next sample index
         self._count = 0
         self._prev_force = 0.0
+        self._rove = [0, 0]  # roving plan: current point, its accepted hits
+
+    def driving_point(self) -> tuple[str | None, str]:
+        """The response at the point being hit (a roving plan's current point's sensor, else the trigger's driving
+        point) and, when there is none to use, why."""
+        if not self.s.roving:
+            return self.s.driving_point, ""
+        sensor = self.s.roving[self._rove[0]][0]
+        if sensor is None or sensor not in self.channels:
+            return None, f"no input energy: no sensor of this stream at hit point {self._rove[0] + 1}"
+        return sensor, ""
+
+    def _advance(self) -> None:
+        """An accepted hit counts for the current roving point; when it has its averages, the next point."""
+        if not self.s.roving:
+            return
+        k, done = self._rove[0], self._rove[1] + 1
+        if done >= self.s.roving[k][1] and k < len(self.s.roving) - 1:
+            k, done = k + 1, 0
+        self._rove = [k, done]
 
     # --- streaming ---------------------------------------------------------------------------
     def feed(self, block: SampleBlock) -> list[HitRecord]:
@@ -439,12 +463,13 @@ class HitDetector:
         judged = judge_channels(rec, self.channels, self.ranges, self.h, lo, fs, s.exclude)
         verdicts = judged.verdicts
         energy = None
-        notes: list[str] = []  # reasons that do not change the verdict
-        if s.driving_point is not None and verdicts[s.driving_point] != "ok":
-            how = judged.why.get(s.driving_point, "excluded in the session")
-            notes.append(f"no input energy: driving point {s.driving_point} {verdicts[s.driving_point]} ({how})")
-        elif s.driving_point is not None:
-            a = rec[:, self.channels.index(s.driving_point)].astype(np.float64)
+        dp, why_not = self.driving_point()
+        notes: list[str] = [why_not] if why_not else []  # reasons that do not change the verdict
+        if dp is not None and verdicts[dp] != "ok":
+            how = judged.why.get(dp, "excluded in the session")
+            notes.append(f"no input energy: driving point {dp} {verdicts[dp]} ({how})")
+        elif dp is not None:
+            a = rec[:, self.channels.index(dp)].astype(np.float64)
             a = a - (a[:edge].mean() if edge > 0 else 0.0)
             v = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]))]) / fs
             v = v - v[lo]
@@ -490,6 +515,8 @@ class HitDetector:
             channel_verdicts=verdicts, excluded_channels=excluded,
         )  # fmt: skip
         self._count += 1
+        if hit.verdict == "accepted":
+            self._advance()
         return hit
 
     def suspects(self) -> list[str]:

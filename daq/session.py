@@ -278,6 +278,10 @@ class Session:
         for c, what in ((t.channel, "trigger.channel"), (t.driving_point, "trigger.driving_point")):
             if c is not None and c not in det_channels:
                 raise ConfigError(cfg.source, what, f"channel {c!r} is not recorded (channels: {', '.join(det_channels)})")
+        if cfg.plan is not None:  # roving hammer: the input energy where the hammer hits (daq/hits.py TriggerSettings.roving)
+            from daq.roving import resolve_plan
+
+            extra["roving"] = tuple((p.sensor, p.averages) for p in resolve_plan(cfg.plan, self.rig))
         settings = TriggerSettings(level=t.level, channel=t.channel, pre_trigger=t.pre_trigger, record_length=t.record_length,
                                    hysteresis=t.hysteresis, force_range=t.force_range, driving_point=t.driving_point,
                                    suspect_after=t.suspect_after, **extra)  # fmt: skip

@@ -53,6 +53,7 @@ from drivers.blocks import SampleBlock
 #: the view's topic for the curves of one update (in-process only: never written to a log)
 FRF_CURVES = "frf/curves"
 N_PEAKS = 6  # peaks in each update, as gvt frf's table
+MIN_RECORD_S = 0.1  # the live record is not shortened below this (FRFLane._shorten): df 10 Hz
 #: the log attachment holding a roving-hammer session's FRF matrix (analysis.frf.FRFSet.to_npz)
 MATRIX_ATTACHMENT = "frf/matrix.npz"
 
@@ -77,6 +78,7 @@ class FRFPlan:
     # responses on other devices' streams (two devices on one timeline: the hammer on one, accelerometers on
     # another): (stream, its channels), each cut at the hit's index less the timeline's applied offset
     others: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    sigma1: float = 0.0  # decay rate of the rig's lowest mode, 1/s: tau again when the record is shortened
 
     @property
     def layout(self) -> list[tuple[str, list[int]]]:
@@ -118,7 +120,7 @@ def frf_plan(rig, streams: dict[str, tuple[str, ...]], fs: float, band_hz: float
     return FRFPlan(stream=stream, channels=chans, reference=hammer.name, outputs=outs,
                    quantities=tuple(quantity[c] for c in outs), fs=float(fs), n=n, pre=round(PRE_TRIGGER_S * fs), tau=tau,
                    band_hz=float(band_hz), full_scale=force_full_scale(rig), driving_point=dp, shown=pick,
-                   others=others)  # fmt: skip
+                   others=others, sigma1=lowest_decay_rate(rig))  # fmt: skip
 
 
 class SampleRing:
@@ -236,9 +238,7 @@ class FRFLane:
         self.rings = {s: SampleRing(cap, len(ch)) for s, ch in ((plan.stream, plan.channels), *plan.others)}
         self.ring = self.rings[plan.stream]  # the hammer's stream
         # one accumulator per reference: the hammer, or each hit point of a roving-hammer plan (daq/roving.py)
-        self.accs = [FRFAccumulator(plan.fs, plan.n, list(plan.outputs), plan.reference, tau=plan.tau, t0=plan.pre / plan.fs,
-                                    f_max=plan.band_hz, quantities=list(plan.quantities), end_level=1e-3)
-                     for _ in (self.tracker.points if self.tracker is not None else (None,))]  # fmt: skip
+        self.accs = self._accumulators()
         self.records: list[FRFUpdate] = []
         self.costs_s: list[float] = []  # computing time per hit (wall clock)
         # the lane thread's own CPU time per hit: what the lane costs, whatever else the machine is doing (a
@@ -251,6 +251,37 @@ class FRFLane:
         self._hits_done = threading.Event()
         self._thread = threading.Thread(target=self._main, name="frf", daemon=True)
         warm_up(plan)
+
+    def _accumulators(self) -> list[FRFAccumulator]:
+        """One accumulator per reference: the hammer, or each hit point of a roving-hammer plan (daq/roving.py)."""
+        p = self.plan
+        return [FRFAccumulator(p.fs, p.n, list(p.outputs), p.reference, tau=p.tau, t0=p.pre / p.fs, f_max=p.band_hz,
+                               quantities=list(p.quantities), end_level=1e-3)
+                for _ in (self.tracker.points if self.tracker is not None else (None,))]  # fmt: skip
+
+    def _shorten(self, hit: dict, nxt: int) -> bool:
+        """Before any hit is averaged, a record that holds the next hit: shorten the record to the hits' spacing, as
+        ``gvt frf`` does afterwards (the smallest spacing), and say so; True if it was shortened.
+
+        Why: the shipped CAN, Modbus and two-device sessions hit every 0.5-0.8 s, under the rig's 2 s record; a lane
+        that refused every hit as "record holds the next hit" averaged nothing all session while ``gvt frf`` on the
+        log worked. Only before the first average (the sums of two record lengths do not add), and not below
+        ``MIN_RECORD_S``: a later, closer hit is refused with its reason, on screen."""
+        p = self.plan
+        n = nxt - int(hit["index"])
+        if any(a.count for a in self.accs) or n >= p.n or n < round(MIN_RECORD_S * p.fs):
+            return False
+        self.plan = dataclasses.replace(p, n=n, tau=choose_tau(p.sigma1, n / p.fs, 1e-3))
+        self.accs = self._accumulators()
+        if self.say is not None:
+            self.say(f"live FRF: hits {n / p.fs:.3f} s apart, under the {p.n / p.fs:g} s record: records shortened to "
+                     f"{n / p.fs:.3f} s (df {p.fs / n:.2f} Hz), as gvt frf does; a closer hit is refused")  # fmt: skip
+        return True
+
+    def _next_hit(self, i0: int) -> int | None:
+        """The index of a pending hit whose record starts inside the record starting at ``i0``."""
+        p = self.plan
+        return next((int(h["index"]) for h in self._pending if i0 < int(h["index"]) - p.pre < i0 + p.n), None)
 
     @property
     def acc(self) -> FRFAccumulator:
@@ -357,9 +388,12 @@ class FRFLane:
     def _judge(self, hit: dict, i0: int) -> None:
         t0 = time.perf_counter()
         self._c0 = time.thread_time()
-        p = self.plan
         rec, missing = self._record(i0)
-        nxt = next((int(h["index"]) for h in self._pending if i0 < int(h["index"]) - p.pre < i0 + p.n), None)
+        nxt = self._next_hit(i0)
+        if nxt is not None and rec is not None and hit.get("verdict") == "accepted" and self._shorten(hit, nxt):
+            rec, missing = self._record(i0)
+            nxt = self._next_hit(i0)
+        p = self.plan
         checks, why, force = None, None, None
         if hit.get("verdict") != "accepted":
             why = f"hit gate: {hit.get('reason') or hit.get('verdict')}"

@@ -187,7 +187,9 @@ def frf_from_log(path: str | Path, rig: Rig, *, reference: str | None = None, ch
         lost = sorted({h for *_x, h in damaged if h is not None})
         what = f"the record of hit(s) {', '.join(map(str, lost))} lies in them" if lost else "hit records may be lost with them"
         raise damage_error(reader, [d[:4] for d in damaged], what)
-    _average(run, accs, names, levels, level, band_hz, n_peaks, notes, kind, quantity)
+    gaps = np.diff(sorted(h.index for h in hits)) / fs
+    ring = (float(gaps.min()) if gaps.size else np.inf, float(np.log(1e3) / lowest_decay_rate(rig)))
+    _average(run, accs, names, levels, level, band_hz, n_peaks, notes, kind, quantity, ring)
     run.driving = _driving(rig, ref, points, outs)
     return run
 
@@ -198,7 +200,8 @@ def _level_no(levels: Levels, hit: int) -> int | None:
 
 
 def _average(run: FRFRun, accs: dict, names: list[str], levels: Levels, level: str | int | None, band: float,
-             n_peaks: int, notes: list[tuple[int, str]], kind: str, quantity: str) -> None:  # fmt: skip
+             n_peaks: int, notes: list[tuple[int, str]], kind: str, quantity: str,
+             ring: tuple[float, float] = (np.inf, 0.0)) -> None:  # fmt: skip
     """The FRFs of the levels averaged (one set per hit point), their quality, and why each other hit was left out."""
     counts = [sum(a.count for (_r, lv), a in accs.items() if lv == k) for k in range(len(levels.ranges))]
     chosen = pick_levels(levels, counts, level)
@@ -209,7 +212,7 @@ def _average(run: FRFRun, accs: dict, names: list[str], levels: Levels, level: s
     if not sets:
         return
     frf = stack_references(sets)
-    q = judge(frf, accs, names, levels, chosen, counts, band, n_peaks, notes, kind, quantity)
+    q = judge(frf, accs, names, levels, chosen, counts, band, n_peaks, notes, kind, quantity, *ring)
     run.frf = replace(frf, quality=q)
     for row in run.hits:
         if row["verdict"] == "accepted" and row["level"] is not None and row["level"] - 1 not in chosen:

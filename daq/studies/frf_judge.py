@@ -73,8 +73,10 @@ def merged(accs: dict[tuple[str, int], FRFAccumulator], ref: str, lvs: Sequence[
 
 def judge(frf: FRFSet, accs: dict[tuple[str, int], FRFAccumulator], refs: list[str], levels: Levels,
           averaged: list[int], counts: list[int], band: float, n_peaks: int, pulse_notes: list[tuple[int, str]],
-          kind: str, quantity: str) -> dict:  # fmt: skip
-    """The ``quality`` dict of an FRF set: levels, linearity, coherence per mode, pulse notes, warnings."""
+          kind: str, quantity: str, spacing_s: float = np.inf, decay_s: float = 0.0) -> dict:  # fmt: skip
+    """The ``quality`` dict of an FRF set: levels, linearity, coherence per mode, pulse notes, warnings.
+    ``spacing_s`` the shortest time between hits, ``decay_s`` the time the lowest mode takes to decay 60 dB: a
+    hit sooner than that finds the structure still ringing from the one before, which lowers the coherence."""
     warnings: list[str] = []
     used = [lv for lv in range(len(levels.ranges)) if counts[lv]]
     lin = None
@@ -92,7 +94,7 @@ def judge(frf: FRFSet, accs: dict[tuple[str, int], FRFAccumulator], refs: list[s
         warnings.append(f"{int(np.min(frf.n_averages))} average(s): coherence is 1 by construction and says nothing; "
                         "hit at least 3 times per point at one force level")  # fmt: skip
     else:
-        hint = _coherence_hint(lin, averaged, len(used), int(np.min(frf.n_averages)))
+        hint = _coherence_hint(lin, averaged, int(np.min(frf.n_averages)), spacing_s, decay_s)
         warnings += [coherence_warning(m, hint) for m in modes if not m.ok]
     if pulse_notes:
         hits = [h for h, _ in pulse_notes]
@@ -120,11 +122,13 @@ def _linearity(accs, refs, lo: int, hi: int, band: float, n_peaks: int, kind: st
     return linearity_check(pairs[0][0].freq, H_lo, H_hi, band=(1.0, band), n_peaks=n_peaks)
 
 
-def _coherence_hint(lin, averaged: list[int], n_levels: int, n_avg: int) -> str:
+def _coherence_hint(lin, averaged: list[int], n_avg: int, spacing_s: float, decay_s: float) -> str:
+    """What to do about a low coherence at a mode, the likeliest cause the data show first."""
     if len(averaged) > 1 and lin is not None and not lin.linear:
         return "hits of different force levels averaged on a force-dependent structure: average one level (--level N)"
-    if lin is not None and not lin.linear:
-        return "the structure is force-dependent within this level too: hit softer and more evenly"
+    if spacing_s < decay_s:
+        return (f"hits {spacing_s:.2f} s apart while the lowest mode needs {decay_s:.1f} s to decay 60 dB: each record "
+                "starts with the last hit still ringing; space the hits further apart")  # fmt: skip
     if n_avg < 5:
         return f"only {n_avg} averages: add hits, check for double hits and a loose sensor"
     return "check the hits' force spectra (tip), double hits, a loose sensor or a record too short for the decay"

@@ -205,3 +205,12 @@ def test_the_report_of_a_roving_log_lists_every_hit_point(roving):
     assert [(r[0], r[3]) for r in avg] == [(p, 3) for p in ("P1", "P2", "P3", "DP", "P5")]
     modes = next(rows for title, rows in tables if title.startswith("identified modes"))
     assert {3, 4, 5, 6} <= {r[5] for r in modes}, modes
+
+
+def test_input_energy_is_computed_where_the_hammer_hit(roving):
+    # the gate used the trigger's fixed driving point (or none): at another point F v integrates to any sign, and
+    # the roving hit table showed negative input energies. Now each hit's energy is F v at the sensor of the point
+    # hit (P1..P5: a03, a06, a09, a13, a12): work put into a structure at rest by a compressive pulse is > 0.
+    _rig, _cfg, _out, res, _lines = roving
+    e = [h.input_energy_J for h in res.hits]
+    assert all(x is not None and x > 0 for x in e), e

@@ -423,6 +423,8 @@ class UpdateModeRow(_Strict):
     model_hz: float
     residual: float = Field(description="(f_measured - f_model) / (n f_measured), n = fe_mode (seed eq. 4.5)")
     mac: float | None = None
+    std_hz: float | None = Field(default=None, description="the measured frequency's 1-sigma, when known")
+    z: float | None = Field(default=None, description="(f_measured - f_model) / std_hz")
 
 
 class UpdateValue(_Strict):
@@ -431,6 +433,7 @@ class UpdateValue(_Strict):
     nominal: float
     value: float
     sigma: float | None = Field(default=None, description="1-sigma from the residuals' Jacobian; absent if undefined")
+    identifiable: bool | None = None
 
 
 class UpdateProvenance(_Strict):
@@ -444,6 +447,9 @@ class UpdateProvenance(_Strict):
     optimiser: str
     evaluations: int
     uncertainty: str
+    chi2_nu: float | None = None
+    warnings: list[str] = []
+    data: dict[str, str | list[str]] = Field(default={}, description="what of the source was used: hits, channels, band")
     modes: list[UpdateModeRow] = []
     values: list[UpdateValue] = []
 

@@ -106,6 +106,7 @@ class MeasuredModes:
     shapes: np.ndarray | None = None
     outputs: tuple[str, ...] = ()
     source: str = ""
+    freq_std_hz: np.ndarray | None = None  # 1-sigma per mode (analysis/model/update_quality.py), None: unknown
 
     @classmethod
     def from_json(cls, doc: dict, source: str = "") -> MeasuredModes:
@@ -117,13 +118,16 @@ class MeasuredModes:
                 shapes = np.asarray(doc["shapes_re"], dtype=float) + 1j * np.asarray(doc.get("shapes_im") or 0.0, dtype=float)
                 shapes = shapes.reshape(len(doc["outputs"]), f.size)
             outputs = tuple(str(o) for o in doc.get("outputs") or ())
+            std = None if doc.get("freq_std_hz") is None else np.asarray(doc["freq_std_hz"], dtype=float)
         except (KeyError, TypeError, ValueError) as exc:
             raise BadInput(f"{source}: not a modes file of `gvt modal --modes-out` ({type(exc).__name__}: {exc})") from None
         if f.ndim != 1 or f.size == 0 or not np.all(np.isfinite(f)) or np.any(f <= 0):
             raise BadInput(f"{source}: freq_hz must be a non-empty list of positive frequencies")
         if shapes is not None and not np.all(np.isfinite(shapes)):
             raise BadInput(f"{source}: the mode shapes have non-finite values")
-        return cls(f, shapes, outputs, source)
+        if std is not None and (std.shape != f.shape or not np.all(std > 0)):
+            raise BadInput(f"{source}: freq_std_hz must give one positive 1-sigma per frequency")
+        return cls(f, shapes, outputs, source, std)
 
 
 # --- the parametrised model ----------------------------------------------------------------------------
@@ -269,6 +273,15 @@ class Problem:
         """Eq. 4.5 (L1363, n-1 read as n=1), plus the MAC terms: the sum of the residuals' magnitudes."""
         return float(np.abs(self.residuals(p)).sum())
 
+    def residual_std(self) -> np.ndarray | None:
+        """The measurement uncertainty of :meth:`residuals`: ``sigma_f / (n f_exp)`` per pair; None when the measured
+        frequencies carry none, or with MAC terms (a MAC has no measurement uncertainty here)."""
+        if self.measured.freq_std_hz is None or self.use_mac:
+            return None
+        fe = np.array([self.measured.freq_hz[q.measured] for q in self.pairs])
+        n = np.array([q.n for q in self.pairs], dtype=float)
+        return np.array([self.measured.freq_std_hz[q.measured] for q in self.pairs]) / (n * fe)
+
 
 # --- search ---------------------------------------------------------------------------------------------
 class Box:
@@ -365,19 +378,33 @@ class UpdateResult:
     seconds: float
     affine: bool
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # one line each: a value or the fit not to be trusted as is
+    chi2_nu: float | None = None  # reduced chi-square of the frequency residuals against their uncertainty
+    freq_std_hz: np.ndarray | None = None  # the measured frequencies' 1-sigma per pair, None: unknown
 
     def rows(self) -> list[dict]:
-        return [{"mode": i + 1, "fe_mode": q.n, "measured_hz": float(fe), "model_hz": float(fm), "residual": float(r),
-                 **({"mac": float(m)} if m is not None else {})}
-                for i, (q, fe, fm, r, m) in enumerate(zip(self.pairs, self.measured_hz, self.model_hz, self.residuals, self.macs,
-                                                          strict=True))]  # fmt: skip
+        """Per pair: FE mode, measured and model frequency, eq. 4.5 term, MAC; with a measurement uncertainty its
+        1-sigma and the residual in sigmas (``z``)."""
+        out = []
+        for i, (q, fe, fm, r, m) in enumerate(zip(self.pairs, self.measured_hz, self.model_hz, self.residuals, self.macs,
+                                                  strict=True)):  # fmt: skip
+            row = {"mode": i + 1, "fe_mode": q.n, "measured_hz": float(fe), "model_hz": float(fm), "residual": float(r)}
+            if m is not None:
+                row["mac"] = float(m)
+            if self.freq_std_hz is not None:
+                row["std_hz"] = float(self.freq_std_hz[i])
+                row["z"] = float((fe - fm) / self.freq_std_hz[i])
+            out.append(row)
+        return out
 
     def value_rows(self) -> list[dict]:
         out = []
         for i, p in enumerate(self.params):
             row = {"name": p.name, "target": p.target, "nominal": float(self.nominal[i]), "value": float(self.values[i])}
-            if self.sigma is not None and np.isfinite(self.sigma[i]):
-                row["sigma"] = float(self.sigma[i])
+            if self.sigma is not None:
+                row["identifiable"] = bool(np.isfinite(self.sigma[i]))
+                if np.isfinite(self.sigma[i]):
+                    row["sigma"] = float(self.sigma[i])
             out.append(row)
         return out
 
@@ -385,40 +412,24 @@ class UpdateResult:
         return {
             "rig": rig, "source": source, "date": date, "objective": self.objective,
             "objective_value": self.objective_value, "optimiser": self.optimiser, "evaluations": self.evaluations,
-            "uncertainty": UNCERTAINTY, "modes": self.rows(), "values": self.value_rows(),
+            "uncertainty": UNCERTAINTY, **({"chi2_nu": self.chi2_nu} if self.chi2_nu is not None else {}),
+            "warnings": list(self.warnings), "modes": self.rows(), "values": self.value_rows(),
         }  # fmt: skip
 
 
-UNCERTAINTY = "1-sigma = sqrt(diag(s^2 (J^T J)^-1)), J = d(residuals)/d(parameters) at the optimum, s^2 = r^T r / (m - p)"
+UNCERTAINTY = (
+    "1-sigma = sqrt(diag((J_w^T J_w)^-1) max(1, chi2_nu)), J_w = d(residuals / their measurement sigma)/"
+    "d(parameters) at the optimum; without a measurement sigma: sqrt(diag(s^2 (J^T J)^-1)), s^2 = r^T r / (m - p)"
+)
 
 
-def jacobian_sigma(problem: Problem, p: np.ndarray, rel_step: float = 1e-5) -> np.ndarray | None:
-    """Linearised standard errors (module docstring); None when there are no more residuals than parameters.
-    A direction the residuals do not see (e.g. E and density together) gives an infinite sigma."""
-    r0 = problem.residuals(p)
-    m, k = r0.size, p.size
-    if m <= k:
-        return None
-    J = np.empty((m, k))
-    for i in range(k):
-        h = rel_step * p[i]
-        up, dn = p.copy(), p.copy()
-        up[i] += h
-        dn[i] -= h
-        J[:, i] = (problem.residuals(up) - problem.residuals(dn)) / (2 * h)
-    s2 = float(r0 @ r0) / (m - k)
-    scale = np.abs(J).max(axis=0)
-    scale[scale == 0] = 1.0
-    Js = J / scale
-    JtJ = Js.T @ Js
-    if np.linalg.cond(JtJ) > 1e12:
-        cov_diag = np.full(k, np.inf)
-        w, V = np.linalg.eigh(JtJ)
-        ok = w > 1e-12 * w.max()
-        cov_diag = np.where((V[:, ~ok] ** 2).sum(axis=1) > 1e-6, np.inf, (V[:, ok] ** 2 / w[ok]).sum(axis=1))
-    else:
-        cov_diag = np.diag(np.linalg.inv(JtJ))
-    return np.sqrt(s2 * cov_diag) / scale
+def jacobian_sigma(problem: Problem, p: np.ndarray) -> tuple[np.ndarray | None, float | None]:
+    """(1-sigma per parameter, chi2_nu) at ``p`` (analysis/model/update_quality.py): weighted by the measured
+    frequencies' uncertainty when they carry one. A direction the residuals do not see (e.g. E and density together)
+    gives an infinite sigma."""
+    from analysis.model.update_quality import jacobian, parameter_sigma
+
+    return parameter_sigma(jacobian(problem.residuals, p), problem.residuals(p), problem.residual_std())
 
 
 def update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdateParameter], *, objective: str | None = None,
@@ -453,12 +464,7 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
     n_fe = min(max(2 * n_use, n_use + 4), model.M0.shape[0])
     p, pairs, prob, nominal_value, notes = _search(model, measured, params, n_use, n_fe, rows, objective, mac_weight,
                                                    optimiser, seed, progress)  # fmt: skip
-    sigma = jacobian_sigma(prob, p)
-    box = Box(params)
-    at = np.abs(box.u(p) - 0.5) > 0.5 - 1e-6
-    for par, hit in zip(params, at, strict=True):
-        if hit:
-            notes.append(f"{par.name} ended on a bound of {list(par.bounds)}: widen the bounds or check the pairing")
+    sigma, chi2_nu = jacobian_sigma(prob, p)
     res = prob.residuals(p)
     fm, phi = model.modes(p, n_fe)
     macs: list[float | None] = [q.mac for q in pairs]
@@ -466,15 +472,39 @@ def _update(cfg: RigConfig, measured: MeasuredModes, params: Sequence[UpdatePara
         from analysis.mac import mac
 
         macs = [float(mac(measured.shapes[:, q.measured], phi[rows, q.fe])[0, 0]) for q in pairs]
+    std = prob.residual_std()
+    warnings = _warnings(params, p, prob, sigma, chi2_nu)
+    if std is None:
+        notes.append("the measured frequencies carry no uncertainty: the 1-sigma comes from the residuals' own scatter"
+                     + ("" if len(pairs) > len(params) else " and is undefined with no more modes than parameters"))  # fmt: skip
     if progress is not None:
         progress("done", 1.0)
+    f_exp = np.array([measured.freq_hz[q.measured] for q in pairs])
     return UpdateResult(
-        params=list(params), nominal=model.p0, values=p, sigma=sigma, pairs=pairs,
-        measured_hz=np.array([measured.freq_hz[q.measured] for q in pairs]), model_hz=np.array([fm[q.fe] for q in pairs]),
-        residuals=res[: len(pairs)], macs=macs, objective=objective, objective_value=prob.value(p),
-        nominal_value=nominal_value, optimiser=optimiser, evaluations=model.evaluations,
-        seconds=time.perf_counter() - t0, affine=model.affine, notes=notes,
+        params=list(params), nominal=model.p0, values=p, sigma=sigma, pairs=pairs, measured_hz=f_exp,
+        model_hz=np.array([fm[q.fe] for q in pairs]), residuals=res[: len(pairs)], macs=macs, objective=objective,
+        objective_value=prob.value(p), nominal_value=nominal_value, optimiser=optimiser, evaluations=model.evaluations,
+        seconds=time.perf_counter() - t0, affine=model.affine, notes=notes, warnings=warnings, chi2_nu=chi2_nu,
+        freq_std_hz=None if std is None else std * np.array([q.n for q in pairs]) * f_exp,
     )  # fmt: skip
+
+
+def _warnings(params: Sequence[UpdateParameter], p: np.ndarray, prob: Problem, sigma: np.ndarray | None,
+              chi2_nu: float | None) -> list[str]:  # fmt: skip
+    """One line per thing that makes a value untrustworthy: the fit worse than the data's uncertainty, a parameter
+    on a bound, unidentifiable or barely determined (analysis/model/update_quality.py)."""
+    from analysis.model.update_quality import fit_warning, parameter_notes
+
+    out = []
+    std = prob.residual_std()
+    if std is not None:
+        z = prob.residuals(p)[: len(prob.pairs)] / std
+        w = fit_warning(z, chi2_nu, [q.n for q in prob.pairs], len(prob.pairs) - len(params))
+        if w:
+            out.append(w)
+    out += parameter_notes([q.name for q in params], [tuple(q.bounds) for q in params], p, Box(params).u(p), sigma,
+                           len(prob.pairs))  # fmt: skip
+    return out
 
 
 def _check_request(measured: MeasuredModes, params: Sequence[UpdateParameter], objective: str, optimiser: str) -> None:

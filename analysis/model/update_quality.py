@@ -8,7 +8,8 @@ Model Updating in Structural Dynamics*, 1995, ch. 7; the GUM's linearised propag
   :func:`frequency_std`);
 * the **normalised residuals** ``z_n = (f_n^exp - f_n^FE) / sigma_f,n`` at the optimum and the reduced chi-square
   ``chi2_nu = sum z^2 / (m - p)``: about 1 when the model explains the data within their uncertainty; well above 1
-  when it cannot (a parameter missing, a wrong pair, hits in the nonlinear regime);
+  when it cannot (a parameter missing, a wrong pair, hits in the nonlinear regime), judged by the chi-square test
+  (:data:`FIT_P`);
 * the **parameter covariance** ``(J_w^T J_w)^-1 max(1, chi2_nu)``, ``J_w`` the Jacobian of the residuals divided by
   their uncertainty (the a-priori covariance, inflated by the Birge ratio when the fit is worse than the data:
   a 1-sigma never smaller than the data allow, nor than the misfit shows). Without a measurement uncertainty
@@ -24,10 +25,10 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-#: A fit whose residuals exceed their measurement uncertainty by more than this (rms, sqrt(chi2_nu)) is flagged:
-#: for m - p >= 3 degrees of freedom, sqrt(chi2_nu) > 3 (chi2_nu > 9) has a chance below 1e-5 when the model is
-#: right and the uncertainties are (a factor 2 of slack on the coherence-based sigma_f: 3 = 1.5 x 2).
-MAX_FIT_RATIO = 3.0
+#: A fit is flagged when a right model with right uncertainties would misfit this much less often than this: the
+#: chi-square test's p-value ``P(chi2_dof >= sum z^2)`` (3 modes over 3 parameters: sum z^2 > 16.3, i.e. residuals
+#: 2.3x their uncertainty rms; 1 degree of freedom: 3.3 sigma).
+FIT_P = 1e-3
 #: A parameter whose 1-sigma is above this fraction of its value is reported as barely determined.
 LOOSE_SIGMA = 0.1
 #: ``u`` (the search's log-scaled coordinate, 0..1 between the bounds) within this of 0 or 1: on a bound. 1e-3 of
@@ -105,15 +106,18 @@ def parameter_sigma(J: np.ndarray, r: np.ndarray, r_std: np.ndarray | None) -> t
 
 
 def fit_warning(z: np.ndarray, chi2_nu: float | None, modes: Sequence[int], dof: int) -> str | None:
-    """One line when the residuals exceed their uncertainty by more than :data:`MAX_FIT_RATIO` (rms), naming the
+    """One line when the residuals exceed their uncertainty past the chi-square test at :data:`FIT_P`, naming the
     worst mode; None when the fit is within it or cannot be judged (``chi2_nu`` None: no more modes than
     parameters)."""
-    if chi2_nu is None or not np.isfinite(chi2_nu) or np.sqrt(chi2_nu) <= MAX_FIT_RATIO:
+    from scipy.stats import chi2
+
+    if chi2_nu is None or not np.isfinite(chi2_nu) or dof < 1 or chi2.sf(chi2_nu * dof, dof) >= FIT_P:
         return None
     w = int(np.argmax(np.abs(z)))
     return (f"the updated model misses the measured frequencies by {np.sqrt(chi2_nu):.1f}x their uncertainty (rms over "
-            f"{dof} degree(s) of freedom; worst FE mode {modes[w]}: {z[w]:+.1f} sigma): the parameters cannot explain "
-            "the data - a parameter is missing, a mode is mispaired, or hits were in the nonlinear regime")  # fmt: skip
+            f"{dof} degree(s) of freedom, p = {chi2.sf(chi2_nu * dof, dof):.1g}; worst FE mode {modes[w]}: {z[w]:+.1f} sigma): "
+            "the parameters cannot explain the data - a parameter is missing, a mode is mispaired, or hits were in the "
+            "nonlinear regime")  # fmt: skip
 
 
 def parameter_notes(names: Sequence[str], bounds: Sequence[tuple[float, float]], values: np.ndarray, u: np.ndarray,

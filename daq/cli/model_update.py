@@ -34,6 +34,10 @@ def model_update(
         tuple[float, float] | None,
         typer.Option(help="Band of the modes from a log, Hz: LOW HIGH (default: 2 Hz to 1000 Hz or fs/2.56, as gvt modal)."),
     ] = None,
+    level: Annotated[
+        str | None,
+        typer.Option(help="Force level of a log's hits: N (1 = lowest) or all (default: the lowest with 2 hits, as gvt frf)."),
+    ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
@@ -51,10 +55,12 @@ def model_update(
         fail(f"--optimiser {optimiser}: use de or multistart")
     if objective is not None and objective not in ("eq45", "eq45+mac"):
         fail(f"--objective {objective}: use eq45 or eq45+mac")
+    if level is not None and level != "all" and not (level.isdigit() and int(level) >= 1):
+        fail(f"--level {level}: give a level number (1 = the lowest force) or all")
     r = open_rig(rig)
     with Progress(err if json_out else out) as report:
         run = run_update(r, rig_path, source, params=names, objective=objective, n_modes=modes, optimiser=optimiser,
-                         band=band, progress=report)  # fmt: skip
+                         band=band, level=level if level in (None, "all") else int(level), progress=report)  # fmt: skip
     with atomic_output(out_path) as tmp:
         tmp.write_text(run.text)
     if json_out:
@@ -63,6 +69,8 @@ def model_update(
     out.print(f"{rig_path}: {len(run.result.params)} parameter(s) updated against {len(run.result.pairs)} mode(s) of {source}",
               markup=False)  # fmt: skip
     out.print(table_text(run), markup=False)
-    for n in run.result.notes:
+    for n in run.notes:
         out.print(f"note: {n}", markup=False)
+    for w in run.warnings:
+        out.print(f"warning: {w}", markup=False)
     out.print(f"wrote {out_path}", markup=False)

@@ -16,8 +16,7 @@ from pathlib import Path
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
 from analysis.model.updating import MeasuredModes, Progress, UpdateResult, select_parameters, update, updated_toml
-
-LOW_HZ = 2.0  # the lower edge of the band modes are identified in, as `gvt modal`
+from daq.studies.update_log import LogModes, modes_from_log
 
 
 @dataclass
@@ -27,51 +26,51 @@ class UpdateRun:
     measured: MeasuredModes
     result: UpdateResult
     text: str  # the updated rig TOML
+    log: LogModes | None = None  # what of a log was used (None: a modes file)
+
+    @property
+    def notes(self) -> list[str]:
+        return (self.log.notes if self.log else []) + self.result.notes
+
+    @property
+    def warnings(self) -> list[str]:
+        return (self.log.warnings if self.log else []) + self.result.warnings
 
 
-def measured_from_source(
-    source: Path, rig: Rig, band: tuple[float, float] | None = None, progress: Progress | None = None
-) -> MeasuredModes:
-    """A modes JSON (``gvt modal --modes-out``) is read; anything else is a session log, identified like ``gvt modal``:
-    ``band`` None is its default, 2 Hz to the FRFs' top (1000 Hz, or fs / 2.56 when lower: ``default_band``)."""
-    if source.suffix.lower() == ".json":
-        try:
-            doc = json.loads(source.read_text())
-        except FileNotFoundError:
-            raise BadInput(f"{source}: file not found") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise BadInput(f"{source}: not a modes file of `gvt modal --modes-out` ({exc})") from None
-        if not isinstance(doc, dict):
-            raise BadInput(f"{source}: not a modes file of `gvt modal --modes-out` (no freq_hz)")
-        return MeasuredModes.from_json(doc, str(source))
-    if not source.exists():
-        raise BadInput(f"{source}: file not found")
-    from daq.studies.frf import frf_from_log
-    from daq.studies.modal import modal_from_frf, modes_json
-
-    fr = frf_from_log(source, rig, band_hz=None if band is None else band[1],
-                      progress=None if progress is None else (lambda f: progress("hits", f)))  # fmt: skip
-    band = (LOW_HZ, fr.band_hz) if band is None else band
-    if fr.frf is None:
-        refused = sum(h["verdict"] != "accepted" for h in fr.hits)
-        raise BadInput(f"{source}: no accepted hit to build FRFs from ({refused} refused; `gvt frf {source}` says why)")
-    run = modal_from_frf(fr.frf, rig, band[0], band[1], source=str(source), driving=fr.driving)
-    if not run.rows:
-        raise BadInput(f"{source}: no mode identified in {band[0]:g}-{band[1]:g} Hz; see `gvt modal {source}`")
-    return MeasuredModes.from_json(modes_json(run), str(source))
+def modes_from_file(source: Path) -> MeasuredModes:
+    """A modes JSON (``gvt modal --modes-out``, or ``{"freq_hz": [...]}`` with an optional ``freq_std_hz``)."""
+    try:
+        doc = json.loads(source.read_text())
+    except FileNotFoundError:
+        raise BadInput(f"{source}: file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadInput(f"{source}: not a modes file of `gvt modal --modes-out` ({exc})") from None
+    if not isinstance(doc, dict):
+        raise BadInput(f"{source}: not a modes file of `gvt modal --modes-out` (no freq_hz)")
+    return MeasuredModes.from_json(doc, str(source))
 
 
 def run_update(rig: Rig, rig_path: Path, source: Path, *, params: list[str] | None = None, objective: str | None = None,
                n_modes: int | None = None, optimiser: str = "de", band: tuple[float, float] | None = None,
-               progress: Progress | None = None) -> UpdateRun:  # fmt: skip
-    """Measured modes of ``source`` -> updated parameters -> the updated rig file's text."""
+               level: str | int | None = None, progress: Progress | None = None) -> UpdateRun:  # fmt: skip
+    """Measured modes of ``source`` (a modes JSON, or a session log: daq/studies/update_log.py) -> updated parameters
+    -> the updated rig file's text."""
     chosen = select_parameters(rig.config, params)
-    measured = measured_from_source(source, rig, band, progress)
+    log = None
+    if source.suffix.lower() == ".json":
+        measured = modes_from_file(source)
+    else:
+        log = modes_from_log(source, rig, band, level, progress)
+        measured = log.measured
     result = update(rig.config, measured, chosen, objective=objective, n_modes=n_modes, optimiser=optimiser, progress=progress,
                     path=rig_path)  # fmt: skip
     date = datetime.now(UTC).isoformat(timespec="seconds")
-    text = updated_toml(Path(rig_path).read_text(), result, result.provenance(str(rig_path), str(source), date))
-    return UpdateRun(Path(rig_path), source, measured, result, text)
+    prov = result.provenance(str(rig_path), str(source), date)
+    if log is not None:
+        prov["warnings"] = log.warnings + prov["warnings"]
+        prov["data"] = log.provenance()
+    text = updated_toml(Path(rig_path).read_text(), result, prov)
+    return UpdateRun(Path(rig_path), source, measured, result, text, log)
 
 
 def summary(run: UpdateRun) -> dict:
@@ -79,25 +78,39 @@ def summary(run: UpdateRun) -> dict:
     return {
         "rig": str(run.rig_path), "source": str(run.source), "objective": r.objective, "optimiser": r.optimiser,
         "objective_nominal": r.nominal_value, "objective_value": r.objective_value, "evaluations": r.evaluations,
-        "seconds": r.seconds, "affine_model": r.affine, "parameters": r.value_rows(), "modes": r.rows(), "notes": r.notes,
+        "seconds": r.seconds, "affine_model": r.affine, "chi2_nu": r.chi2_nu, "parameters": r.value_rows(), "modes": r.rows(),
+        "data": run.log.provenance() if run.log else None, "notes": run.notes, "warnings": run.warnings,
     }  # fmt: skip
 
 
 def table_text(run: UpdateRun) -> str:
+    """The parameters (nominal, updated, change, 1-sigma), the paired modes (measured with its 1-sigma, model, eq. 4.5
+    term, residual in sigmas, MAC) and the fit against the measurement's uncertainty."""
     r = run.result
     lines = [f"{'parameter':<12} {'target':<26} {'nominal':>12} {'updated':>12} {'change':>8} {'1-sigma':>10}"]
     for row in r.value_rows():
-        sig = f"{row['sigma']:>10.4g}" if "sigma" in row else f"{'-':>10}"
+        sig = f"{row['sigma']:>10.4g}" if "sigma" in row else f"{'inf' if row.get('identifiable') is False else '-':>10}"
         lines.append(f"{row['name']:<12} {row['target']:<26} {row['nominal']:>12.6g} {row['value']:>12.6g} "
                      f"{100 * (row['value'] / row['nominal'] - 1):>+7.3f}% {sig}")  # fmt: skip
     lines.append("")
-    lines.append(f"{'mode':>4} {'FE':>3} {'measured [Hz]':>14} {'model [Hz]':>11} {'eq.4.5 term':>12} {'MAC':>6}")
+    lines.append(f"{'mode':>4} {'FE':>3} {'measured [Hz]':>14} {'± [Hz]':>8} {'model [Hz]':>11} {'eq.4.5 term':>12} "
+                 f"{'z [σ]':>7} {'MAC':>6}")  # fmt: skip
     for m in r.rows():
         mac = f"{m['mac']:>6.3f}" if "mac" in m else f"{'-':>6}"
-        lines.append(
-            f"{m['mode']:>4} {m['fe_mode']:>3} {m['measured_hz']:>14.3f} {m['model_hz']:>11.3f} {m['residual']:>+12.2e} {mac}"
-        )
+        std = f"{m['std_hz']:>8.3f}" if "std_hz" in m else f"{'-':>8}"
+        z = f"{m['z']:>+7.1f}" if "z" in m else f"{'-':>7}"
+        lines.append(f"{m['mode']:>4} {m['fe_mode']:>3} {m['measured_hz']:>14.3f} {std} {m['model_hz']:>11.3f} "
+                     f"{m['residual']:>+12.2e} {z} {mac}")  # fmt: skip
     lines.append("")
     lines.append(f"objective {r.objective}: {r.nominal_value:.4g} (nominal) -> {r.objective_value:.4g} (updated); "
                  f"{r.evaluations} model solves in {r.seconds:.1f} s ({r.optimiser})")  # fmt: skip
+    dof = len(r.pairs) - len(r.params)
+    if r.chi2_nu is not None:
+        lines.append(f"fit: residuals {r.chi2_nu**0.5:.2f}x their measurement uncertainty (rms, chi2/dof = {r.chi2_nu:.3g} "
+                     f"over {dof} degree(s) of freedom; about 1 when the model explains the data)")  # fmt: skip
+    elif r.freq_std_hz is not None:
+        lines.append("fit: as many modes as parameters: the fit cannot be judged against the measurement uncertainty")
+    if run.log is not None:
+        lines.append(f"data: hit(s) {', '.join(map(str, run.log.hits_used))} in {run.log.band[0]:g}-{run.log.band[1]:g} Hz"
+                     + "".join(f"; {c} left out ({why})" for c, why in run.log.channels_left_out.items()))  # fmt: skip
     return "\n".join(lines)

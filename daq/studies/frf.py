@@ -27,7 +27,7 @@ from analysis.hammer import HammerCheck, check_hit
 from analysis.model.rig import Rig
 from analysis.records import HITS_TOPIC, PLAN_TOPIC, Hit, PlanRecord
 from daq.log.reader import LogReader, LogReadError
-from daq.studies.frf_judge import Levels, damage_error, judge, merged, pick_levels
+from daq.studies.frf_judge import Levels, damage_error, judge, linearity, merged, pick_levels
 
 QUANTITY_OF_UNIT = {"m/s^2": "acceleration", "m/s": "velocity", "m": "displacement", "N": "force"}
 
@@ -204,7 +204,11 @@ def _average(run: FRFRun, accs: dict, names: list[str], levels: Levels, level: s
              ring: tuple[float, float] = (np.inf, 0.0)) -> None:  # fmt: skip
     """The FRFs of the levels averaged (one set per hit point), their quality, and why each other hit was left out."""
     counts = [sum(a.count for (_r, lv), a in accs.items() if lv == k) for k in range(len(levels.ranges))]
-    chosen = pick_levels(levels, counts, level)
+    def linear_to(lo: int, lv: int) -> bool:
+        lin = linearity(accs, names, lo, lv, band, n_peaks, kind, quantity)
+        return lin is None or lin.linear
+
+    chosen = pick_levels(levels, counts, level, linear_to)
     for p in run.points:
         m = merged(accs, p["name"], chosen)
         p["accepted"] = m.count if m is not None else 0

@@ -1,7 +1,7 @@
 """How far ``gvt frf``'s FRFs can be trusted: force levels, linearity, coherence at the modes, hammer pulses, damage.
 
 The FRF study (daq/studies/frf.py) accumulates each accepted hit into the accumulator of its hit point and force
-level; this module decides which level is averaged (analysis/frf_levels.py ``choose_level``, or the user's
+level; this module decides which levels are averaged (the lowest and those linear with it, or the user's
 ``--level``), compares the lowest and the highest level (``linearity_check``), judges the coherence at every mode
 (analysis/frf_quality.py) and turns the findings into one-line warnings that say what to do. Every finding also
 goes into ``FRFSet.quality``, so modal identification, model updating and UFF export read the same verdict.
@@ -44,9 +44,16 @@ class Levels:
         return f"level {lv + 1} ({lo:.0f} N)" if round(lo) == round(hi) else f"level {lv + 1} ({lo:.0f}-{hi:.0f} N)"
 
 
-def pick_levels(levels: Levels, counts: list[int], asked: str | int | None) -> list[int]:
-    """The levels averaged: ``asked`` "all", a level number (1-based), or None for the default rule (the lowest
-    level with ``MIN_LEVEL_HITS`` accepted hits: analysis/frf_levels.py ``choose_level``)."""
+def pick_levels(levels: Levels, counts: list[int], asked: str | int | None, linear_to=None) -> list[int]:
+    """The levels averaged: ``asked`` "all", a level number (1-based), or None for the default rule: the lowest
+    level with hits, and the levels above it for as long as each passes the linearity check against it
+    (``linear_to(lowest, lv)`` -> bool; without it, the lowest level with ``MIN_LEVEL_HITS`` hits, analysis/
+    frf_levels.py ``choose_level``).
+
+    Why this rule (docs/decisions.md D41): the FRF a model is compared with is the linear structure's, and the
+    lowest force is the nearest to it; levels that give the same FRF (a linear structure, or a nonlinear one
+    below where its springs engage) are averaged too, so a linear test keeps every hit's average and its
+    coherence, and a nonlinear one stops at the first level whose peaks move."""
     n = len(levels.ranges)
     if asked == "all":
         return [lv for lv in range(n) if counts[lv]]
@@ -56,8 +63,17 @@ def pick_levels(levels: Levels, counts: list[int], asked: str | int | None) -> l
             raise BadInput(f"--level {k}: the log's hits form {n} force level(s): " +
                            ", ".join(levels.label(lv) for lv in range(n)))  # fmt: skip
         return [k - 1]
-    chosen = choose_level([np.zeros(c) for c in counts], MIN_LEVEL_HITS) if any(counts) else -1
-    return [] if chosen < 0 else [chosen]
+    used = [lv for lv in range(n) if counts[lv]]
+    if not used:
+        return []
+    if linear_to is None:
+        return [choose_level([np.zeros(c) for c in counts], MIN_LEVEL_HITS)]
+    chosen = [used[0]]
+    for lv in used[1:]:
+        if not linear_to(used[0], lv):
+            break
+        chosen.append(lv)
+    return chosen
 
 
 def merged(accs: dict[tuple[str, int], FRFAccumulator], ref: str, lvs: Sequence[int]) -> FRFAccumulator | None:
@@ -81,11 +97,11 @@ def judge(frf: FRFSet, accs: dict[tuple[str, int], FRFAccumulator], refs: list[s
     used = [lv for lv in range(len(levels.ranges)) if counts[lv]]
     lin = None
     if len(used) >= 2:
-        lin = _linearity(accs, refs, used[0], used[-1], band, n_peaks, kind, quantity)
+        lin = linearity(accs, refs, used[0], used[-1], band, n_peaks, kind, quantity)
     if lin is not None and not lin.linear:
         what = ", ".join(levels.label(lv) for lv in averaged)
-        fix = ("more hits at the lowest level (or --level 1)" if averaged != [0] else
-               "this is the lowest level; a lower force shows whether it is in the linear range")  # fmt: skip
+        fix = ("--level 1 averages the lowest level only" if averaged != [0] else
+               "more hits at this force or below show whether it is in the linear range")  # fmt: skip
         warnings.append(f"force levels: {levels.label(used[0])} vs {levels.label(used[-1])} {lin.reason}; averaged "
                         f"{what} only; the FRF depends on the force: {fix}, --level all to mix them")  # fmt: skip
     peaks = frf.peaks(n_peaks)
@@ -102,8 +118,8 @@ def judge(frf: FRFSet, accs: dict[tuple[str, int], FRFAccumulator], refs: list[s
     return {
         "levels": [{"level": lv + 1, "force_min_N": a, "force_max_N": b, "accepted": counts[lv], "averaged": lv in averaged}
                    for lv, (a, b) in enumerate(levels.ranges)],
-        "level_rule": f"hits grouped by peak force, each level within {LEVEL_RATIO:g}x; the lowest level with "
-                      f"{MIN_LEVEL_HITS} accepted hits is averaged unless --level says otherwise",
+        "level_rule": f"hits grouped by peak force, each level within {LEVEL_RATIO:g}x; the lowest level is averaged, "
+                      "with the levels above it that pass the linearity check against it, unless --level says otherwise",
         "linearity": None if lin is None else {**lin.as_dict(), "low": levels.label(used[0]), "high": levels.label(used[-1])},
         "mode_coherence": [m.as_dict() for m in modes],
         "pulse": [{"hit": h, "note": n} for h, n in pulse_notes],
@@ -111,7 +127,7 @@ def judge(frf: FRFSet, accs: dict[tuple[str, int], FRFAccumulator], refs: list[s
     }  # fmt: skip
 
 
-def _linearity(accs, refs, lo: int, hi: int, band: float, n_peaks: int, kind: str, quantity: str):
+def linearity(accs, refs, lo: int, hi: int, band: float, n_peaks: int, kind: str, quantity: str):
     """linearity_check of the lowest and the highest level on the hit points both have (None: none in common)."""
     pairs = [(merged(accs, r, [lo]), merged(accs, r, [hi])) for r in refs]
     pairs = [(a, b) for a, b in pairs if a is not None and b is not None]

@@ -15,9 +15,10 @@ and showing that the slow phase Φ_{m:n} = mθ̂_low − nθ̂_high of the two c
 4. the two IMFs nearest the event's frequencies go to :func:`analysis.slowflow.test_ratios`, which scans
    (m−2 … m+2):n and applies the bracketing rule (L1296–L1298).
 
-The record (a plain dict, the ``/analysis/confirmations`` message) carries the confirmed ratio and interval
-or "not_confirmed", the candidates, the (Φ, Φ̇) trajectory decimated for display, the IMF frequencies and
-the orthogonality index.
+The record (a plain dict, the ``/analysis/confirmations`` message) carries the confirmed ratio and interval,
+"other_ratio" (a resonance at another m:n than the event's: not a confirmation of the event) or
+"not_confirmed", the candidates, the (Φ, Φ̇) trajectory decimated for display, the IMF frequencies and the
+orthogonality index.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import scipy.signal
 from numpy.typing import NDArray
 
 from analysis.preprocess import PreprocessSettings, acc_to_disp
-from analysis.records import Confirmation
+from analysis.records import OTHER_RATIO, Confirmation
 from analysis.slowflow import DetectorParams, candidate_ratios, mean_frequency_hz, test_ratios, trajectory
 from analysis.wavelet import analytic
 
@@ -155,6 +156,16 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
     return SlowAngle(best, ranges, gain, bool(gain >= s.min_gain and ranges[best] < s.max_turn))
 
 
+def _against_the_event(status: str, found: tuple, event: tuple[int, int], reason: str) -> tuple[str, str]:
+    """A resonance found at another m:n than the event's does not confirm the event (issue 29): the demo's 3:1
+    event whose slowest angle was Φ_2:1 read ``confirmed`` with "found 2:1". It is ``other_ratio``, its own
+    status, with the ratio found kept in the record and said first in the reason; a test engineer then knows the
+    detector's label is in question, not the exchange."""
+    if status != "confirmed" or tuple(found) == tuple(event):
+        return status, reason
+    return OTHER_RATIO, f"found {found[0]}:{found[1]}, not the event's {event[0]}:{event[1]}: {reason}"
+
+
 def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, Any], context: ConfirmContext) -> dict:
     """Confirm one IR event on its stretch of sensor accelerations ``seg`` (n, sensors in context order).
 
@@ -216,6 +227,7 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
         reason = (f"no captured loops ({loops}); slow-angle test: gain ×{sa.gain:.2f} (needs {s.min_gain}), "
                   f"slowest Φ_{sa.ratio[0]}:{sa.ratio[1]} moved {sa.phase_range[sa.ratio]:.2f} rad "
                   f"(needs < {s.max_turn:.2f})")  # fmt: skip
+    status, reason = _against_the_event(status, (cm, cn), (m, n), reason)
     return Confirmation(
         **examined, status=status, evidence=evidence, reason=reason,
         ratio=f"{cm}:{cn}" if cm is not None else None, m=cm, n=cn,

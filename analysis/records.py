@@ -269,6 +269,23 @@ class AnalysisWarning(Record):
     }, ("kind", "message"))  # fmt: skip
 
 
+#: A confirmation's status when the slow flow finds a resonance at another m:n than the event's (issue 29).
+OTHER_RATIO = "other_ratio"
+
+
+def confirmation_status(rec: Mapping[str, Any]) -> str:
+    """The status to show for a confirmation record (as JSON). A record written before ``other_ratio`` existed
+    says ``confirmed`` with another m:n than its event's (``label_agrees`` false, or the ratios differ): it is
+    shown as ``other_ratio``, what it was. The log's bytes are never changed."""
+    status = str(rec.get("status", "?"))
+    if status != "confirmed":
+        return status
+    found, label = rec.get("ratio"), (rec.get("event") or {}).get("ratio")
+    if rec.get("label_agrees") is False or (found and label and found != label):
+        return OTHER_RATIO
+    return status
+
+
 @dataclass(frozen=True, eq=True)
 class Confirmation(Record):
     """The confirmation of one IR event (WBEMD + slow flow), or why it was not examined.
@@ -281,7 +298,7 @@ class Confirmation(Record):
     TOPIC = CONFIRMATIONS_TOPIC
     event_id: int | None
     event: dict[str, Any]
-    status: str  # confirmed | not_confirmed | skipped | error
+    status: str  # confirmed | other_ratio | not_confirmed | skipped | error
     reason: str
     ratio: str | None = None
     m: int | None = None
@@ -331,10 +348,11 @@ class Confirmation(Record):
         "imf_freqs_hz": (NUM_ARRAY, "characteristic frequency per intrinsic mode function, Hz"),
         "orthogonality_index": ("number", "WBEMD orthogonality index of the IMFs, 1"),
         "segment_s": (INTERVAL, "[start, end] of the data used, stream clock, s"),
-        "status": ({"enum": ["confirmed", "not_confirmed", "skipped", "error"]}, "outcome"),
+        "status": ({"enum": ["confirmed", OTHER_RATIO, "not_confirmed", "skipped", "error"]},
+                   "outcome; other_ratio: a resonance at another m:n than the event's (ratio, m, n say which)"),
         "evidence": (OPT_STR, "captured | slow_angle, or null when not confirmed"),
         "reason": ("string", "why, one line"),
-        "ratio": (OPT_STR, "confirmed m:n, or null"),
+        "ratio": (OPT_STR, "m:n found (confirmed or other_ratio), or null"),
         "m": (OPT_INT, "confirmed ratio numerator, or null"),
         "n": (OPT_INT, "confirmed ratio denominator, or null"),
         "label_agrees": ("boolean", "confirmed with the detector's own m:n"),

@@ -22,6 +22,7 @@ import numpy as np
 
 from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
 from analysis.model.rig import Rig
+from analysis.records import confirmation_status
 from daq.lanes.confirm import CONFIRM_TOPIC, skipped
 from daq.log import layout
 from daq.log.reader import LogReader
@@ -138,9 +139,11 @@ def _confirmation_note(rec: dict) -> str | None:
 
 
 def confirmations_table(records: list[dict], title: str, width: int | None = None):
-    """One row per event — its id, label, modes and span, the status, the confirmed ratio, interval and
-    evidence — fitting ``width`` (default: the console's); the sensor, orthogonality index (IO), time taken and
-    the reason are numbered notes below the table (``gvt confirm --json`` and the report carry them too)."""
+    """One row per event — its id, label, modes and span, the status, the m:n found, interval and evidence —
+    fitting ``width`` (default: the console's); the sensor, orthogonality index (IO), time taken and the reason
+    are numbered notes below the table (``gvt confirm --json`` and the report carry them too). The status is
+    :func:`analysis.records.confirmation_status`: a resonance at another m:n than the event's is ``other_ratio``,
+    also in a log written before that status existed."""
     from daq.terminal import Col, FitTable
 
     t = FitTable(
@@ -157,7 +160,7 @@ def confirmations_table(records: list[dict], title: str, width: int | None = Non
         span = f"{rec['start_s']:.2f}–{rec['end_s']:.2f}" if rec.get("start_s") is not None else None
         t.add_row(
             rec.get("event_id"), ev.get("ratio", "?"), "→".join(str(m) for m in ev.get("modes", [])) or None,
-            f"{ev.get('start_s', float('nan')):.2f}–{ev.get('end_s', float('nan')):.2f}", rec.get("status", "?"),
+            f"{ev.get('start_s', float('nan')):.2f}–{ev.get('end_s', float('nan')):.2f}", confirmation_status(rec),
             rec.get("ratio"), span, rec.get("evidence"), _confirmation_note(rec),
         )  # fmt: skip
     return t

@@ -75,14 +75,19 @@ def test_gvt_identify_sweep_out_and_validation(sweep, tmp_path, capsys):
     out, png = tmp_path / "id.toml", tmp_path / "val.png"
     args = ["identify", str(sdir), "--rig", "beam_nes_ch5", "--frequency", "pom", "--law", "exact", "--boot", "0",
             "--out", str(out), "--validation-png", str(png), "--validate-forces", "0.5,2,8", "--json"]  # fmt: skip
+    assert gvt(args) == 1 and not out.exists() and "--force" in capsys.readouterr().err  # 6 runs: too few (issue 29)
+    png.unlink()  # the refused run validated, and wrote its overlays
+    args.append("--force")  # what is tested here is the writing and the validation, on a sweep kept small on purpose
     assert gvt(args) == 0
     doc = json.loads(capsys.readouterr().out)
+    assert any("only 6 points" in p for p in doc["quality"]["problems"]) and not doc["quality"]["ok"]
     assert doc["identified_toml"] == str(out) and png.stat().st_size > 10_000
     rows = doc["validation"]["rows"]
     assert [r["force_N"] for r in rows] == [0.5, 2.0, 8.0]
     assert rows[0]["r2_displacement"] > 0.99  # the low-force run is nearly linear: any fitted law overlays it
     txt = out.read_text()
-    assert txt.startswith("# Identified by 'gvt identify'") and f"{doc['fit']['alpha']:.6g}"[:5] in txt
+    assert txt.startswith("# WRITTEN WITH --force: only 6 points") and "# Identified by 'gvt identify'" in txt
+    assert f"{doc['fit']['alpha']:.6g}"[:5] in txt
     assert gvt(args) == 2 and "exists" in capsys.readouterr().err  # never over a file without --overwrite
     for bad in (["--validate-forces", "a,b"], ["--validate-forces", "-1"], ["--validate", "1,2"]):
         assert gvt(["identify", str(sdir), "--rig", "beam_nes_ch5", "--boot", "0", *bad]) == 2

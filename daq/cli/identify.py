@@ -30,6 +30,12 @@ def identify(
         ),
     ] = "seed",
     max_ratio: Annotated[float | None, typer.Option(help="Fit only points with f <= ratio x f_n (default: all).")] = None,
+    auto_range: Annotated[
+        bool, typer.Option("--auto-range", help="Fit the range the data give: stop where the law misses the next points.")
+    ] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Write --out even when the fit or its validation is poor (marked in the file).")
+    ] = False,
     smooth: Annotated[int, typer.Option(help="Running-median window (points, odd) of the RQ-FDP.")] = 5,
     boot: Annotated[int, typer.Option(help="Bootstrap replicates for the uncertainty (0: none).")] = 200,
     no_intersection: Annotated[bool, typer.Option("--no-intersection", help="Fit α and β together (no eq. 5.9).")] = False,
@@ -56,13 +62,15 @@ def identify(
 ) -> None:
     """Identify α|δ|^β δ of the rig's attachment from a force sweep: whole-run δ̄, RQ-FDP, eq. 5.8 fit."""
     if method != "nsi":  # --method rfs: the grounded attachment's eq. 5.11 from a session log (daq/studies/identify/rfs.py)
-        return _identify_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite, quantity)
+        return _identify_rfs(method, source, rig, hit, validate, png, out_toml, json_out, overwrite, quantity, force)
     if quantity is not None:
         fail("--quantity is for --method rfs")
     from daq.studies.identify.sweep import IdentifyOptions
 
+    if auto_range and max_ratio is not None:
+        fail("--auto-range and --max-ratio both choose the fit range; give one")
     opts = IdentifyOptions(frequency=frequency, law=law, max_ratio=max_ratio, smooth=smooth, n_boot=boot,
-                           intersection=not no_intersection)  # fmt: skip
+                           intersection=not no_intersection, auto_range=auto_range)  # fmt: skip
     opts.validate()
     if not source.exists():
         fail(f"{source}: no such file or directory")
@@ -72,10 +80,11 @@ def identify(
     if not source.is_dir():  # a session LOG: windowed δ̄ as in the seed's Ch. 5 experiment (daq/studies/identify/log.py)
         if validate_forces is not None:
             fail("--validate-forces is for a sweep; a LOG validates on its hits (--validate 1,2,3)")
-        return _identify_log(source, rig, opts, png, csv_out, window, json_out, overwrite, out_toml, validation_png, validate)
+        return _identify_log(source, rig, opts, png, csv_out, window, json_out, overwrite, out_toml, validation_png, validate,
+                             force)  # fmt: skip
     if validate is not None:
         fail("--validate names hits of a LOG; a sweep validates at forces (--validate-forces F,F,F)")
-    return _identify_sweep(source, rig, opts, outs, png, out_toml, validation_png, validate_forces, json_out, overwrite)
+    return _identify_sweep(source, rig, opts, outs, png, out_toml, validation_png, validate_forces, json_out, overwrite, force)
 
 
 def _parse_hits(text: str | None, what: str) -> list[int] | None:
@@ -96,6 +105,25 @@ def _not_the_rig(r, out_toml: Path | None) -> None:
         fail(f"--out {out_toml}: is the rig itself; give a new file name")
 
 
+#: What to try when an NSI fit is poor (the one line of the warning or refusal).
+NSI_HINT = ("check the fit range (--auto-range or --max-ratio), the frequency estimator (--frequency pom) and the law "
+            "(--law hb for a spring on a continuous structure, exact for a discrete attachment)")  # fmt: skip
+RFS_HINT = "identify on another hit (--hit N) or check the hammer and accelerometer channels"
+
+
+def _verdict(problems: list[str], res, out_toml: Path | None, hint: str) -> None:
+    """The quality verdict, after the results are printed: one warning line when the identification is poor, and
+    when ``--out`` was refused for it a one-line failure with exit 1 (the run worked; its result failed its own
+    checks, so the rig asked for is not produced: docs/decisions.md D50)."""
+    if not problems:
+        return
+    what = "; ".join(problems)
+    if res is not None and res.refused:
+        fail(f"--out {out_toml} not written: poor identification ({what}); {hint}, or give --force to write it anyway",
+             code=1)  # fmt: skip
+    err.print(f"gvt: warning: poor identification ({what}); {hint}", markup=False, soft_wrap=True)
+
+
 def _print_validation_and_files(res, files: tuple[tuple[Path | None, str], ...]) -> None:
     """The validation table (when the identified rig was re-simulated), then one line per file written."""
     if res is not None and res.validation is not None:
@@ -103,13 +131,13 @@ def _print_validation_and_files(res, files: tuple[tuple[Path | None, str], ...])
 
         iv.print_validation(out, res.validation)
     for path, what in files:
-        if path is not None:
+        if path is not None and not (what == "identified rig" and res is not None and res.refused):
             out.print(f"wrote {what}: {path}", markup=False)
 
 
 def _identify_sweep(source: Path, rig_name: str, opts, outs: list[tuple[Path, str]], png: Path | None,
                     out_toml: Path | None, validation_png: Path | None, validate_forces: str | None, json_out: bool,
-                    overwrite: bool) -> None:  # fmt: skip
+                    overwrite: bool, force: bool = False) -> None:  # fmt: skip
     """The NSI of a ``gvt sweep`` directory, with validation at ``--validate-forces`` when asked."""
     for p, w in outs:
         check_output(p, overwrite, w)
@@ -127,21 +155,24 @@ def _identify_sweep(source: Path, rig_name: str, opts, outs: list[tuple[Path, st
     res = None
     if out_toml is not None or validation_png is not None or forces is not None:
         dofs, validator = iv.sweep_validator(ident, r, source, forces)
-        res = iv.finish(ident, r, dofs, out_toml, validation_png, validator)
+        res = iv.finish(ident, r, dofs, out_toml, validation_png, validator, force)
+    problems = res.problems if res is not None else ident.problems()
     if json_out:
         doc = ident.summary()
         doc["png"] = str(png) if png is not None else None
+        doc["quality"] = {"ok": not problems, "problems": problems, "identified_toml_refused": False}
         if res is not None:
             doc.update(res.to_dict())
         out.print_json(iv.dumps(doc))
     else:
         print_report(out, ident)
         _print_validation_and_files(res, ((png, "RQ-FDP"), (out_toml, "identified rig"), (validation_png, "validation overlays")))
+    _verdict(problems, res, out_toml, NSI_HINT)
 
 
 def _identify_log(source: Path, rig_name: str, options, png: Path | None, csv_out: Path | None, window_s: float | None,
                   json_out: bool, overwrite: bool, out_toml: Path | None, validation_png: Path | None,
-                  validate: str | None) -> None:  # fmt: skip
+                  validate: str | None, force: bool = False) -> None:  # fmt: skip
     """``gvt identify LOG``: windowed δ̄ of each accepted hit; with ``--out``, ``--validation-png`` or ``--validate``
     the identified rig is re-simulated against the logged hits (``daq.studies.identify.validate.validate_log``)."""
     from daq.studies.identify import validate as iv
@@ -171,15 +202,17 @@ def _identify_log(source: Path, rig_name: str, options, png: Path | None, csv_ou
     if out_toml is not None or validation_png is not None or val_hits is not None:
         with Progress(err if json_out else out) as report:
             res = iv.finish(run.ident, r, iv.log_dofs(run, r), out_toml, validation_png,
-                            lambda idr: iv.validate_log(run, r, idr, source, val_hits, progress=report))  # fmt: skip
+                            lambda idr: iv.validate_log(run, r, idr, source, val_hits, progress=report), force)  # fmt: skip
+    problems = res.problems if res is not None else run.ident.problems()
     if json_out:
-        _print_log_json(run, csv_path, png, res)
+        _print_log_json(run, csv_path, png, res, problems)
     else:
         _print_log_report(run, csv_path, png)
         _print_validation_and_files(res, ((out_toml, "identified rig"), (validation_png, "validation overlays")))
+    _verdict(problems, res, out_toml, NSI_HINT)
 
 
-def _print_log_json(run, csv_path: Path, png: Path | None, res) -> None:
+def _print_log_json(run, csv_path: Path, png: Path | None, res, problems: list[str]) -> None:
     import json
 
     from daq.outputs import jsonable
@@ -187,6 +220,7 @@ def _print_log_json(run, csv_path: Path, png: Path | None, res) -> None:
     doc = run.summary()
     doc["windows_csv"] = str(csv_path)
     doc["png"] = str(png) if png is not None else None
+    doc["quality"] = {"ok": not problems, "problems": problems, "identified_toml_refused": False}
     if res is not None:
         doc.update(res.to_dict())
     out.print_json(json.dumps(doc, default=jsonable))
@@ -212,7 +246,8 @@ def _print_log_report(run, csv_path: Path, png: Path | None) -> None:
 
 
 def _identify_rfs(method: str, source: Path, rig_name: str, hit: int | None, validate: str | None, png: Path | None,
-                  out_toml: Path | None, json_out: bool, overwrite: bool, quantity: str | None = None) -> None:  # fmt: skip
+                  out_toml: Path | None, json_out: bool, overwrite: bool, quantity: str | None = None,
+                  force: bool = False) -> None:  # fmt: skip
     """``gvt identify LOG --method rfs``: the grounded attachment's eq. 5.11 by RFS + time-series fit."""
     from analysis.rfs import QUANTITIES
 
@@ -234,20 +269,27 @@ def _identify_rfs(method: str, source: Path, rig_name: str, hit: int | None, val
         fail("--png and --out name the same file")
     r = open_rig(rig_name)
     _not_the_rig(r, out_toml)
-    from daq.studies.identify.rfs import identify_rfs, plot, print_report, summary_json, write_identified
+    from daq.studies.identify.rfs import identify_rfs, plot, print_report, problems_of, summary_json, write_identified
 
     with Progress(err if json_out else out) as report:
         run = identify_rfs(source, r, hit, vals, progress=report, quantity=quantity)
     if png is not None:
         plot(run, png)
-    if out_toml is not None:
-        write_identified(run, r, out_toml)
+    problems = problems_of(run)
+    refused = out_toml is not None and bool(problems) and not force
+    if out_toml is not None and not refused:
+        write_identified(run, r, out_toml, problems)
     if json_out:  # the plot's path goes with the summary, so `gvt report --identify` can embed it
         import json
 
-        out.print_json(json.dumps({**json.loads(summary_json(run)), "png": None if png is None else str(png)}))
+        quality = {"ok": not problems, "problems": problems, "identified_toml_refused": refused}
+        out.print_json(json.dumps({**json.loads(summary_json(run)), "png": None if png is None else str(png),
+                                   "quality": quality}))  # fmt: skip
     else:
         print_report(out, run)
-        for path, what in ((png, "plot"), (out_toml, "identified rig")):
+        for path, what in ((png, "plot"), (None if refused else out_toml, "identified rig")):
             if path is not None:
                 out.print(f"wrote {what}: {path}", markup=False)
+    from types import SimpleNamespace
+
+    _verdict(problems, SimpleNamespace(refused=refused), out_toml, RFS_HINT)

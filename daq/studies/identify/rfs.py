@@ -304,12 +304,22 @@ def identified_toml(text: str, run: RfsRun) -> str:
     return head + tomlkit.dumps(doc)
 
 
-def write_identified(run: RfsRun, rig: Rig, out: Path) -> None:
-    """Write the identified rig, then load it back: it must be a rig ``gvt simulate`` runs."""
+def problems_of(run: RfsRun) -> list[str]:
+    """What makes the RFS identification poor (``analysis.nsi_quality.judge``): the R² of the identification hit's
+    time series, and of each validation hit re-simulated (the quantity compared)."""
+    from analysis.nsi_quality import judge
+
+    i = run.result.identification
+    return judge(fit_r2=i.r2, validation_r2=[(f"hit {h} ({c.peak_force:.4g} N)", c.r2) for h, c in run.validation])
+
+
+def write_identified(run: RfsRun, rig: Rig, out: Path, problems: Sequence[str] = ()) -> None:
+    """Write the identified rig, then load it back: it must be a rig ``gvt simulate`` runs. ``problems`` (written
+    with ``--force``) go on top of the file."""
     from analysis.model.rig import load_rig
     from daq.outputs import atomic_output
 
-    text = identified_toml(Path(rig.path).read_text(), run)
+    text = "".join(f"# WRITTEN WITH --force: {p}\n" for p in problems) + identified_toml(Path(rig.path).read_text(), run)
     with atomic_output(out) as tmp:
         tmp.write_text(text)
     load_rig(out)

@@ -22,6 +22,7 @@ import numpy as np
 from analysis import nsi
 from analysis.errors import BadInput
 from analysis.model.rig import Rig
+from analysis.nsi_quality import MIN_POINTS, FitRange, choose_fit_range, judge
 from analysis.nsi_target import Target, resolve_target
 from daq.studies.nsi_table import NSI_CSV, NsiRuns, read_runs, write_runs
 
@@ -86,7 +87,8 @@ def read_sweep_spec(sweep_dir: Path) -> dict[str, Any]:
 class IdentifyOptions:
     frequency: str = "rq"  # "rq" (the seed's, eq. 2.18) or "pom" (the POM's temporal coefficient)
     law: str = "seed"  # eq. 5.8 as printed ("seed"), with the harmonic-balance factor ("hb"), the exact backbone ("exact")
-    max_ratio: float | None = None  # fit only points with f <= max_ratio * f_n (None: all)
+    max_ratio: float | None = None  # fit only points with f <= max_ratio * f_n (None: the range the data give)
+    auto_range: bool = False  # with max_ratio None: analysis.nsi_quality.choose_fit_range (opt-in: D49); else every point
     smooth: int = 5
     intersection: bool = True
     n_boot: int = 200
@@ -121,6 +123,17 @@ class Identification:
     options: IdentifyOptions
     excluded_above: int
     source: str
+    fit_range: FitRange | None = None
+    fitted: np.ndarray | None = None  # (points,) bool over the δ̄-sorted RQ-FDP: the points the law was fitted on
+
+    def fitted_forces(self) -> np.ndarray:
+        """The peak forces of the runs (or windows' hits) the law was fitted on: where it may be validated."""
+        mask = self.fitted if self.fitted is not None else self.fdp.fit_mask
+        return np.asarray(self.runs.P, float)[self.fdp.order[mask]]
+
+    def problems(self) -> list[str]:
+        """What makes this fit poor (``analysis.nsi_quality.judge``); validation is judged where it runs."""
+        return judge(self.fit)
 
     def summary(self) -> dict[str, Any]:
         t = self.target
@@ -143,6 +156,7 @@ class Identification:
             "runs": int(self.runs.P.size),
             "capture_runs": int(self.runs.capture.sum()),
             "excluded_above_max_ratio": self.excluded_above,
+            "fit_range": None if self.fit_range is None else self.fit_range.to_dict(),
             "fit": f.to_dict(),
             "rotational": t.model.rotational(t.model.mass * f.omega_n**2, f.alpha, f.beta),  # eq. 6.13 form, or None
         }
@@ -154,18 +168,38 @@ def identify_runs(rig: Rig, target: Target, runs: NsiRuns, options: IdentifyOpti
     freq = runs.f_rq if options.frequency == "rq" else runs.f_pom
     fdp = nsi.rq_fdp(runs.dbar, freq, runs.mac, runs.capture, options.smooth)
     keep = fdp.fit_mask
-    excluded = 0
-    if options.max_ratio is not None:
-        fmax = options.max_ratio * target.model.omega_n / (2 * np.pi)
-        above = keep & (fdp.smooth > fmax)
-        excluded = int(above.sum())
-        keep = keep & ~above
     modal = target.model.modal_basis() if options.law in nsi.MODAL_KINDS else None
     settings = nsi.FitSettings(kappa=options.law, use_intersection=options.intersection, n_boot=options.n_boot,  # type: ignore[arg-type]
                                seed=options.seed, modal=modal)  # fmt: skip
+    keep, rng = _fit_range(fdp, keep, target, options, settings)
     fit = nsi.fit_power_law(fdp.dbar[keep], fdp.smooth[keep], target.model.omega_n, target.model.mass,
                             target.model.f_linear_hz, settings)  # fmt: skip
-    return Identification(rig.name, target, runs, fdp, fit, options, excluded, source)
+    return Identification(rig.name, target, runs, fdp, fit, options, rng.n_total - rng.n_points, source, rng, keep)
+
+
+def _fit_range(fdp: nsi.RqFdp, keep: np.ndarray, target: Target, options: IdentifyOptions,
+               settings: nsi.FitSettings) -> tuple[np.ndarray, FitRange]:  # fmt: skip
+    """The points fitted: those below ``--max-ratio`` when given, else the range the data give
+    (``analysis.nsi_quality.choose_fit_range``), else (``--all-points``) every capture-free point."""
+    m = target.model
+    f_n = m.omega_n / (2 * np.pi)
+    idx = np.flatnonzero(keep)  # δ̄-sorted
+    d, f = fdp.dbar[idx], fdp.smooth[idx]
+    sel = np.ones(idx.size, bool)
+    if options.max_ratio is not None:
+        sel = f <= options.max_ratio * f_n
+        how, why = "max-ratio", f"points above --max-ratio {options.max_ratio:g} left out"
+    elif options.auto_range and idx.size > MIN_POINTS:
+        r = choose_fit_range(d, f, m.omega_n, m.mass, settings)
+        sel[r.n_points :] = False
+        how, why = r.how, r.stopped
+    else:
+        how, why = "all", "every capture-free point (--auto-range or --max-ratio choose a range)"
+    top = float(f[sel].max()) if sel.any() else 0.0
+    rng = FitRange(int(sel.sum()), int(idx.size), float(d[sel].max()) if sel.any() else 0.0, top, top / f_n, how, why)
+    out = np.zeros(keep.size, bool)
+    out[idx[sel]] = True
+    return out, rng
 
 
 def identify_sweep(
@@ -253,3 +287,5 @@ def print_report(console, ident: Identification) -> None:
         f"{int(ident.runs.capture.sum())} capture runs excluded; source {ident.source}",
         markup=False,
     )
+    if ident.fit_range is not None:
+        console.print(ident.fit_range.line(), markup=False)

@@ -175,14 +175,17 @@ class Validation:
 # --- sweep: against the sweep's own rig ---------------------------------------------------------------------------
 
 
-def validation_forces(pmin: float, pmax: float, runs: int, fractions: Sequence[float] = DEFAULT_FRACTIONS) -> np.ndarray:
-    """Log-spaced forces inside [pmin, pmax] at ``fractions`` of its log range, each moved by half a grid step when
-    it falls on the sweep's own grid (``logspace(pmin, pmax, runs)``), so validation never repeats an identification
-    run."""
+def validation_forces(pmin: float, pmax: float, runs: int, fractions: Sequence[float] = DEFAULT_FRACTIONS,
+                      within: tuple[float, float] | None = None) -> np.ndarray:  # fmt: skip
+    """Log-spaced forces at ``fractions`` of the log range ``within`` (default [pmin, pmax]: the sweep's; issue 29:
+    the forces of the runs the law was fitted on, since the law is claimed only there), each moved by half a grid
+    step when it falls on the sweep's own grid (``logspace(pmin, pmax, runs)``), so validation never repeats an
+    identification run."""
     if not (0 < pmin < pmax):
         raise BadInput(f"validation forces need 0 < pmin < pmax, got {pmin:g}, {pmax:g}")
     lo, hi = np.log10(pmin), np.log10(pmax)
-    u = lo + np.asarray(fractions, float) * (hi - lo)
+    a, b = (lo, hi) if within is None else (np.log10(within[0]), np.log10(within[1]))
+    u = a + np.asarray(fractions, float) * (b - a)
     if runs > 1:
         step = (hi - lo) / (runs - 1)
         k = np.rint((u - lo) / step)
@@ -393,41 +396,69 @@ class Outputs:
     identified_toml: str | None
     validation: Validation | None
     validation_png: str | None
+    problems: list[str] = field(default_factory=list)  # the fit's and the validation's (analysis.nsi_quality.judge)
+    refused: bool = False  # --out asked for, not written: the fit is poor and --force was not given
 
     def to_dict(self) -> dict[str, Any]:
         return {"identified_toml": self.identified_toml, "validation_png": self.validation_png,
-                "validation": None if self.validation is None else self.validation.to_dict()}  # fmt: skip
+                "validation": None if self.validation is None else self.validation.to_dict(),
+                "quality": {"ok": not self.problems, "problems": self.problems,
+                            "identified_toml_refused": self.refused}}  # fmt: skip
+
+
+def validation_problems(val: Validation | None) -> list[str]:
+    """The validation levels whose best R² (displacement or velocity) is poor (``analysis.nsi_quality.judge``)."""
+    from analysis.nsi_quality import best_r2, judge
+
+    if val is None:
+        return []
+    labels = [(f"hit {r.hit}, " if r.hit is not None else "") + f"{r.force_N:.4g} N" for r in val.rows]
+    return judge(validation_r2=zip(labels, best_r2([(r.r2_displacement, r.r2_velocity) for r in val.rows]), strict=True))
 
 
 def finish(ident, rig: Rig, dofs: Sequence[int], out_toml: Path | None, val_png: Path | None,
-           validate: Callable[[Rig], Validation] | None) -> Outputs:  # fmt: skip
-    """Write the identified rig (``out_toml``; else only in memory) and run ``validate`` on it (None: no validation)."""
+           validate: Callable[[Rig], Validation] | None, force: bool = False) -> Outputs:  # fmt: skip
+    """Validate the identified rig (``validate``; None: no validation) from its text in memory, then write it to
+    ``out_toml`` only when neither the fit nor the validation is poor, or ``force`` (issue 29: a rig whose own
+    validation failed, R² −654, was written). The problems found are returned either way."""
     f = ident.fit
     att_dof = dofs[ident.target.attachment]
     comment = provenance(ident.summary(), f.alpha, f.beta)
     text = identified_toml(Path(rig.path).read_text(), rig, att_dof, f.alpha, f.beta, comment)
+    problems = ident.problems()
+    val = None
+    if problems and out_toml is not None and not force and val_png is None:
+        return Outputs(None, None, None, [*problems, "validation not run: the fit itself is poor"], True)
+    if validate is not None:
+        val = validate(load_identified_text(text, Path(rig.path).parent))
+        problems += validation_problems(val)
+        if val_png is not None:
+            plot_validation(val, val_png, f"{rig.name}: identified law α = {f.alpha:.4g}, β = {f.beta:.4f} re-simulated")
+    written = refused = False
     if out_toml is not None:
-        identified = write_identified(text, out_toml)
-    elif validate is not None:
-        identified = load_identified_text(text, Path(rig.path).parent)
-    if validate is None:
-        return Outputs(str(out_toml) if out_toml else None, None, None)
-    val = validate(identified)
-    if val_png is not None:
-        plot_validation(val, val_png, f"{rig.name}: identified law α = {f.alpha:.4g}, β = {f.beta:.4f} re-simulated")
-    return Outputs(str(out_toml) if out_toml else None, val, str(val_png) if val_png else None)
+        if problems and not force:
+            refused = True
+        else:
+            if problems:
+                text = "".join(f"# WRITTEN WITH --force: {p}\n" for p in problems) + text
+            write_identified(text, out_toml)
+            written = True
+    return Outputs(str(out_toml) if written else None, val, str(val_png) if val_png and val else None, problems, refused)
 
 
 def sweep_validator(
     ident, rig: Rig, sweep_dir: Path, forces: Sequence[float] | None
 ) -> tuple[list[int], Callable[[Rig], Validation]]:
-    """The sweep's output DOFs and the validation against its own rig at ``forces`` (default :func:`validation_forces`)."""
+    """The sweep's output DOFs and the validation against its own rig at ``forces`` (default :func:`validation_forces`
+    inside the forces of the runs the law was fitted on)."""
     from analysis.model.rig_sim import output_dofs
     from daq.studies.identify.sweep import read_sweep_spec
 
     spec = read_sweep_spec(sweep_dir)
     dofs = output_dofs(rig, spec["outputs"])
-    fv = list(forces) if forces else list(validation_forces(spec["pmin_N"], spec["pmax_N"], int(spec["runs"])))
+    p_fit = ident.fitted_forces()
+    within = (float(p_fit.min()), float(p_fit.max())) if p_fit.size >= 2 and p_fit.min() < p_fit.max() else None
+    fv = list(forces) if forces else list(validation_forces(spec["pmin_N"], spec["pmax_N"], int(spec["runs"]), within=within))
     t = ident.target
     dur, order = float(spec["duration_s"]), spec["order"]
     return dofs, lambda idr: validate_sweep(rig, idr, dofs, t.attachment, t.relative_to, fv, dur, order)

@@ -52,6 +52,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/eval_wbemd_grid.py
 	$(BIN)/python bench/eval_beam_ch3.py
 	$(BIN)/python bench/bench_view.py
+	$(BIN)/python bench/bench_identify_readme.py
 	$(BIN)/python bench/bench_view.py --path record --duty 2 --seconds 60 --repeats 4
 	$(BIN)/python bench/bench_frf.py
 	$(BIN)/python bench/bench_modal_id.py

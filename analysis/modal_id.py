@@ -27,8 +27,7 @@ frequency and damping are those of ``s + sigma_added``.
 from __future__ import annotations
 
 import tomllib
-from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,8 @@ import numpy as np
 from analysis.errors import BadInput
 from analysis.lsfd import LSFDResult, lsfd, shapes_from_constants
 from analysis.mac import mac, mpc, mpd
-from analysis.plscf import PoleSet, plscf, pole_freq_hz, pole_zeta
+from analysis.modal_select import Rules, candidates, contributions, duplicate_groups, quality_flags, resolve_duplicates
+from analysis.plscf import PoleSet, one_blas_thread, plscf, pole_freq_hz, pole_zeta
 
 LABELS = ("o", "f", "d", "v", "s")  # status codes 0..4
 
@@ -95,44 +95,18 @@ def stabilisation(sets: list[PoleSet], crit: Criteria = Criteria()) -> StabTable
     )
 
 
-def _longest_run(orders: np.ndarray) -> int:
-    u = np.unique(orders)
-    if u.size == 0:
-        return 0
-    breaks = np.flatnonzero(np.diff(u) != 1)
-    edges = np.concatenate([[-1], breaks, [u.size - 1]])
-    return int(np.max(np.diff(edges)))
-
-
-def _split_close(idx: np.ndarray, order: np.ndarray, freq: np.ndarray) -> list[np.ndarray]:
-    """A cluster where most orders hold k >= 2 poles is k modes: split by frequency rank within each order."""
-    counts = Counter(order[idx].tolist())
-    k = Counter(counts.values()).most_common(1)[0][0]
-    if k < 2:
-        return [idx]
-    parts: list[list[int]] = [[] for _ in range(k)]
-    for o, n in counts.items():
-        if n == k:
-            members = idx[order[idx] == o]
-            for rank, i in enumerate(members[np.argsort(freq[members])]):
-                parts[rank].append(int(i))
-    return [np.array(p) for p in parts]
-
-
 def auto_select(table: StabTable, n_consecutive: int = 6, cluster_tol: float = 0.0025) -> np.ndarray:
-    """Indices into ``table`` of the selected poles, by the rule in the module docstring, ascending frequency."""
+    """Indices into ``table`` of the candidate poles (:func:`analysis.modal_select.candidates`: clusters of ``s``
+    poles holding one in ``n_consecutive`` orders or more), ascending frequency; no spurious-pole check."""
     stable = np.flatnonzero(table.status == LABELS.index("s"))
-    freq = table.freq_hz
-    stable = stable[np.argsort(freq[stable])]
-    if stable.size == 0:
-        return np.zeros(0, dtype=int)
-    cut = np.flatnonzero(np.diff(freq[stable]) > cluster_tol * freq[stable][1:]) + 1
-    chosen = []
-    for cluster in np.split(stable, cut):
-        for part in _split_close(cluster, table.order, freq):
-            if part.size and _longest_run(table.order[part]) >= n_consecutive:
-                chosen.append(part[np.argsort(freq[part])][part.size // 2])
-    return np.array(sorted(chosen, key=lambda i: freq[i]), dtype=int)
+    return candidates(table.freq_hz, table.order, stable, Rules(cluster_tol=cluster_tol, n_min=n_consecutive)).index
+
+
+def stability_at(table: StabTable, poles: np.ndarray, tol: float = Rules.cluster_tol) -> np.ndarray:
+    """Per pole (index into ``table``): how many orders hold an ``s`` pole within ``tol`` (relative) of it."""
+    stable = table.status == LABELS.index("s")
+    f = table.freq_hz
+    return np.array([np.unique(table.order[stable & (np.abs(f / f[i] - 1) <= tol)]).size for i in poles], dtype=int)
 
 
 @dataclass(frozen=True)
@@ -175,7 +149,10 @@ def select_targets(table: StabTable, targets: list[Target]) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ModalResult:
-    """Selected modes: ``freq_hz``, ``zeta`` (window damping removed), shapes ``(n_out, n)``, quality."""
+    """Selected modes: ``freq_hz``, ``zeta`` (window damping removed), shapes ``(n_out, n)``, and per mode its
+    quality: MPC, MPD, ``stability`` (orders holding a stable pole there), ``contribution`` (its share of the
+    FRFs at its own resonance) and ``flags`` (the checks of :func:`analysis.modal_select.quality_flags` it
+    fails). ``rejected``: the poles left out as spurious or as duplicates, each with its figures and reason."""
 
     s: np.ndarray  # poles as fitted (with the window's damping)
     freq_hz: np.ndarray
@@ -188,6 +165,10 @@ class ModalResult:
     selected: np.ndarray
     sigma_added: float = 0.0
     outputs: list[str] = field(default_factory=list)
+    stability: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    contribution: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    flags: list[list[str]] = field(default_factory=list)
+    rejected: list[dict] = field(default_factory=list)
 
 
 def modes_from_poles(
@@ -205,19 +186,61 @@ def modes_from_poles(
     )
 
 
+def _rejected_row(table: StabTable, i: int, stability: int, contribution: float, reason: str, sigma: float) -> dict:
+    s = table.s[i] + sigma
+    return {"freq_hz": float(pole_freq_hz(s)), "zeta": float(pole_zeta(s)), "stability": int(stability),
+            "contribution": float(contribution), "reason": reason}  # fmt: skip
+
+
+def pick_modes(freq, H, quantity, table: StabTable, f_lo, f_hi, rules: Rules | None = None, sigma_added: float = 0.0):
+    """Steps 1-3 of :mod:`analysis.modal_select`: (selected pole indices, their stability counts, rejected rows)."""
+    rules = rules or Rules()
+    cand = candidates(table.freq_hz, table.order, np.flatnonzero(table.status == LABELS.index("s")), rules)
+    if cand.index.size == 0:
+        return cand.index, cand.stability, []
+    share = contributions(freq, H, lsfd(freq, H, table.s[cand.index], quantity, f_lo, f_hi), quantity)
+    ok = share >= rules.min_contribution
+    rejected = [_rejected_row(table, i, n, c, f"spurious: explains {100 * c:.0f} % of the FRFs at its frequency", sigma_added)
+                for i, n, c in zip(cand.index[~ok], cand.stability[~ok], share[~ok], strict=True)]  # fmt: skip
+    cand, share = cand.take(ok), share[ok]
+    if cand.index.size >= 2:
+        fit = lsfd(freq, H, table.s[cand.index], quantity, f_lo, f_hi)
+        kept, dup = resolve_duplicates(cand.scatter, duplicate_groups(table.freq_hz[cand.index], fit.modal_constants, rules))
+        f_keep = pole_freq_hz(table.s[cand.index] + sigma_added)
+        why = [f"duplicate of the mode at {f_keep[j]:.3f} Hz (same shape, scatters {100 * cand.scatter[i]:.2g} % "
+               f"across orders against {100 * cand.scatter[j]:.2g} %)" for i, j in dup.items()]  # fmt: skip
+        rejected += [_rejected_row(table, cand.index[i], cand.stability[i], share[i], w, sigma_added)
+                     for i, w in zip(dup, why, strict=True)]  # fmt: skip
+        cand = cand.take(kept)
+    return cand.index, cand.stability, sorted(rejected, key=lambda r: r["freq_hz"])
+
+
 def identify_arrays(
     freq: np.ndarray, H: np.ndarray, quantity: str, f_lo: float, f_hi: float, max_order: int = 60,
     crit: Criteria = Criteria(), targets: list[Target] | None = None, driving: list[int | None] | None = None,
-    sigma_added: float = 0.0, n_consecutive: int = 6,
+    sigma_added: float = 0.0, n_consecutive: int = 6, rules: Rules | None = None,
 ) -> ModalResult:
-    """The whole chain on arrays: pLSCF to ``max_order``, stabilisation, auto or manual pick, LSFD."""
+    """The whole chain on arrays: pLSCF to ``max_order``, stabilisation, automatic pick (one pole per physical
+    mode, :mod:`analysis.modal_select`) or manual pick, LSFD, and each mode's quality figures and flags."""
     if not np.isfinite(H).all():  # LAPACK would fail deep inside with "illegal value"
         raise BadInput("modal identification: the FRFs hold NaN or inf (a response with no average?); leave it out")
+    rules = rules or Rules(n_min=n_consecutive)
     table = stabilisation(plscf(freq, H, f_lo, f_hi, max_order), crit)
-    sel = auto_select(table, n_consecutive) if targets is None else select_targets(table, targets)
-    if sel.size == 0:
-        raise BadInput(f"no pole stable over {n_consecutive} orders in {f_lo:g}..{f_hi:g} Hz; pick poles from a file")
-    return modes_from_poles(freq, H, quantity, table, sel, f_lo, f_hi, driving, sigma_added)
+    rejected: list[dict] = []
+    with one_blas_thread():  # small least-squares fits: a second BLAS thread only spins (plscf.one_blas_thread)
+        if targets is None:
+            sel, count, rejected = pick_modes(freq, H, quantity, table, f_lo, f_hi, rules, sigma_added)
+        else:
+            sel = select_targets(table, targets)
+            count = stability_at(table, sel, rules.cluster_tol)
+        if sel.size == 0:
+            why = f"; {len(rejected)} stable pole(s) left out as spurious" if rejected else ""
+            raise BadInput(f"no pole stable over {rules.n_min} orders in {f_lo:g}..{f_hi:g} Hz{why}; "
+                           "pick poles from a file (--poles)")  # fmt: skip
+        res = modes_from_poles(freq, H, quantity, table, sel, f_lo, f_hi, driving, sigma_added)
+        share = contributions(freq, H, res.fit, quantity)
+    flags = quality_flags(res.zeta, res.mpc, count, H.shape[0], max_order, rules)
+    return replace(res, stability=count, contribution=share, flags=flags, rejected=rejected)
 
 
 def identify(frfs, f_lo: float, f_hi: float, driving: dict[str, str] | None = None, **kw) -> ModalResult:
@@ -241,7 +264,8 @@ def fe_modes_at_sensors(rig, n_modes: int) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def pair_with_fe(shapes: np.ndarray, fe_shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each identified mode, the FE mode of highest MAC and that MAC."""
+    """For each identified mode, the FE mode of highest MAC and that MAC: a lookup, not a pairing (two modes may
+    name the same FE mode, and frequency plays no part); pairing is :func:`analysis.modal_pairing.pair_modes`."""
     m = mac(shapes, fe_shapes)
     j = np.argmax(m, axis=1)
     return j, m[np.arange(m.shape[0]), j]
@@ -260,6 +284,8 @@ __all__ = [
     "load_targets",
     "modes_from_poles",
     "pair_with_fe",
+    "pick_modes",
     "select_targets",
     "stabilisation",
+    "stability_at",
 ]

@@ -173,7 +173,7 @@ def plscf(
     R, S, T = reduced_blocks(f, Hb, max_order, f_max)
     chol = np.linalg.cholesky(R)
     out = []
-    with _one_blas_thread():
+    with one_blas_thread():
         for p, M in normal_matrices(chol, S, T, m, max_order):
             if p < min_order:
                 continue
@@ -185,7 +185,7 @@ def plscf(
     return out
 
 
-def _one_blas_thread():
+def one_blas_thread():
     """Small dense eigenproblems (<= 120 x 120) run 5-8x faster on one OpenBLAS thread than on two
     (measured: 41 ms vs 5.3 ms for a 120 x 120 ``eig`` on the 2-core machine); threadpoolctl, if present,
     limits the pool for the loop only."""
@@ -202,6 +202,7 @@ __all__ = [
     "PoleSet",
     "band_indices",
     "normal_matrices",
+    "one_blas_thread",
     "output_weights",
     "participation",
     "plscf",

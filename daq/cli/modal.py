@@ -30,12 +30,13 @@ def modal(
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
-    """Stabilisation chart, poles, mode shapes, MPC/MPD and MAC against the rig's FE modes (docs/modal-id.md)."""
+    """Stabilisation chart, one pole per physical mode, shapes, quality figures and one-to-one pairing with the rig's
+    FE modes (docs/modal-id.md)."""
     import json
 
     from analysis.modal_id import load_targets
     from daq.outputs import atomic_output
-    from daq.studies.modal import load_frf_source, modal_from_frf, rows_summary, table_text, write_modes
+    from daq.studies.modal import load_frf_source, modal_from_frf, rejected_note, rows_summary, table_text, write_modes
 
     for p, what in ((png, "--png"), (modes_out, "--modes-out"), (rrd, "--rrd")):
         if p is not None:
@@ -71,6 +72,10 @@ def modal(
               f"{len(frf.references)} reference(s); window damping removed ({run.result.sigma_added:.3f} 1/s)",
               markup=False)  # fmt: skip
     out.print(table_text(run), markup=False)
+    for w in run.warnings:
+        out.print(f"warning: {w}", markup=False)
+    if (left := rejected_note(run.result)) is not None:
+        out.print(f"note: {left}", markup=False)
     for h in refused:
         out.print(f"hit {h['hit']} refused: {h['reason']}", markup=False)
     for p in (png, modes_out, rrd):

@@ -107,7 +107,8 @@ def _modal_table(frf, rig, band_hz: float, table, driving: dict[str, str] | None
     except (BadInput, np.linalg.LinAlgError) as exc:
         return table(title, MODE_COLS, [], f"none: {exc}")
     rows = [[r["mode"], _num(r["freq_hz"]), _num(100 * r["zeta"]), _num(r["mpc"]), _num(r["mpd_deg"], ".2f"),
-             r.get("fe_mode", "—"), _num(r.get("fe_freq_hz")), _num(100 * r["freq_error"], "+.3f") if "freq_error" in r else "—",
+             r.get("fe_mode") or "—", _num(r.get("fe_freq_hz")),
+             _num(100 * r["freq_error"], "+.3f") if "freq_error" in r else "—",
              _num(100 * r["fe_zeta"]) if "fe_zeta" in r else "—", _num(r.get("mac"))] for r in run.rows]  # fmt: skip
     return table(title, MODE_COLS, rows, "none: no stable pole in the band")
 

@@ -14,6 +14,15 @@ values only as E13.5 (6 significant digits). A time increment 1/16384 s is store
 the abscissa pyuff rebuilds drifts by 7e-7 of the record length; the samples themselves are exact to 1e-11.
 Units: everything SI (dataset 164, code 1: m, N, K); each 58 also names its units (``*_axis_units_lab``) and
 their length/force exponents. Entity names (the channel names) are cut to 10 characters by record 6's 10A1.
+
+The exponential window (issue 29): gvtlink's FRFs of hammer hits are windowed (``analysis/frf.py``: every pole
+gains the decay rate ``sigma_added`` = 1/tau), and ``gvt modal`` takes that back out of the damping. A reader of
+the UFF file cannot know it from dataset 58 alone -- sdypy-EMA read gvtlink's FRFs with damping up to +197 %
+(mode 1 of the demo) -- so each windowed FRF states it twice: its ID line 3 (``exp window sigma ... 1/s: zeta =
+zeta_read - sigma/w``) and a dataset 1858 (the I-DEAS qualifiers of dataset 58: window type 6, impact and
+exponential; field "exponential window damping factor" = sigma in 1/s) written just before it; and
+:func:`window_note` gives ``gvt export`` its one-line warning. The FRFs themselves are exported as measured:
+undoing the window needs the modal model (a pole shift), which is ``gvt modal``'s result, not the data.
 """
 
 from __future__ import annotations
@@ -36,6 +45,8 @@ UNIT = {"displacement": ("m", 1, 0), "velocity": ("m/s", 1, 0), "acceleration": 
 #: FRF forms by the response quantity of the numerator (sdypy-EMA's ``read_uff`` reads the form from it too).
 FRF_FORMS = {"receptance": "displacement", "mobility": "velocity", "accelerance": "acceleration"}
 FUNC_TIME, FUNC_FRF, FUNC_COHERENCE = 1, 4, 6
+#: Dataset 1858 record 2 field 2: window type 6 is "impact and exponential" (force window + response window).
+WINDOW_IMPACT_EXPONENTIAL = 6
 #: A UFF 82 trace line holds at most 250 node entries (record 1 field 2).
 MAX_TRACE_NODES = 250
 
@@ -219,9 +230,11 @@ def frf_sets(
     n_averages: Sequence[int] | None = None,
     binary: bool = False,
     first_id: int = 1,
+    sigma_added: float | None = None,
 ) -> list[dict[str, Any]]:
     """Datasets 58: an FRF (function type 4) per (output, reference) pair of ``H`` (n_out, n_ref, n_f), response
-    quantity by ``form`` over force, then its coherence (type 6, dimensionless) when given."""
+    quantity by ``form`` over force, then its coherence (type 6, dimensionless) when given. ``sigma_added`` (1/s):
+    the exponential window's added decay, stated in ID line 3 and in a dataset 1858 before each FRF."""
     H = np.asarray(H)
     if H.ndim != 3 or H.shape[:2] != (len(outputs), len(references)) or H.shape[2] != np.size(freq):
         raise UffError(f"H of shape {H.shape} for {len(outputs)} outputs x {len(references)} references x {np.size(freq)} lines")
@@ -233,8 +246,10 @@ def frf_sets(
     for r, ref in enumerate(references):
         navg = "" if n_averages is None else f", {int(n_averages[r])} averages"
         for o, resp in enumerate(outputs):
-            ids = (f"{kind} {resp.name}/{ref.name} [{units}]", f"{form}{navg}", "gvtlink", "NONE", "NONE")
+            ids = (f"{kind} {resp.name}/{ref.name} [{units}]", f"{form}{navg}", window_id(sigma_added), "NONE", "NONE")
             d = function_set(FUNC_FRF, np.asarray(freq, dtype=float), H[o, r], resp, ref, ids, binary=binary, func_id=fid)
+            if sigma_added:
+                out.append(window_qualifier_set(float(sigma_added), resp, ref))
             d.update(
                 _axis("abscissa", FREQUENCY, "frequency", "Hz"),
                 **_quantity_axis("ordinate", num),
@@ -280,7 +295,49 @@ def frfset_sets(frf: Any, channels: Mapping[str, Channel], *, binary: bool = Fal
         kind=frf.kind,
         n_averages=navg if navg is not None and len(navg) == len(frf.references) else None,
         binary=binary,
+        sigma_added=frf_sigma_added(frf),
     )
+
+
+def frf_sigma_added(frf: Any) -> float | None:
+    """The exponential window's added decay (1/s) of an FRFSet-like object, or None when it has none."""
+    window = getattr(frf, "window", None) or {}
+    sigma = window.get("sigma_added") if isinstance(window, Mapping) else None
+    return float(sigma) if sigma else None
+
+
+def window_id(sigma_added: float | None) -> str:
+    """ID line 3 of a windowed FRF (80 characters at most): the decay the window added and how to take it out."""
+    if not sigma_added:
+        return "gvtlink, no exponential window"
+    return f"exp window sigma {sigma_added:.6g} 1/s (gvtlink): zeta = zeta_read - sigma/w"
+
+
+def window_qualifier_set(sigma_added: float, response: Channel, reference: Channel) -> dict[str, Any]:
+    """Dataset 1858 (qualifiers of the dataset 58 that follows): window type 6 (impact and exponential) and the
+    exponential window damping factor, written as the added decay rate sigma in 1/s."""
+    def direction(ch: Channel) -> str:
+        return f"{'XYZ'[abs(ch.direction) - 1]}{'+' if ch.direction > 0 else '-'}"
+
+    zeros = dict.fromkeys(("z_rpm_value", "z_time_value", "z_order_value", "num_of_samples", "user_value_1",
+                           "user_value_2", "user_value_3", "user_value_4"), 0.0)  # fmt: skip
+    ints = dict.fromkeys(("octave_format", "measurement_run", "weighting_type", "amplitude_units",
+                          "normalization_method", "abscissa_data_type_qualifier", "ordinate_numerator_data_type_qualifier",
+                          "ordinate_denominator_data_type_qualifier", "z_axis_data_type_qualifier", "sampling_type"),
+                         0)  # fmt: skip
+    return {"type": 1858, "record_num": 1, **ints, **zeros, "window_type": WINDOW_IMPACT_EXPONENTIAL,
+            "exponential_window_damping_factor": float(sigma_added), "response_direction": direction(response),
+            "reference_direction": direction(reference)}  # fmt: skip
+
+
+def window_note(frf: Any) -> str | None:
+    """``gvt export``'s one-line warning for windowed FRFs (None without a window)."""
+    sigma = frf_sigma_added(frf)
+    if sigma is None:
+        return None
+    return (f"the FRFs carry the exponential window (every pole's decay + {sigma:.4g} 1/s): damping read from them "
+            "is high by sigma/w (stated in each FRF's ID line 3 and dataset 1858); gvt modal's modes file has it "
+            "removed")  # fmt: skip
 
 
 def _node_components(shape: np.ndarray, outputs: Sequence[Channel]) -> tuple[np.ndarray, np.ndarray]:
@@ -298,13 +355,26 @@ def _node_components(shape: np.ndarray, outputs: Sequence[Channel]) -> tuple[np.
     return np.asarray(nodes, dtype=int), r
 
 
+def mode_quality_id(row: Mapping[str, Any]) -> str:
+    """A modes-file row's quality figures as a dataset 55 ID line (80 characters at most): MPC, stability count,
+    share of the FRFs, the FE partner with Δf and MAC, and ``ok`` or the kinds of its flags."""
+    fe = (f" FE{row['fe_mode']} df{100 * row['freq_error']:+.2f}% MAC{row['mac']:.3f}" if row.get("fe_mode") else
+          (" FE unpaired" if "fe_mode" in row else ""))  # fmt: skip
+    kinds = ",".join(dict.fromkeys(str(f).split(":")[0] for f in row.get("flags", []))) or "ok"
+    nan = float("nan")
+    text = f"MPC{row.get('mpc', nan):.3f} stab{row.get('stability', 0)} share{row.get('contribution', nan):.2f}{fe} {kinds}"
+    return text[:80]
+
+
 def mode_shape_sets(
-    freq_hz: Sequence[float], zeta: Sequence[float], shapes: np.ndarray, outputs: Sequence[Channel], name: str = "gvtlink"
+    freq_hz: Sequence[float], zeta: Sequence[float], shapes: np.ndarray, outputs: Sequence[Channel], name: str = "gvtlink",
+    notes: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """Dataset 55, one per mode: complex shapes (n_out, n_modes) as complex modes (analysis type 3) with the
     eigenvalue ``lambda = -zeta w + i w sqrt(1 - zeta^2)`` (rad/s); real shapes as normal modes (type 2) with
     frequency (Hz) and viscous damping ratio. A value goes to its channel's node, in r1/r2/r3 by X/Y/Z, with the
-    direction's sign (a -Z accelerometer's value is minus the +Z displacement)."""
+    direction's sign (a -Z accelerometer's value is minus the +Z displacement). ``notes``: one ID line 2 per mode
+    (``gvt modal``'s quality figures, :func:`mode_quality_id`)."""
     shapes = np.asarray(shapes)
     if shapes.ndim != 2 or shapes.shape != (len(outputs), len(freq_hz)) or len(zeta) != len(freq_hz):
         raise UffError(
@@ -318,7 +388,7 @@ def mode_shape_sets(
         d: dict[str, Any] = {
             "type": 55,
             "id1": f"{name} mode {m + 1}: {f:.6g} Hz, zeta {z:.6g}",
-            "id2": "NONE",
+            "id2": (notes[m] if notes is not None and m < len(notes) else "NONE")[:80] or "NONE",
             "id3": "NONE",
             "id4": "NONE",
             "id5": "NONE",
@@ -386,11 +456,13 @@ __all__ = [
     "UNIT",
     "UffError",
     "frf_sets",
+    "frf_sigma_added",
     "frfset_sets",
     "function_set",
     "geometry_from_sets",
     "geometry_sets",
     "mode_from_set",
+    "mode_quality_id",
     "mode_shape_sets",
     "read_uff",
     "time_sets",
@@ -398,5 +470,8 @@ __all__ = [
     "trace_pairs",
     "trace_polylines",
     "units_set",
+    "window_id",
+    "window_note",
+    "window_qualifier_set",
     "write_uff",
 ]

@@ -76,7 +76,7 @@ def load_modes_json(path: Path) -> dict[str, Any]:
         if "shapes_im" in d:
             shapes = shapes + 1j * np.asarray(d["shapes_im"], dtype=float)
         return {"freq_hz": [float(x) for x in d["freq_hz"]], "zeta": [float(x) for x in d["zeta"]],
-                "outputs": [str(x) for x in d["outputs"]], "shapes": shapes}  # fmt: skip
+                "outputs": [str(x) for x in d["outputs"]], "shapes": shapes, "rows": d.get("modes") or []}  # fmt: skip
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise BadInput(f"--modes {path}: not a modes file (freq_hz, zeta, outputs, shapes_re[, shapes_im]): {exc}") from None
 
@@ -127,7 +127,8 @@ def _plan_references(reader: LogReader, chans: dict[str, Channel]) -> dict[str, 
 
 def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: Path | None = None,
                modes: Path | None = None, binary: bool = False) -> str:  # fmt: skip
-    """Write ``out`` (the caller made it a temporary path) and return the one-line summary."""
+    """Write ``out`` (the caller made it a temporary path) and return the one-line summary (and a ``warning:`` line
+    when the FRFs carry an exponential window, :func:`daq.studies.uff.datasets.window_note`)."""
     from daq.log.rig import rig_from_log
 
     reader = LogReader(log)
@@ -161,21 +162,25 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
         f"{len(geometry.lines)} lines",
         f"{len(hits)} accepted hit(s) x {len(hit_sets) // max(1, len(hits))} channels",
     ]
+    note = None
     if frf is not None:
         f = load_frf_npz(frf)
         sets += uff.frfset_sets(f, chans, binary=binary)
         parts.append(f"{f.H.shape[0]}x{f.H.shape[1]} {f.kind} FRFs + coherence, {f.freq.size} lines")
+        note = uff.window_note(f)
     if modes is not None:
         m = load_modes_json(modes)
         missing = [n for n in m["outputs"] if n not in chans]
         if missing:
             raise BadInput(f"--modes {modes}: outputs {missing} are not in the channel table")
-        sets += uff.mode_shape_sets(m["freq_hz"], m["zeta"], m["shapes"], [chans[n] for n in m["outputs"]])
+        notes = [uff.mode_quality_id(r) for r in m["rows"]] if len(m["rows"]) == len(m["freq_hz"]) else None
+        sets += uff.mode_shape_sets(m["freq_hz"], m["zeta"], m["shapes"], [chans[n] for n in m["outputs"]], notes=notes)
         parts.append(f"{len(m['freq_hz'])} mode shapes")
     sets += hit_sets  # after the FRFs: sdypy-EMA's read_uff takes the FRF form from the file's first dataset 58
     uff.write_uff(out, sets)
     left = f"; left out (not in the channel table): {', '.join(skipped)}" if skipped else ""
-    return f"{len(sets)} UFF datasets: {', '.join(parts)}{left}"
+    warn = f"\nwarning: {note}" if note else ""
+    return f"{len(sets)} UFF datasets: {', '.join(parts)}{left}{warn}"
 
 
 __all__ = ["channel_geometry", "export_uff", "hit_windows", "load_frf_npz", "load_modes_json"]

@@ -57,6 +57,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_frf.py
 	$(BIN)/python bench/bench_modal_id.py
 	$(BIN)/python bench/bench_quality.py
+	$(BIN)/python bench/bench_modal_quality.py
 	$(BIN)/python bench/bench_report.py
 	$(BIN)/python bench/bench_confirm.py
 	$(BIN)/python bench/bench_model_update.py

@@ -77,7 +77,7 @@ def modal(
     if (left := rejected_note(run.result)) is not None:
         out.print(f"note: {left}", markup=False)
     for h in refused:
-        out.print(f"hit {h['hit']} refused: {h['reason']}", markup=False)
+        out.print(f"hit {h['hit']} {'left out' if h['verdict'] == 'left out' else 'refused'}: {h['reason']}", markup=False)
     for p in (png, modes_out, rrd):
         if p is not None:
             out.print(f"wrote {p}", markup=False)

@@ -75,6 +75,9 @@ def run_demo(console: Console, rig: Rig, duration: float | None = None, session_
     return {"freqs": {k: v.tolist() for k, v in freqs.items()}, "energies": energies, "session": session, "linear": linear}
 
 
+#: N, the demo session's first three hits: at 30 N the cubic spring moves mode 1 by (30/150)^2 of its +1.5 % at
+#: 150 N, ~0.06 %, and the peak clears the 20 N trigger with the ADC's noise far below
+DEMO_WEAK_N = 30.0
 LINEAR_HITS = 3  # averages: enough for a coherence that means something, few enough to keep the demo's time
 LINEAR_SPACING_S = 3.0  # s between the weak hits: the FRF record is the rig's record length or this, the shorter
 
@@ -137,15 +140,19 @@ def run_demo_session(console: Console, rig: Rig, out: str = "demo_session.mcap",
     from daq.config.session import DeviceSpec, SessionConfig, SimulateSpec, TriggerSpec
     from daq.session import run_session
 
-    forces = [150.0, 400.0, 700.0, 1000.0, 1300.0, 2600.0, 1583.0]
+    # A GVT's linearity check first: three weak hits (the FRFs `gvt frf` / `gvt modal` average by default, the
+    # cubic spring barely engaged: mode 1 within 0.05 % of the linear FE model), then the rising forces whose
+    # internal resonances the live analysis flags, with one double hit and one overload for the hit gate.
+    forces = [*(DEMO_WEAK_N,) * 3, 150.0, 400.0, 700.0, 1000.0, 1300.0, 2600.0, 1583.0]
     cfg = SessionConfig(
         name="gvt demo", rig=rig.path, output=out, duration=0.2 + 0.5 * len(forces) + 0.4,
-        device=DeviceSpec(driver="serial", simulate=SimulateSpec(forces=forces, double_hits=[2], period=0.5, seed=1)),
-        trigger=TriggerSpec(level=20.0, record_length=0.3, force_range=(100.0, 2000.0), driving_point="a13"),
+        device=DeviceSpec(driver="serial", simulate=SimulateSpec(forces=forces, double_hits=[5], period=0.5, seed=1)),
+        trigger=TriggerSpec(level=20.0, record_length=0.3, force_range=(20.0, 2000.0), driving_point="a13"),
     )  # fmt: skip
     console.print(
         f"\n[bold]Recording a session[/bold]: simulated device over a pseudo-terminal → serial driver → {out} "
-        f"({len(forces)} hits at rising force, one double hit, one overload)"
+        f"(3 weak hits of {DEMO_WEAK_N:g} N for the linear FRFs, then {len(forces) - 3} at rising force, one double "
+        "hit, one overload)"
     )
     res = run_session(cfg, rig, Path(out), overwrite=overwrite)
     from daq.terminal import hits_table

@@ -173,6 +173,13 @@ class ImpactSimulator:
         self._phi_out = red.rows(self.output_dofs)
 
     @property
+    def feedthrough(self) -> FloatArray:
+        """Acceleration at each output per newton at the force DOF, the instantaneous part: every basis vector's
+        acceleration holds ``phi_F F(t)`` (the rest is an integral of the force). A DAQ filter treats this part of
+        an accelerometer's signal as it treats the hammer's (analysis.model.antialias)."""
+        return self._phi_out @ self._phi_f
+
+    @property
     def output_names(self) -> tuple[str, ...]:
         return tuple(self.structure.dofs[i].name for i in self.output_dofs)
 

@@ -1,7 +1,8 @@
 """The simulated DAQ device: the foundation's simulator plus sensor model behind a sample-exact clock.
 
 The device's physics is computed ahead for ``duration`` seconds (one continuous simulation under the
-scheduled hammer pulses, through the sensor/DAQ model); after that it keeps producing the sensor
+scheduled hammer pulses, through the DAQ's anti-alias filter and the sensor/DAQ model: a real DAQ's
+sigma-delta decimation filter, group delay compensated, analysis.model.antialias); after that it keeps producing the sensor
 noise floor of a structure at rest, so it runs for ever. Its clock is sample-exact: at device time t
 exactly ``floor(t * fs)`` samples exist — no drift, no rounding accumulation — and block k holds
 samples ``[k * block_size, (k + 1) * block_size)``. Transports (serial, CAN, Modbus) read blocks from
@@ -17,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.model.forces import pulse_train
+from analysis.model.antialias import AntiAliasFilter, design, filtered_force
+from analysis.model.forces import ForceSeries, pulse_train
 from analysis.model.rig import Rig, channel_signals
 from drivers.sim.sensor_model import AdcModel, ChannelModel, channel_models_for, measure
 
@@ -48,29 +50,59 @@ def simulator_at(rig: Rig, dof: int):
                            modes=rig.modes)  # fmt: skip
 
 
-def roving_signals(rig: Rig, schedule: HitSchedule, duration: float) -> tuple[list, np.ndarray]:
-    """Physical signals (hammer, then sensors) of the scheduled hits, each at its own DOF.
+def daq_filter(rig: Rig, sims=()) -> AntiAliasFilter:
+    """The anti-alias filter of the rig's simulated DAQ (analysis.model.antialias): its modulator rate keeps every
+    basis frequency of ``sims`` (default the rig's simulator) from folding below 0.55 fs."""
+    top = max(float(s.reduced.omega.max()) for s in (sims or (rig.simulator,))) / (2.0 * np.pi)
+    return design(rig.sample_rate, top)
+
+
+def filtered_signals(rig: Rig, sim, force: ForceSeries, n: int, aaf: AntiAliasFilter) -> np.ndarray:
+    """Physical signals (hammer, then sensors) of one simulation under ``force`` from t = 0, ``n`` samples at
+    fs, as the DAQ's filter delivers them: the force and its instantaneous share of each accelerometer
+    filtered exactly (the pulse's broadband tail never folds), the rest simulated at the modulator rate and
+    filtered there (analysis.model.antialias). Group delay compensated: sample k is the signal at k / fs."""
+    r, fs = aaf.oversampling, rig.sample_rate
+    extra = aaf.half_samples if r > 1 else 0  # the FIR looks half its length ahead
+    res = sim.run(force, (n + extra) / fs, r * fs, amplitudes=[1.0])
+    _, x = channel_signals(rig, res)
+    gain = np.array([1.0] + [c if s.quantity == "acceleration" else 0.0
+                             for s, c in zip(rig.sensors, sim.feedthrough, strict=True)])  # fmt: skip
+    x -= res.force[0][:, None] * gain[None, :]  # the smooth remainder: the modes' own motion
+    return aaf.apply(x, n) + filtered_force(aaf, force.t, force.force, n)[:, None] * gain[None, :]
+
+
+def simulators(rig: Rig, schedule: HitSchedule) -> dict[int, object]:
+    """The simulator of each DOF the schedule hits, in order of first hit."""
+    dofs = schedule.dofs if schedule.dofs is not None else (rig.hammer.dof,)
+    return {dof: simulator_at(rig, dof) for dof in dict.fromkeys(dofs)}
+
+
+def roving_signals(rig: Rig, schedule: HitSchedule, duration: float, aaf: AntiAliasFilter | None = None,
+                   sims: dict[int, object] | None = None) -> tuple[list, np.ndarray]:  # fmt: skip
+    """Physical signals (hammer, then sensors) of the scheduled hits, each at its own DOF, through the DAQ filter.
 
     One simulation per DOF hit, over the span from that DOF's first hit, summed: exact for a linear structure
-    (superposition; the hammer channel is the sum of the forces, wherever they land). With nonlinear springs it
-    neglects the coupling of one point's ring-down with the next point's hits; a roving test spaces its hits
-    by a record, so that ring-down is small, but the sum is then an approximation (docs/session.md)."""
+    (superposition; the hammer channel is the sum of the forces, wherever they land; the filter is linear too).
+    With nonlinear springs it neglects the coupling of one point's ring-down with the next point's hits; a
+    roving test spaces its hits by a record, so that ring-down is small, but the sum is then an approximation
+    (docs/session.md)."""
     pulse = rig.config.hammer.pulse_duration
-    if schedule.dofs is None:  # the fixed hammer: one simulation, as always (bit-identical to earlier logs)
-        force = pulse_train(schedule.times_s, schedule.forces_n, pulse)
-        res = rig.simulator.run(force, duration, rig.sample_rate, amplitudes=[1.0])
-        return channel_signals(rig, res)
-    dofs = schedule.dofs
     n = max(2, round(duration * rig.sample_rate))
-    placed, total = [rig.hammer, *rig.sensors], np.zeros((n, 1 + len(rig.sensors)))
-    for dof in dict.fromkeys(dofs):
+    placed = [rig.hammer, *rig.sensors]
+    sims = sims or simulators(rig, schedule)
+    aaf = aaf or daq_filter(rig, tuple(sims.values()))
+    if schedule.dofs is None:  # the fixed hammer: one simulation
+        return placed, filtered_signals(rig, rig.simulator, pulse_train(schedule.times_s, schedule.forces_n, pulse), n, aaf)
+    dofs = schedule.dofs
+    total = np.zeros((n, 1 + len(rig.sensors)))
+    for dof, sim in sims.items():
         ks = [k for k, d in enumerate(dofs) if d == dof]
-        # start a whole number of samples before this DOF's first hit: before it, this DOF's part is zero
-        i0 = max(0, int(np.floor((schedule.times_s[ks[0]] - 0.01) * rig.sample_rate)))
+        # start a whole number of samples before this DOF's first hit and the filter's reach: before it, zero
+        i0 = max(0, int(np.floor((schedule.times_s[ks[0]] - 0.01 - aaf.delay_s) * rig.sample_rate)))
         t0 = i0 / rig.sample_rate
         force = pulse_train([schedule.times_s[k] - t0 for k in ks], [schedule.forces_n[k] for k in ks], pulse)
-        res = simulator_at(rig, dof).run(force, (n - i0) / rig.sample_rate, rig.sample_rate, amplitudes=[1.0])
-        total[i0:] += channel_signals(rig, res)[1][: n - i0]
+        total[i0:] += filtered_signals(rig, sim, force, n - i0, aaf)
     return placed, total
 
 
@@ -82,8 +114,11 @@ class SimulatedDevice:
         self.schedule = schedule
         self.seed = seed
         n = max(1, round(duration * self.fs))
+        #: the DAQ's anti-alias filter (analysis.model.antialias): what a report states about it, ``facts()``
+        sims = simulators(rig, schedule)
+        self.anti_alias = daq_filter(rig, tuple(sims.values()))
         if schedule.times_s:
-            placed, physical = roving_signals(rig, schedule, n / self.fs)
+            placed, physical = roving_signals(rig, schedule, n / self.fs, self.anti_alias, sims)
         else:
             placed = [rig.hammer, *rig.sensors]
             physical = np.zeros((n, len(placed)))
@@ -170,6 +205,7 @@ class DelayedDeviceView:
         self.channels = device.channels
         self.units = device.units
         self.adc = device.adc
+        self.anti_alias = device.anti_alias
         self._t0: float | None = None
 
     @property

@@ -494,6 +494,11 @@ class ExchangeDetector:
         else:
             self._noise = np.where(steady, floor, self._noise)
 
+    def clear_quiet(self) -> None:
+        """Forget the quiet windows kept so far: what came before held interference now removed (stationary lines,
+        analysis/lines.py), so a floor measured on them would be the interference's and gate the exchanges under it."""
+        self._quiet.clear()
+
     def _keep_quiet(self, w: WindowFeatures) -> None:
         if self._t0 is None:
             self._t0 = w.t_start_s

@@ -418,7 +418,7 @@ class AnalysisOperator:
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
-        switches = self._check_health(acc, inp) if self._guard is not None else None
+        acc, switches = self._check_health(acc, inp) if self._guard is not None else (acc, None)
         if self.s.seed_lane and self.pipelined:
             # the worker computes this block's seed numerics while this thread emits the previous
             # block's seed results and runs this block's modal lane, in the serial order (modal k−1, seed k−1,
@@ -435,17 +435,18 @@ class AnalysisOperator:
         if self.s.seed_lane:
             self._seed_emit(self._seed_compute(acc), t_arrival)
 
-    def _check_health(self, acc: np.ndarray, inp: np.ndarray | None) -> list:
+    def _check_health(self, acc: np.ndarray, inp: np.ndarray | None) -> tuple[np.ndarray, list]:
         """Sensor health on the block before the modal lane sees it (analysis/sensor_health.py): a channel judged bad
         leaves the modal filter, whose basis is rebuilt on the rest with its filter state carried, at the stream
         sample where it was judged; a warning each, and a "blind" one for the sensor at a nonlinear element (L69).
-        The seed lane keeps every sensor (its RQ needs the model's DOFs, assumption 7, L65)."""
+        The seed lane keeps every sensor (its RQ needs the model's DOFs, assumption 7, L65). Stationary lines (mains hum)
+        are removed from the block first, for both lanes (analysis/lines.py); the block returned is the cleaned one."""
         assert self._guard is not None
-        switches = self._guard.feed(acc, inp)
+        acc, switches = self._guard.feed_clean(acc, inp)
         for sw in switches:
             for kind, key, message in sw.warnings:
                 self._warn(key, message, kind=kind)
-        return switches
+        return acc, switches
 
     def _modal_lane(self, acc: np.ndarray, inp: np.ndarray | None, switches: list | None = None) -> None:
         if not np.isfinite(acc).all():
@@ -457,6 +458,8 @@ class AnalysisOperator:
                 q, qd = self._tracker.feed(x)
                 for w in self._windower.feed(q, qd, None if inp is None else inp[a:b]):
                     self._modal_window(w)
+            if sw is not None and sw.lines:
+                self._detector.clear_quiet()
             if sw is not None and sw.basis is not None:
                 self.basis = sw.basis
                 self._mf_cols = list(sw.keep)

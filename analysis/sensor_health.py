@@ -50,9 +50,10 @@ from typing import Literal
 import numpy as np
 import scipy.signal
 
+from analysis.lines import LineCanceller, LineFound, LineSettings
 from analysis.modal_filter import ModalBasis, modal_basis
 
-Fault = Literal["dead", "stuck", "clipping", "drifting", "noisy", "inconsistent"]
+Fault = Literal["dead", "stuck", "clipping", "drifting", "noisy", "inconsistent", "polarity"]
 
 #: a sample at or above this fraction of the stated range counts as clipped (daq/hits.py's CLIP_FRACTION)
 CLIP_FRACTION = 0.999
@@ -81,6 +82,13 @@ class HealthSettings:
     inconsistent_over_median: float = 3.0
     band_lo_hz: float = 5.0  # the modal filter's high-pass corner
     max_excluded_per_hit: int = 2
+    #: polarity is judged on the hit's first response, right after the pulse (a flipped sensor must leave before the
+    #: exchange windows start, not ``hit_span_s`` later): the correlation of each channel with its neighbours'
+    #: leave-one-out prediction over this span; a flipped sensor reads its prediction's negative (-0.9 ... -1 on
+    #: both grid rigs), a healthy one >= 0.6 (docs/detection.md "Sensor health")
+    polarity_settle_s: float = 0.002
+    polarity_span_s: float = 0.02
+    polarity_corr: float = -0.5
 
     def __post_init__(self) -> None:
         if min(self.level_min_s, self.stuck_s, self.drift_window_s, self.hit_span_s) <= 0 or self.dead_rel <= 0:
@@ -158,6 +166,20 @@ def loo_residuals(S: np.ndarray, shapes: np.ndarray) -> tuple[np.ndarray, np.nda
     return rel, pred_over
 
 
+def loo_correlations(S: np.ndarray, shapes: np.ndarray) -> np.ndarray:
+    """Leave-one-out: for each channel k, the correlation of ``x_k`` with ``Φ_k Φ_{-k}⁺ x_{-k}`` (its neighbours'
+    prediction through the modes), from the channels' covariance ``S`` alone; 0 where either is silent."""
+    n = S.shape[0]
+    out = np.zeros(n)
+    for k in range(n):
+        m = np.arange(n) != k
+        u = np.zeros(n)
+        u[m] = shapes[k] @ np.linalg.pinv(shapes[m])
+        den = float(S[k, k]) * float(u @ S @ u)
+        out[k] = float(S[k] @ u) / np.sqrt(den) if den > 0 else 0.0
+    return out
+
+
 class SensorHealth:
     """Feed blocks ``(n_samples, n_channels)`` of one stream in order (with the hammer's input mask, when known);
     get the channels newly judged bad. ``M``, ``K``: the reduced model at the channels (their order) for the
@@ -189,9 +211,13 @@ class SensorHealth:
         self._drift = [0, np.zeros(n), np.zeros(n)]  # samples, Σx, Σx² of the current drift window
         self._drift_ref: np.ndarray | None = None
         self._quiet = [0, np.zeros(n)]  # pre-input samples and Σ(x − mean)² per channel (via level judgements)
+        #: the pre-input noise counts only from this stream sample on: a line canceller in front (HealthGuard) needs its
+        #: ``n_spans`` to find hum, and a channel's pickup is hum (named as such), not a noisy sensor
+        self.quiet_from = 0
         self._seen_input = False
         self._in_input = False
         self._hit: list | None = None  # [start index, stop index, n, Σ xxᵀ] of the response being judged
+        self._pol: list | None = None  # the same for the first response after the pulse (polarity)
         self._sos: np.ndarray | None = None
         self._zi: np.ndarray | None = None
         if M is not None and K is not None:
@@ -247,13 +273,18 @@ class SensorHealth:
         self._index += x.shape[0]
         return sorted(out, key=lambda v: v.index)
 
+    def restart_quiet(self, at: int) -> None:
+        """The pre-input noise is measured again from stream sample ``at`` (what came before held removed lines)."""
+        self._quiet = [0, np.zeros(len(self.channels))]
+        self.quiet_from = int(at)
+
     def restart(self) -> None:
         """A gap in the stream: drop partial accumulations (verdicts stay)."""
         self._reset_level()
         self._carry[:] = 0
         self._last[:] = np.nan
         self._drift = [0, np.zeros(len(self.channels)), np.zeros(len(self.channels))]
-        self._hit = None
+        self._hit = self._pol = None
         if self._zi is not None:
             self._zi[:] = 0.0
 
@@ -368,9 +399,12 @@ class SensorHealth:
                         self._judge(k, "stuck", f"constant at {v:.4g} for {ms:.0f} ms while the others move"))  # fmt: skip
             elif med > 0 and std[k] == 0 and s1[k] == 0:
                 out += self._judge(k, "dead", "flat at 0 while the others move")
+            elif med > 0 and std[k] == 0:  # one value, not zero, over a whole span: a frozen reading, not a dead input
+                ms = 1e3 * n / self.fs
+                out += self._judge(k, "stuck", f"constant at {s1[k] / n:.4g} for {ms:.0f} ms while the others move")
             elif med > 0 and level[k] < self.s.dead_rel * med:
                 out += self._judge(k, "dead", f"level {level[k] / med:.1e} of the median channel's (below {self.s.dead_rel:g})")
-        if hammer_known and not self._seen_input:
+        if hammer_known and not self._seen_input and self._at - n >= self.quiet_from:
             self._quiet[0] += n
             self._quiet[1] += std**2 * n
             if self._quiet[0] >= self.s.quiet_min_s * self.fs:
@@ -411,6 +445,8 @@ class SensorHealth:
         return out
 
     def _hit_feed(self, x: np.ndarray, inp: np.ndarray) -> list[Verdict]:
+        """The band-passed response after each input, over two spans: the first ``polarity_span_s`` (polarity, judged
+        at once) and ``hit_span_s`` after ``hit_settle_s`` (consistency with the model)."""
         y, zi = scipy.signal.sosfilt(self._sos, x, axis=0, zi=self._zi)
         self._zi = zi
         out: list[Verdict] = []
@@ -418,20 +454,42 @@ class SensorHealth:
         if on.size:
             self._seen_input = True
             last = self._index + int(on[-1]) + 1  # one past the input's last sample
-            settle = round(self.s.hit_settle_s * self.fs)
-            self._hit = [last + settle, last + settle + round(self.s.hit_span_s * self.fs), 0, np.zeros((x.shape[1],) * 2)]
-        h = self._hit
-        if h is None:
-            return out
-        a, b = max(h[0] - self._index, 0), min(h[1] - self._index, x.shape[0])
-        if b > a:
-            seg = y[a:b]
-            h[2] += b - a
-            h[3] += seg.T @ seg
-        if self._index + x.shape[0] >= h[1]:
-            self._at = h[1]
-            out += self._judge_hit(h[3] / max(h[2], 1))
-            self._hit = None
+            settle, pol = round(self.s.hit_settle_s * self.fs), round(self.s.polarity_settle_s * self.fs)
+            zero = np.zeros((x.shape[1],) * 2)
+            self._hit = [last + settle, last + settle + round(self.s.hit_span_s * self.fs), 0, zero.copy()]
+            self._pol = [last + pol, last + pol + max(2, round(self.s.polarity_span_s * self.fs)), 0, zero.copy()]
+        for span, judge in ((self._pol, self._judge_polarity), (self._hit, self._judge_hit)):
+            if span is None:
+                continue
+            a, b = max(span[0] - self._index, 0), min(span[1] - self._index, x.shape[0])
+            if b > a:
+                seg = y[a:b]
+                span[2] += b - a
+                span[3] += seg.T @ seg
+            if self._index + x.shape[0] >= span[1]:
+                self._at = span[1]
+                out += judge(span[3] / max(span[2], 1))
+                if span is self._pol:
+                    self._pol = None
+                else:
+                    self._hit = None
+        return out
+
+    def _judge_polarity(self, S: np.ndarray) -> list[Verdict]:
+        """A sensor wired or mounted the wrong way round reads the negative of what its neighbours predict for it."""
+        assert self.M is not None and self.K is not None
+        out: list[Verdict] = []
+        for _ in range(self.s.max_excluded_per_hit):
+            good = self.good
+            if len(good) < self.n_modes + 3:
+                break
+            shapes = reduced_basis(self.M, self.K, good, self.n_modes).shapes
+            corr = loo_correlations(S[np.ix_(good, good)], shapes)
+            w = int(np.argmin(corr))
+            if not (corr[w] < self.s.polarity_corr and _median(corr) > -self.s.polarity_corr):
+                break
+            out += self._judge(good[w], "polarity", f"reads {corr[w]:+.2f} x the correlation its neighbours predict at the "
+                                                    "hit (sign reversed: cable, mounting or channel setup)")  # fmt: skip
         return out
 
     def _judge_hit(self, S: np.ndarray) -> list[Verdict]:
@@ -457,6 +515,10 @@ class SensorHealth:
         return out
 
 
+#: the line canceller a guard runs unless told otherwise (``lines=None``: off, the guard before issue 29)
+DEFAULT_LINES = LineSettings()
+
+
 @dataclass(frozen=True)
 class Switch:
     """The modal filter changes ``offset`` samples into a block: new basis (None: kept) on the channels ``keep``."""
@@ -465,6 +527,9 @@ class Switch:
     warnings: list[tuple[str, str, str]]  # (kind, key, message)
     basis: ModalBasis | None
     keep: list[int]
+    #: stationary lines were newly found and are removed from here on: the samples before held them, so a noise floor
+    #: measured on them is the lines' (the exchange detector measures it again)
+    lines: bool = False
 
 
 class HealthGuard:
@@ -483,14 +548,54 @@ class HealthGuard:
         self, M: np.ndarray, K: np.ndarray, channels: Sequence[str], sample_rate: float, n_modes: int,
         settings: HealthSettings | None = None, ranges: Sequence[float | None] | None = None,
         sensitivities: Sequence[float] | None = None, nonlinear: Sequence[str] = (),
+        lines: LineSettings | None = DEFAULT_LINES,
     ) -> None:  # fmt: skip
         self.M, self.K, self.n_modes = M, K, int(n_modes)
         self.channels = tuple(channels)
-        self.nonlinear = tuple(nonlinear)
         self.health = SensorHealth(channels, sample_rate, M, K, self.n_modes, ranges, sensitivities, settings)
+        #: stationary lines (mains hum) found and removed before every check and the modal filter (analysis/lines.py)
+        self.lines = None if lines is None else LineCanceller(len(self.channels), sample_rate, lines)
+        if lines is not None:  # noise is judged once the canceller could have found the lines
+            self.health.quiet_from = lines.n_spans * self.lines.L
+        self.hum: dict[str, list[float]] = {}  # channel -> the line frequencies found on it (Hz)
+        self.nonlinear = tuple(nonlinear)
         self.keep = list(range(len(self.channels)))
         self.basis = modal_basis(M, K, min(self.n_modes, len(self.channels)))
         self.verdicts: list[Verdict] = []
+
+    def feed_clean(self, block: np.ndarray, input_active: np.ndarray | None = None) -> tuple[np.ndarray, list[Switch]]:
+        """One block: its samples with the stationary lines removed (what the modal filter and the seed lane should
+        read), and the switches of :meth:`feed` on them, with a ``hum`` warning where lines were newly found."""
+        start = self.health._index
+        x = block if self.lines is None else self.lines.feed(block)
+        switches = self.feed(x, input_active)
+        if self.lines is not None and self.lines.found:
+            hum = self._hum_switch(self.lines.found, start, x.shape[0])
+            self.lines.found = []
+            switches = sorted([*switches, hum], key=lambda sw: sw.offset)
+        return x, switches
+
+    def _hum_switch(self, found: list[LineFound], start: int, n: int) -> Switch:
+        """One ``hum`` warning naming the channels and the frequencies newly found in this block (a line found later on a
+        channel already named is removed without a new warning)."""
+        by: dict[str, list[LineFound]] = {}
+        for f in found:
+            name = self.channels[f.channel]
+            if name not in self.hum or name in by:
+                by.setdefault(name, []).append(f)
+        for f in found:
+            self.hum.setdefault(self.channels[f.channel], []).append(f.freq_hz)
+        at = max(f.index for f in found)
+        self.health.restart_quiet(at)
+        if not by:
+            return Switch(min(max(at - start, 0), n), [], None, list(self.keep), True)
+        parts = []
+        for name, fs in by.items():
+            fs = sorted(fs, key=lambda f: f.freq_hz)
+            parts.append(f"{name} " + "/".join(f"{f.freq_hz:.1f}" for f in fs) + f" Hz ({max(f.amplitude for f in fs):.2g} peak)")
+        msg = (f"hum: stationary lines on {len(by)} sensor(s) at {at / self.health.fs:.3f} s: {'; '.join(parts)}; removed "
+               "before the modal filter (mains pickup: check the sensor cables' shields and grounding)")  # fmt: skip
+        return Switch(min(max(at - start, 0), n), [("hum", "hum:" + ",".join(by), msg)], None, list(self.keep), True)
 
     def feed(self, block: np.ndarray, input_active: np.ndarray | None = None) -> list[Switch]:
         """One block: where in it (sample offset) the modal filter changes, with the warnings to raise there."""
@@ -526,3 +631,5 @@ class HealthGuard:
 
     def restart(self) -> None:
         self.health.restart()
+        if self.lines is not None:
+            self.lines.restart()

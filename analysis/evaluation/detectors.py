@@ -21,6 +21,7 @@ import numpy as np
 from analysis.evaluation.grid import CaseData, GridCase, case_rig
 from analysis.evaluation.score import DetectedEvent
 from analysis.exchange import ExchangeDetector, ExchangeSettings, ModalWindower, band_noise_energy, nearest_ratio
+from analysis.lines import LineSettings
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.model.rig import Rig
 from analysis.operator import window_rq
@@ -33,6 +34,8 @@ WINDOW_S = 0.0216
 #: samples per block fed to the health check and the modal filter: the demo/simulated DAQ's block (daq/studies/demo.py)
 BLOCK = 1024
 HEALTH = HealthSettings()
+#: the line canceller in front of the modal filter, as in a session (None: off, the detector before issue 29)
+LINES: LineSettings | None = LineSettings()
 #: the detector's settings in every evaluation (the defaults a session uses, at the seed's window)
 EXCHANGE = ExchangeSettings(window_s=WINDOW_S)
 #: hand the detector the band noise the case's sensors put into each mode (their noise std through
@@ -99,7 +102,11 @@ def seed_literal_disp(case: CaseData, model_rig: Rig | None = None) -> list[Dete
 
 
 def modal_exchange_health(
-    case: CaseData, model_rig: Rig | None = None, quantity: str = "acceleration", health: HealthSettings | None = HEALTH
+    case: CaseData,
+    model_rig: Rig | None = None,
+    quantity: str = "acceleration",
+    health: HealthSettings | None = HEALTH,
+    lines: LineSettings | None = LINES,
 ) -> tuple[list, list[tuple[str, str, str]]]:
     """gvtlink's detector on the case as a session runs it: sensor health, the (rebuilt) modal filter, windows,
     exchange detection, block by block; returns the events and the health warnings ``(kind, key, message)``.
@@ -118,7 +125,7 @@ def modal_exchange_health(
         sensors = nl_rig.sensors
         guard = HealthGuard(M, K, case.sensor_names, fs, basis.n_modes, health, [x.props.range for x in sensors],
                             [x.props.sensitivity_mv_per_unit for x in sensors],
-                            [x.name for x in sensors if x.dof in nl_dofs])  # fmt: skip
+                            [x.name for x in sensors if x.dof in nl_dofs], lines)  # fmt: skip
     mf = ModalFilterSettings(quantity=quantity)
     tracker = ModalStateTracker(basis, fs, mf)
     windower = ModalWindower(basis, fs, round(s.window_s * fs), max(1, round(s.hop * fs)), 0,
@@ -128,13 +135,15 @@ def modal_exchange_health(
     events, warns = [], []
     for a in range(0, data.shape[0], BLOCK):
         x, i = data[a : a + BLOCK], inp[a : a + BLOCK]
-        switches = guard.feed(x, i) if guard is not None else []
+        x, switches = guard.feed_clean(x, i) if guard is not None else (x, [])
         for lo, hi, sw in guard.pieces(x.shape[0], switches) if guard is not None else [(0, x.shape[0], None)]:
             if hi > lo:
                 q, qd = tracker.feed(x[lo:hi, cols])
                 events += [ev for win in windower.feed(q, qd, i[lo:hi]) for ev in det.feed(win)]
             if sw is not None:
                 warns += sw.warnings
+                if sw.lines:
+                    det.clear_quiet()
                 if sw.basis is not None:
                     tracker.set_basis(sw.basis)
                     windower.basis = sw.basis

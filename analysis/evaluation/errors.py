@@ -268,3 +268,78 @@ def model_error_rig(case: GridCase, err: ModelError) -> Rig:
     data["point_masses"] = [{**p, "mass": p["mass"] * (1 + err.m)} for p in data.get("point_masses", [])]
     path = rig_toml(case.rig)
     return build_rig(validate(RigConfig, data, path), path)
+
+
+# --- interference and wiring faults (issue 29, item 6) --------------------------------------------------------
+
+#: relative amplitudes of the mains fundamental and its harmonics 2-4 (odd-dominated pickup has the 3rd strong too;
+#: the split matters little: each line is found and removed on its own)
+HUM_PROFILE = (1.0, 0.5, 0.35, 0.25)
+
+
+def hum_amplitudes(rms: float, profile: Sequence[float] = HUM_PROFILE) -> np.ndarray:
+    """Amplitudes of the lines in ``profile``'s proportions whose sum has the RMS ``rms``."""
+    p = np.asarray(profile, float)
+    return p * rms / np.sqrt(0.5 * np.sum(p**2))
+
+
+def with_hum(
+    case: CaseData, level: float, f0: float = 50.0, channels: Iterable[str] | None = None,
+    profile: Sequence[float] = HUM_PROFILE, ref_s: float | None = NOISE_REF_S,
+) -> CaseData:  # fmt: skip
+    """Mains hum added to ``acc``: ``f0`` and its harmonics (``profile``), RMS = ``level`` x the clean channel's RMS over
+    the first ``ref_s`` s (as :func:`with_noise`), on ``channels`` (None: all), a seeded phase per channel and line
+    (pickup through each cable differs in phase). The generator is the simulated DAQ's (analysis/lines.py)."""
+    from analysis.lines import hum_waveform
+
+    names = case.sensor_names if channels is None else list(channels)
+    unknown = [n for n in names if n not in case.sensor_names]
+    if unknown:
+        raise ValueError(f"no channel {unknown[0]!r}; channels are {', '.join(case.sensor_names)}")
+    first = round(case.hit_times_s[0] * case.fs)  # the RMS of the response, not of a quiet pre-trigger
+    rms = noise_std(case.acc_clean[first:], 1.0, case.fs, ref_s)
+    rng = _rng(case, 5)
+    acc = case.acc.astype(np.float64)
+    for name in names:
+        k = case.sensor_names.index(name)
+        amps = hum_amplitudes(level * float(rms[k]), profile)
+        acc[:, k] += hum_waveform(acc.shape[0], case.fs, f0, amps, rng.uniform(0, 2 * np.pi, len(amps)))
+    return replace(case, acc=acc.astype(np.float32))
+
+
+def flip_polarity(case: CaseData, names: Iterable[str]) -> CaseData:
+    """The named channels read with their sign reversed (a sensor mounted upside down, a swapped cable pair)."""
+    acc = case.acc.copy()
+    for n in names:
+        acc[:, case.sensor_names.index(n)] *= -1
+    return replace(case, acc=acc)
+
+
+def stick_channels(case: CaseData, names: Iterable[str], value: float = 0.37) -> CaseData:
+    """The named channels frozen at ``value`` (SI), a constant non-zero reading (a hung ADC or IEPE bias fault)."""
+    acc = case.acc.copy()
+    for n in names:
+        acc[:, case.sensor_names.index(n)] = np.float32(value)
+    return replace(case, acc=acc)
+
+
+def with_pretrigger(case: CaseData, seconds: float) -> CaseData:
+    """``seconds`` of the structure at rest before the hit: what the analysis lane of a session sees before its first hit
+    (a session streams from its start; the grid's records start at the pulse). The rest reads the sensors' noise
+    (``noise_std``, a draw of its own); every time (hits, pulse end, truth intervals) moves by ``seconds``. Apply after
+    the noise and before interference that runs through the whole record (:func:`with_hum`)."""
+    n = round(seconds * case.fs)
+    if n <= 0:
+        return case
+    pre = (_rng(case, 6).standard_normal((n, case.acc.shape[1])) * case.noise_std).astype(np.float32)
+
+    def rest(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.zeros((n, *a.shape[1:]), a.dtype), a]) if a.size else a
+
+    dt = n / case.fs
+    return replace(
+        case, t=np.arange(case.t.size + n) / case.fs, acc=np.concatenate([pre, case.acc]), acc_clean=rest(case.acc_clean),
+        disp_true=rest(case.disp_true), vel_true=rest(case.vel_true), modal_q=rest(case.modal_q), modal_v=rest(case.modal_v),
+        pulse_end_s=case.pulse_end_s + dt, hit_times_s=tuple(h + dt for h in case.hit_times_s),
+        exchanges=tuple(replace(e, start_s=e.start_s + dt, end_s=e.end_s + dt) for e in case.exchanges),
+    )  # fmt: skip

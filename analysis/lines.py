@@ -67,6 +67,10 @@ class LineSettings:
     #: a removed line is refreshed from spans whose scatter is at most twice its estimate's, or this (measured: the
     #: quiet pre-trigger gives 0.002-0.01 at 0.5-5 % hum, a decay's tail 0.03-0.2)
     refresh_scatter: float = 0.02
+    #: a line's amplitude must reach this fraction of the channel's RMS over the spans (offset included): a frozen
+    #: channel's constant leaks a perfectly stationary 1e-5 of itself into every line's span; real pickup at 0.5 % of
+    #: a hit's RMS is >= 1e-3 of a 1 s span's RMS
+    min_rel: float = 1e-4
 
     def __post_init__(self) -> None:
         if self.span_s <= 0 or self.n_spans < 2 or self.harmonics < 1 or not self.mains_hz:
@@ -101,6 +105,8 @@ class LineCanceller:
         self._demod = self._taper * np.exp(-1j * np.outer(self._w, j))  # (lines, L): tapered clocks from a span's start
         self._index = 0
         self._acc = np.zeros((len(self.freqs), self.c), complex)  # the open span's tapered sums
+        self._ss = np.zeros(self.c)  # ... and its sum of squares per channel
+        self._ss_hist: list[np.ndarray] = []
         self._hist: list[np.ndarray] = []  # the last n_spans phasors (lines, channels), against each span's start
         self._est = np.zeros((len(self.freqs), self.c), complex)  # the line removed, phasor at the stream's sample 0
         self._dw = np.zeros(len(self.freqs))  # each line's frequency offset (rad a sample), shared by the channels
@@ -132,6 +138,7 @@ class LineCanceller:
             seg = x[i : i + take]
             start = self._index - pos  # the span's first sample: its clocks are tables times one phase each
             self._acc += (self._demod[:, pos : pos + take] @ seg) * np.exp(-1j * self._w * start)[:, None]
+            self._ss += np.einsum("ij,ij->j", seg, seg)
             if self._on.any():
                 clock = self._clock[pos : pos + take] * np.exp(1j * (self._w + self._dw) * start)
                 out[i : i + take] -= (clock @ np.where(self._on, self._est, 0.0)).real
@@ -144,16 +151,21 @@ class LineCanceller:
     def restart(self) -> None:
         """A gap in the stream: the samples are counted without it, so the lines' phases are lost; start again."""
         self._acc[:] = 0.0
+        self._ss[:] = 0.0
         self._hist.clear()
+        self._ss_hist.clear()
         self._on[:] = False
         self._scatter[:] = np.inf
         self._index += (-self._index) % self.L  # the next span starts on the lattice
 
     def _close_span(self) -> None:
         self._hist.append(self._acc)  # the span's phasor on the stream's clock at each line's nominal frequency
+        self._ss_hist.append(self._ss)
         self._acc = np.zeros_like(self._acc)
+        self._ss = np.zeros(self.c)
         if len(self._hist) > self.s.n_spans:
             self._hist.pop(0)
+            self._ss_hist.pop(0)
         if len(self._hist) < self.s.n_spans:
             return
         P = np.stack(self._hist)  # (spans, lines, ch)
@@ -165,7 +177,9 @@ class LineCanceller:
         mag = np.abs(mean)
         scatter = np.sqrt(np.mean(np.abs(Pc - mean) ** 2, axis=0))
         amp = np.abs(P)
-        ok = (mag > 0) & (scatter <= self.s.max_scatter * mag) & (amp.max(axis=0) <= self.s.max_amp_ratio * amp.min(axis=0))
+        rms = np.sqrt(np.sum(self._ss_hist, axis=0) / (len(self._ss_hist) * self.L))
+        steady = amp.max(axis=0) <= self.s.max_amp_ratio * amp.min(axis=0)
+        ok = (mag > self.s.min_rel * rms) & (scatter <= self.s.max_scatter * mag) & steady
         rel = np.where(mag > 0, scatter / np.where(mag > 0, mag, 1.0), np.inf)
         # a line already removed is re-estimated only from spans about as clean as those it was found on: during a hit's
         # decay the structure's leakage passes the test at a 0.1 scatter and would spoil an estimate made in the quiet

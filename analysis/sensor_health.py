@@ -488,8 +488,8 @@ class SensorHealth:
             w = int(np.argmin(corr))
             if not (corr[w] < self.s.polarity_corr and _median(corr) > -self.s.polarity_corr):
                 break
-            out += self._judge(good[w], "polarity", f"reads {corr[w]:+.2f} x the correlation its neighbours predict at the "
-                                                    "hit (sign reversed: cable, mounting or channel setup)")  # fmt: skip
+            why = f"correlation {corr[w]:+.2f} with what its neighbours predict in the hit's first response"
+            out += self._judge(good[w], "polarity", f"{why} (sign reversed: cable, mounting or channel setup)")
         return out
 
     def _judge_hit(self, S: np.ndarray) -> list[Verdict]:
@@ -609,7 +609,8 @@ class HealthGuard:
                     f"NOT excluded: {len(good)} healthy sensors cannot carry {self.n_modes} modes")  # fmt: skip
             warns = [("sensor", f"sensor:{v.channel}", f"{v.line()} at {v.t_s:.3f} s; {tail}")]
             if v.channel in self.nonlinear:
-                why = f"its sensor {v.channel} is {v.fault} (the seed's assumption 11, L69)"
+                what = "has its polarity reversed" if v.fault == "polarity" else f"is {v.fault}"
+                why = f"its sensor {v.channel} {what} (the seed's assumption 11, L69)"
                 warns.append(("blind", f"blind:{v.channel}", f"detection is blind at the nonlinear element: {why}"))
             basis = None
             if rebuilt:

@@ -102,7 +102,12 @@ class LineCanceller:
         self._taper = np.hanning(self.L + 2)[1:-1]
         self._taper *= 2.0 / self._taper.sum()  # a cosine of amplitude a gives a phasor of magnitude a
         j = np.arange(self.L)
-        self._demod = self._taper * np.exp(-1j * np.outer(self._w, j))  # (lines, L): tapered clocks from a span's start
+        #: the phasors are measured on every D-th stream sample (down to ~4 x the highest line's rate, at most 16): the lines
+        #: need no more, and a block costs D times less; the broadband content aliased into a line's bin is no line (it
+        #: turns against the line's clock), and the scatter test is what rejects it
+        self.D = int(max(1, min(16, self.fs // (8 * max(float(self.freqs.max()) if self.freqs.size else 1.0, 1.0)))))
+        z = self.D * self._taper * np.exp(-1j * np.outer(self._w, j))  # (lines, L): tapered clocks from a span's start
+        self._demod = np.stack([z.real, z.imag])
         self._index = 0
         self._acc = np.zeros((len(self.freqs), self.c), complex)  # the open span's tapered sums
         self._ss = np.zeros(self.c)  # ... and its sum of squares per channel
@@ -116,8 +121,9 @@ class LineCanceller:
         self.found: list[LineFound] = []
 
     def _clocks(self) -> np.ndarray:
-        """(L, lines): the removed lines' clocks from a span's start, at their measured frequencies."""
-        return np.exp(1j * np.outer(np.arange(self.L), self._w + self._dw))
+        """(2, L, lines): the removed lines' clocks from a span's start at their measured frequencies, real and imaginary."""
+        z = np.exp(1j * np.outer(np.arange(self.L), self._w + self._dw))
+        return np.stack([z.real, z.imag])
 
     @property
     def active(self) -> bool:
@@ -137,11 +143,16 @@ class LineCanceller:
             take = min(x.shape[0] - i, self.L - pos)
             seg = x[i : i + take]
             start = self._index - pos  # the span's first sample: its clocks are tables times one phase each
-            self._acc += (self._demod[:, pos : pos + take] @ seg) * np.exp(-1j * self._w * start)[:, None]
-            self._ss += np.einsum("ij,ij->j", seg, seg)
+            # real products of the tables (a complex product would copy the block to complex first: 3x the time)
+            sel = slice((-self._index) % self.D, take, self.D)  # stream samples on the decimation lattice
+            d = self._demod[:, :, pos : pos + take][:, :, sel]
+            self._acc += (d[0] @ seg[sel] + 1j * (d[1] @ seg[sel])) * np.exp(-1j * self._w * start)[:, None]
+            self._ss += np.einsum("ij,ij->j", seg[sel], seg[sel])
             if self._on.any():
-                clock = self._clock[pos : pos + take] * np.exp(1j * (self._w + self._dw) * start)
-                out[i : i + take] -= (clock @ np.where(self._on, self._est, 0.0)).real
+                on = self._on.any(axis=1)  # only the lines found somewhere are subtracted, at every sample
+                est = self._est[on] * np.exp(1j * (self._w[on] + self._dw[on]) * start)[:, None]
+                c = self._clock[:, pos : pos + take][:, :, on]
+                out[i : i + take] -= c[0] @ est.real - c[1] @ est.imag
             self._index += take
             i += take
             if self._index % self.L == 0:
@@ -163,12 +174,14 @@ class LineCanceller:
         self._ss_hist.append(self._ss)
         self._acc = np.zeros_like(self._acc)
         self._ss = np.zeros(self.c)
-        if len(self._hist) > self.s.n_spans:
-            self._hist.pop(0)
-            self._ss_hist.pop(0)
         if len(self._hist) < self.s.n_spans:
             return
         P = np.stack(self._hist)  # (spans, lines, ch)
+        ss = np.sum(self._ss_hist, axis=0)
+        # judged on consecutive, non-overlapping groups of n_spans (once a second): the test costs ~25 small array
+        # operations, and at every span it was 8 % of `gvt analyze` (docs/detection.md, speed)
+        self._hist.clear()
+        self._ss_hist.clear()
         turn = np.sum(P[1:] * np.conj(P[:-1]), axis=0)  # a line off its nominal frequency by dw turns dw L a span
         rot = np.angle(turn)
         spans = np.arange(P.shape[0])[:, None, None]
@@ -177,7 +190,7 @@ class LineCanceller:
         mag = np.abs(mean)
         scatter = np.sqrt(np.mean(np.abs(Pc - mean) ** 2, axis=0))
         amp = np.abs(P)
-        rms = np.sqrt(np.sum(self._ss_hist, axis=0) / (len(self._ss_hist) * self.L))
+        rms = np.sqrt(self.D * ss / (P.shape[0] * self.L))
         steady = amp.max(axis=0) <= self.s.max_amp_ratio * amp.min(axis=0)
         ok = (mag > self.s.min_rel * rms) & (scatter <= self.s.max_scatter * mag) & steady
         rel = np.where(mag > 0, scatter / np.where(mag > 0, mag, 1.0), np.inf)
@@ -186,9 +199,15 @@ class LineCanceller:
         ok &= ~self._on | (rel <= np.maximum(2 * self._scatter, self.s.refresh_scatter))
         if not ok.any():
             return
-        # one frequency per line, from the channels that hold it (weighted by their power)
+        # one frequency per line, from the channels that hold it (weighted by their power); the clocks' table is rebuilt
+        # only when it would slip by more than 3e-3 rad over a span (the estimate is made with the frequency in use, so a
+        # smaller slip costs at most ~0.5 % of the line until the next refresh)
         shared = np.angle(np.sum(np.where(ok, turn, 0.0), axis=1)) / self.L
         dw = np.where(ok.any(axis=1), shared, self._dw)
+        if np.max(np.abs(dw - self._dw)) * self.L > 3e-3:
+            self._dw = dw
+            self._clock = self._clocks()
+        dw = self._dw
         mid = self._index - P.shape[0] * self.L + 0.5 * (self.L - 1)  # the first span's centre
         Pc = P * np.exp(-1j * (dw * self.L)[None, :, None] * spans)
         est = Pc.mean(axis=0) * np.exp(-1j * dw * mid)[:, None]  # amplitude and phase at the stream's sample 0
@@ -197,6 +216,4 @@ class LineCanceller:
                                         float(mag[li, ch]), self._index))  # fmt: skip
         self._est = np.where(ok, est, self._est)
         self._scatter = np.where(ok, rel, self._scatter)
-        self._dw = dw
-        self._clock = self._clocks()
         self._on |= ok

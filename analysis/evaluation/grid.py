@@ -172,6 +172,8 @@ class CaseData:
 
     def truth(self, window_s: float = DEFAULT_WINDOW_S, **kwargs) -> list[Exchange]:
         """Major exchanges for another window length (or other truth parameters)."""
+        if kwargs.get("label_rule") == "phase":
+            kwargs.setdefault("freqs_hz", self.mode_frequencies_hz)
         return major_exchanges(
             self.modal_q, self.modal_energy, self.fs, self.pulse_end_s, window_s, input_work=self.input_work, **kwargs
         )

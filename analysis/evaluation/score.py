@@ -180,3 +180,13 @@ def format_rich(scores: dict[str, Score], title: str = "Detection scores"):
     for r in summary_rows(scores):
         table.add_row(*r)
     return table
+
+
+def constant_label_accuracy(score: Score, truths_per_case: Sequence[Sequence[Exchange]]) -> tuple[str, float]:
+    """The baseline a label accuracy must beat: every matched event given the one label most common among the truths it
+    matched (the best constant). Returns that label and its accuracy over the score's matches; ("-", nan) with none."""
+    labels = [truths_per_case[i][t].label for i, row in enumerate(score.rows) for _, t in row.matches]
+    if not labels:
+        return "-", float("nan")
+    best = max(set(labels), key=labels.count)
+    return best, labels.count(best) / len(labels)

@@ -35,7 +35,7 @@ import numpy as np
 import scipy.signal
 from scipy.ndimage import uniform_filter1d
 
-from analysis.exchange import DEFAULT_RATIOS, lock_fit, nearest_ratio
+from analysis.exchange import DEFAULT_RATIOS, lock_fit, nearest_ratio, phase_bands, slowest_phase_ratio
 from analysis.model.beam import FloatArray
 from analysis.model.truth import zero_crossing_frequency
 
@@ -142,6 +142,35 @@ def locked_ratio(
     return lock_fit(idx / fs, q2[idx], th, f1_hz, ratios, LOCK_MIN_IMPROVEMENT, LOCK_MIN_SHARE, step_hz)
 
 
+def slow_phase_label(
+    modal_q: FloatArray, fs: float, freqs_hz: Sequence[float], t0: float, t1: float,
+    ratios: Sequence[tuple[int, int]] = DEFAULT_RATIOS,
+) -> tuple[tuple[int, int], float] | None:  # fmt: skip
+    """The m:n whose slow phase ``m θ1 − n θ2`` turns slowest over ``[t0, t1]`` — the seed's definition of an internal
+    resonance (eq. 4.2, L1275) read on the simulator's exact modal coordinates — and the ratio of the phases' advances.
+
+    Independent of the detector (issue 29): no fit and no sensor; θ1, θ2 are the analytic phases (Hilbert, zero-phase)
+    of exact q1 and q2, each band-passed to its mode's band (:func:`analysis.exchange.phase_bands` of the linear
+    frequencies ``freqs_hz``, so that the little of mode 1 in q2 does not set q2's phase), their advances over the span
+    give ``r = Δθ2 / Δθ1``, and the label minimises the slow phase's advance ``n |r − m/n| Δθ1``
+    (:func:`analysis.exchange.slowest_phase_ratio`). The detector labels by a least-squares phase-lock fit of its own
+    band-passed states (:func:`analysis.exchange.lock_fit`); the lock truth of §8 used that same fit on exact data."""
+    q = np.asarray(modal_q, dtype=float)
+    if q.shape[0] < 16 or not t1 > t0:
+        return None
+    bands = phase_bands(np.asarray(freqs_hz, float)[:3], fs)
+    th = []
+    for j in (0, 1):
+        sos = scipy.signal.butter(2, bands[j], "bandpass", fs=fs, output="sos")
+        th.append(np.unwrap(np.angle(scipy.signal.hilbert(scipy.signal.sosfiltfilt(sos, q[:, j])))))
+    a, b = max(0, round(t0 * fs)), min(q.shape[0] - 1, round(t1 * fs))
+    d1, d2 = th[0][b] - th[0][a], th[1][b] - th[1][a]
+    if b <= a or not d1 > 0:
+        return None
+    r = float(d2 / d1)
+    return slowest_phase_ratio(r, ratios), r
+
+
 def zigzag(x: FloatArray, hysteresis: float = DEFAULT_HYSTERESIS) -> list[tuple[int, int]]:
     """Alternating extrema ``(index, +1 max | -1 min)`` of a positive signal, each confirmed by a move of ``hysteresis``.
 
@@ -202,6 +231,7 @@ def major_exchanges(
     floor_rel: float = DEFAULT_FLOOR_REL,
     hysteresis: float = DEFAULT_HYSTERESIS,
     label_rule: str = "lock",
+    freqs_hz: Sequence[float] | None = None,
 ) -> list[Exchange]:
     """Major exchanges into mode 2 (column 1) of one record; see the module docstring for the rules.
 
@@ -209,10 +239,14 @@ def major_exchanges(
     and energies (``SimulationResult.modal_q[b]``, ``.modal_energy[b]``). ``input_work`` (J) sets the
     floor; when omitted, the total modal energy at the first usable sample stands in for it. ``label_rule``
     "lock" (default since issue 21): m:n from :func:`locked_ratio`, falling back to the rounded zero-crossing f2/f1
-    where no candidate is locked; "zero_crossing": issue 6's rounded f2/f1 only (``Exchange.zc_label`` either way).
+    where no candidate is locked; "zero_crossing": issue 6's rounded f2/f1 only (``Exchange.zc_label`` either way);
+    "phase": :func:`slow_phase_label` over the interval widened to +-W, the definition independent of the detector
+    (issue 29, docs/evaluation.md §11; needs ``freqs_hz``, the linear modes' frequencies).
     """
-    if label_rule not in ("lock", "zero_crossing"):
-        raise ValueError("label_rule must be 'lock' or 'zero_crossing'")
+    if label_rule == "phase" and freqs_hz is None:
+        raise ValueError("label_rule 'phase' needs the linear modes' frequencies (freqs_hz)")
+    if label_rule not in ("lock", "zero_crossing", "phase"):
+        raise ValueError("label_rule must be 'lock', 'zero_crossing' or 'phase'")
     q = np.asarray(modal_q, dtype=float)
     E = np.asarray(modal_energy, dtype=float)
     if q.ndim != 2 or q.shape[1] < 2 or E.shape[0] != q.shape[0] or E.shape[1] < 2:
@@ -250,6 +284,9 @@ def major_exchanges(
             theta1 = giving_phase(q[:, 0]) if theta1 is None else theta1
             locked = locked_ratio(q[:, 1], theta1, fs, centre, f1, ratios, bounds_s=(pulse_end_s, (n - 1) / fs))
             m, nn = locked if locked is not None else (m, nn)
+        elif label_rule == "phase":
+            lab = slow_phase_label(q, fs, freqs_hz, max(centre - hw, pulse_end_s), min(centre + hw, (n - 1) / fs), ratios)
+            m, nn = lab[0] if lab is not None else (m, nn)
         rel = float(e2[ib] / work) if work > 0 else float("nan")
         out.append(Exchange(ts, te, float(gain), m, nn, f1, f2, rel, float(e2[ib] / e1[ib]) if e1[ib] > 0 else float("inf"), zc))
     return out

@@ -59,3 +59,28 @@ def test_property_output_is_bounded_by_the_ranges(x):
     bound = min(ACC.range, 5.0 / ACC.sensitivity_v_per_unit) * (1 + 1e-6)
     assert np.all(np.abs(m.data) <= bound)
     assert m.data.dtype == np.float32
+
+
+def test_sensor_faults_hum_polarity_stuck_as_the_session_device_makes_them():
+    """Issue 29: hum on a channel is a line at 50 Hz + harmonics of the stated RMS whose phase runs on the device's
+    clock (two blocks made apart join the one made whole), a reversed sensor reads -x, a stuck one its value."""
+    from drivers.sim.faults import SensorFaults
+
+    fs, n = 4096.0, 4096
+    chans = SensorFaults(50.0, {"a": 0.3}, ("b",), {"c": 0.37}).apply(
+        [ChannelModel(name, "acceleration", "m/s^2", 1.02e-3) for name in "abcd"]
+    )
+    x = np.tile(np.sin(2 * np.pi * 20 * np.arange(n) / fs)[:, None], (1, 4))
+    adc = AdcModel(bits=24, input_range_volts=10.0)
+    whole = measure(x, chans, adc, np.random.default_rng(0), fs=fs).data
+    parts = np.concatenate([measure(x[a : a + 1000], chans, adc, np.random.default_rng(0), fs=fs, first_index=a).data
+                            for a in range(0, n, 1000)])  # fmt: skip
+    assert np.allclose(parts, whole, atol=1e-3)  # one quantisation step (10 V / 2^23 / 1.02 mV = 1.2e-3)
+    hum = whole[:, 0] - x[:, 0]
+    assert np.sqrt(np.mean(hum**2)) == pytest.approx(0.3, rel=0.01)
+    spec = np.abs(np.fft.rfft(hum)) / n  # 1 Hz bins over 1 s
+    assert set(np.argsort(spec)[-4:]) == {50, 100, 150, 200}
+    assert np.allclose(whole[:, 1], -x[:, 1], atol=2e-3) and np.all(whole[:, 2] == np.float32(0.37))
+    assert np.allclose(whole[:, 3], x[:, 3], atol=2e-3)
+    with pytest.raises(ValueError, match="no channel 'z'"):
+        SensorFaults(reversed=("z",)).apply(chans)

@@ -13,7 +13,8 @@ not restarted by ``start_clock``, so its index would run on.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -93,3 +94,28 @@ class Faults:
     def injected_samples(self) -> int:
         with self._lock:
             return sum(b - a for a, b in merge_ranges(self.injected))
+
+
+@dataclass(frozen=True)
+class SensorFaults:
+    """Sensor-side faults of the simulated device, per channel name (issue 29): mains hum picked up in the cable,
+    a sensor mounted or wired the wrong way round, a channel stuck at one value. Applied to the device's channel
+    models (:meth:`apply`), so that a simulated session, its log and its replay carry them; the sensor model
+    (drivers/sim/sensor_model.py) makes them, sample-exact."""
+
+    hum_hz: float = 50.0
+    hum_rms: dict[str, float] = field(default_factory=dict)  # channel -> hum RMS, SI units
+    reversed: tuple[str, ...] = ()
+    stuck: dict[str, float] = field(default_factory=dict)  # channel -> the value it reads
+
+    def apply(self, channels: Sequence) -> list:
+        """The channel models (drivers.sim.sensor_model.ChannelModel) with these faults; an unknown name is an error."""
+        names = {c.name for c in channels}
+        unknown = sorted((set(self.hum_rms) | set(self.reversed) | set(self.stuck)) - names)
+        if unknown:
+            raise ValueError(f"sensor faults name no channel {unknown[0]!r}; channels are {', '.join(sorted(names))}")
+        return [
+            replace(c, hum_hz=self.hum_hz if c.name in self.hum_rms else 0.0, hum_rms=self.hum_rms.get(c.name, 0.0),
+                    polarity=-1 if c.name in self.reversed else 1, stuck_at=self.stuck.get(c.name))
+            for c in channels
+        ]  # fmt: skip

@@ -62,6 +62,8 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_confirm.py
 	$(BIN)/python bench/bench_model_update.py
 	$(BIN)/python bench/eval_realistic.py
+	$(BIN)/python bench/eval_hum.py --before
+	$(BIN)/python bench/eval_labels.py
 	$(BIN)/python bench/eval_updated_model.py
 	$(BIN)/python bench/calibrate_confidence.py
 	$(BIN)/python bench/eval_nsi.py --table --laws hb,exact,modal-exact

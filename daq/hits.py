@@ -129,9 +129,20 @@ def _distinct_below_4(rec: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ChannelJudgement:
-    verdicts: dict[str, str]  # every channel: "ok" | "clipped" | "dead" | "excluded"
+    verdicts: dict[str, str]  # every channel: "ok" | "clipped" | "dead" | "stuck" | "excluded"
     why: dict[str, str]  # failed channels: what was seen
     unjudged: frozenset[str]  # "ok" channels whose life could not be checked on this hit (see the rule above)
+
+
+def _flat_kind(x: np.ndarray) -> tuple[str, str]:
+    """A flat record's verdict and why: ``stuck`` when it holds one value far from zero (a frozen front end or
+    converter repeats its last reading: the value is not the sensor's rest, and the channel is not silent but
+    lying), else ``dead`` (a sensor with no output reads zero plus the converter's last bit or two)."""
+    lo, hi = float(x.min()), float(x.max())
+    mid = 0.5 * (lo + hi)
+    if mid != 0.0 and abs(mid) > 10.0 * (hi - lo):
+        return "stuck", f"one value, {mid:.4g}, over the record while the others move"
+    return "dead", "flat: at most 3 distinct values over the record"
 
 
 def judge_channels(
@@ -166,7 +177,7 @@ def judge_channels(
     unjudged: set[str] = set()
     if 2 * len([k for k in live if flat[k]]) < len(live):
         for k in flat_ok:
-            verdicts[channels[k]], why[channels[k]] = "dead", "flat: at most 3 distinct values over the record"
+            verdicts[channels[k]], why[channels[k]] = _flat_kind(safe[:, k])
     else:
         unjudged.update(channels[k] for k in flat_ok)
     # silent: no response while the others clearly answered
@@ -260,7 +271,7 @@ class ChannelHealth:
 
     hits: int = 0
     clipped: dict[str, int] = field(default_factory=dict)
-    failures: dict[str, dict[str, int]] = field(default_factory=dict)  # channel -> {"clipped"|"dead": hits}
+    failures: dict[str, dict[str, int]] = field(default_factory=dict)  # channel -> {"clipped"|"dead"|"stuck": hits}
     judged: dict[str, int] = field(default_factory=dict)
 
     def update(self, verdicts: dict[str, str], unjudged: Iterable[str] = ()) -> None:
@@ -271,7 +282,7 @@ class ChannelHealth:
             if v == "excluded" or (v == "ok" and c in skip):
                 continue
             self.judged[c] = self.judged.get(c, 0) + 1
-            if v in ("clipped", "dead"):
+            if v in ("clipped", "dead", "stuck"):
                 kinds = self.failures.setdefault(c, {})
                 kinds[v] = kinds.get(v, 0) + 1
                 if v == "clipped":
@@ -486,7 +497,7 @@ class HitDetector:
         if gate_clipped:
             reasons.append(("overload", f"overload: {', '.join(gate_clipped)} reached the measurement range"))
         for c in gate:
-            if verdicts[c] == "dead":
+            if verdicts[c] in ("dead", "stuck"):
                 role = "force channel" if c == s.channel else "required channel"
                 reasons.append(("overload", f"overload: {role} {c} dead ({judged.why[c]})"))
         excluded = tuple(c for c in self.channels if c != s.channel and verdicts[c] != "ok")

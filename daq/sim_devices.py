@@ -84,6 +84,7 @@ def _faults(spec, seed: int):
 def start_simulation(cfg: SessionConfig, rig: Rig) -> SimHarness:
     """Start ONE simulated structure and a server for every simulated device of the session."""
     from drivers.sim.device import DelayedDeviceView, HitSchedule, SimulatedDevice
+    from drivers.sim.faults import SensorFaults
 
     specs = [d for d in cfg.device_list if d.simulate is not None]
     harness = SimHarness()
@@ -109,7 +110,12 @@ def start_simulation(cfg: SessionConfig, rig: Rig) -> SimHarness:
 
         per_hit = scheduled_dofs(cfg.plan, rig, list(sim.forces), list(sim.double_hits))
         dofs = tuple(d for k, d in enumerate(per_hit) for _ in range(2 if k in sim.double_hits else 1))
-    device = SimulatedDevice(rig, HitSchedule(tuple(times), tuple(forces), dofs), duration=duration, seed=sim.seed)
+    faults = None
+    if sim.hum_rms or sim.reversed_polarity or sim.stuck:
+        faults = SensorFaults(hum_hz=sim.hum_hz, hum_rms=dict(sim.hum_rms), reversed=tuple(sim.reversed_polarity),
+                              stuck=dict(sim.stuck))  # fmt: skip
+    device = SimulatedDevice(rig, HitSchedule(tuple(times), tuple(forces), dofs), duration=duration, seed=sim.seed,
+                             sensor_faults=faults)  # fmt: skip
     harness.device = device
     try:
         for i, d in enumerate(specs):

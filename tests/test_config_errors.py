@@ -329,6 +329,8 @@ RIG_CASES: list[Case] = [
       edit=_set("channels.required", ["a15"])),
     S("range override for an unknown channel", "device.simulate.ranges.a99", "not in rig beam_ch4_exp",
       edit=_set("device.simulate.ranges", {"a99": 2.0})),
+    S("hum on a channel not in the rig", "device.simulate.hum_rms.a99", "not in rig beam_ch4_exp",
+      edit=_set("device.simulate.hum_rms", {"a99": 0.5})),
     S("simulated channel not in the rig", "devices[1].simulate.channels[13]", "'a15' is not in rig", base="sim_two_devices",
       edit=_set("devices[1].simulate.channels[13]", "a15")),
     S("driver channel not in the rig", "device.config.channels[2]", "'b02' is not in rig", base="sim_modbus",

@@ -175,13 +175,15 @@ def _feed(dev, x: np.ndarray, settings: TriggerSettings, block: int = 256, range
 
 
 def _with(x: np.ndarray, dev, name: str, kind: str) -> np.ndarray:
-    """``x`` with channel ``name`` broken: zeroed with the sensor's own noise left, stuck, or a NaN every 0.25 s."""
+    """``x`` with channel ``name`` broken: zeroed with the sensor's own noise left, stuck, zero, or a NaN every 0.25 s."""
     y = x.copy()
     k = dev.channels.index(name)
     if kind == "noise":
         y[:, k] = measure(np.zeros((len(y), 1)), [dev.channel_models[k]], dev.adc, np.random.default_rng(11)).data[:, 0]
     elif kind == "constant":
         y[:, k] = 0.37
+    elif kind == "zero":
+        y[:, k] = 0.0
     else:
         y[:: round(dev.fs / 4), k] = np.nan
     return y
@@ -237,16 +239,22 @@ def test_an_excluded_channel_is_never_judged_nor_suspect(session20):
     assert det.suspects() == [] and det.suspect_reasons() == {} and "a09" not in det.health.judged
 
 
-@pytest.mark.parametrize(("kind", "why"), [("noise", "no response: rose"), ("constant", "flat:"), ("nan", "non-finite")])
-def test_a_dead_channel_is_excluded_from_each_hit_and_named_suspect(session20, kind, why):
+BROKEN = [("noise", "dead", "no response: rose"), ("constant", "stuck", "one value, 0.37,"), ("nan", "dead", "non-finite"),
+          ("zero", "dead", "flat:")]  # fmt: skip
+
+
+@pytest.mark.parametrize(("kind", "verdict", "why"), BROKEN)
+def test_a_dead_or_stuck_channel_is_excluded_from_each_hit_and_named_suspect(session20, kind, verdict, why):
+    """Issue 29: a channel frozen at a non-zero value is ``stuck`` (it lies), not ``dead`` (it is silent); a flat
+    zero is dead."""
     dev, x, settings, expect = session20
     det, hits = _feed(dev, _with(x, dev, "a05", kind), settings)
     assert [h.verdict for h in hits] == expect
     for h in hits:
-        assert h.channel_verdicts["a05"] == "dead" and "a05" in h.excluded_channels
-        assert any(r.startswith(f"a05 excluded: dead ({why}") for r in h.reasons), h.reasons
-        assert [c for c, v in h.channel_verdicts.items() if v == "dead"] == ["a05"]
-    assert det.suspect_reasons() == {"a05": "dead on every one of 20 hits", "a09": "clipped on every one of 20 hits"}
+        assert h.channel_verdicts["a05"] == verdict and "a05" in h.excluded_channels
+        assert any(r.startswith(f"a05 excluded: {verdict} ({why}") for r in h.reasons), h.reasons
+        assert [c for c, v in h.channel_verdicts.items() if v in ("dead", "stuck")] == ["a05"]
+    assert det.suspect_reasons() == {"a05": f"{verdict} on every one of 20 hits", "a09": "clipped on every one of 20 hits"}
 
 
 def test_weak_hits_and_far_channels_are_not_called_dead():

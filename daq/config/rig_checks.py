@@ -38,9 +38,11 @@ def _check_against_rig(cfg: SessionConfig, rig: Rig) -> None:
             for k, c in enumerate(s.channels or []):
                 if c not in chans:
                     raise ConfigFieldError(cfg._field(i, f"simulate.channels[{k}]"), unknown_channel(c, chans, in_rig, its))
-            for c in s.ranges:
+            named = [(f"ranges.{c}", c) for c in s.ranges] + [(f"hum_rms.{c}", c) for c in s.hum_rms]
+            named += [(f"reversed_polarity[{k}]", c) for k, c in enumerate(s.reversed_polarity)]
+            for where, c in named + [(f"stuck.{c}", c) for c in s.stuck]:
                 if c not in chans:
-                    raise ConfigFieldError(cfg._field(i, f"simulate.ranges.{c}"), unknown_channel(c, chans, in_rig, its))
+                    raise ConfigFieldError(cfg._field(i, f"simulate.{where}"), unknown_channel(c, chans, in_rig, its))
         names = d.channel_names()
         recorded.extend(c for c in (names if names is not None else chans) if c not in recorded)
         rate = d.configured_rate() or rig.sample_rate

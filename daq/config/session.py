@@ -122,6 +122,12 @@ class SimulateSpec(_Strict):
     disconnect_for_s: Seconds = 0.0
     restart_at_s: Seconds | None = None  # the device restarts here, down for restart_down_s, index back at 0
     restart_down_s: Seconds = 0.0
+    # sensor faults (drivers/sim/faults.py SensorFaults): mains hum on these channels (RMS in the channel's SI
+    # unit, 50 or 60 Hz plus 3 harmonics), sensors mounted the wrong way round, channels stuck at a value
+    hum_hz: Literal[50.0, 60.0] = 50.0
+    hum_rms: dict[ChannelName, Positive] = {}
+    reversed_polarity: Annotated[list[ChannelName], at_most_items(MAX_CHANNELS, "channels", "one per channel")] = []
+    stuck: dict[ChannelName, float] = {}
     # serial only: extra CRC-valid frames at (device time s, first sample index), e.g. [[1.0, 1000000000]]
     wild_frames: Annotated[
         list[tuple[Seconds, Annotated[int, Field(ge=0)]]], at_most_items(MAX_WILD_FRAMES, "wild frames", "a test knob")

@@ -21,6 +21,7 @@ import numpy as np
 from analysis.model.antialias import AntiAliasFilter, design, filtered_force
 from analysis.model.forces import ForceSeries, pulse_train
 from analysis.model.rig import Rig, channel_signals
+from drivers.sim.faults import SensorFaults
 from drivers.sim.sensor_model import AdcModel, ChannelModel, channel_models_for, measure
 
 
@@ -112,7 +113,10 @@ def roving_signals(rig: Rig, schedule: HitSchedule, duration: float, aaf: AntiAl
 
 
 class SimulatedDevice:
-    def __init__(self, rig: Rig, schedule: HitSchedule, duration: float, *, block_size: int = 256, seed: int = 0) -> None:
+    def __init__(self, rig: Rig, schedule: HitSchedule, duration: float, *, block_size: int = 256, seed: int = 0,
+                 sensor_faults: SensorFaults | None = None) -> None:  # fmt: skip
+        """``sensor_faults``: hum, reversed polarity, stuck channels (drivers/sim/faults.py), carried by every
+        sample the device serves, the rest noise after the simulated span included (the hum on the device's clock)."""
         self.rig = rig
         self.fs = rig.sample_rate
         self.block_size = int(block_size)
@@ -128,11 +132,13 @@ class SimulatedDevice:
             placed = [rig.hammer, *rig.sensors]
             physical = np.zeros((n, len(placed)))
         self.channel_models: list[ChannelModel] = channel_models_for(placed)
+        if sensor_faults is not None:
+            self.channel_models = sensor_faults.apply(self.channel_models)
         self.channels = tuple(m.name for m in self.channel_models)
         self.units = tuple(m.unit for m in self.channel_models)
         self.adc = AdcModel(bits=rig.config.daq.adc_bits, input_range_volts=rig.config.daq.input_range_volts)
         self._rng = np.random.default_rng(seed)
-        meas = measure(physical, self.channel_models, self.adc, self._rng)
+        meas = measure(physical, self.channel_models, self.adc, self._rng, fs=self.fs)
         self._data = meas.data
         self._lock = threading.Lock()
         self._t0: float | None = None
@@ -155,7 +161,8 @@ class SimulatedDevice:
             bs = self.block_size
             for j in range(lo // bs, (stop - 1) // bs + 1):
                 rng = np.random.default_rng([self.seed, j])
-                noise = measure(np.zeros((bs, self.n_channels)), self.channel_models, self.adc, rng).data
+                noise = measure(np.zeros((bs, self.n_channels)), self.channel_models, self.adc, rng, fs=self.fs,
+                                first_index=j * bs).data  # fmt: skip
                 a0, a1 = max(lo, j * bs), min(stop, (j + 1) * bs)
                 out[a0 - start : a1 - start] = noise[a0 - j * bs : a1 - j * bs]
         return out

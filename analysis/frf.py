@@ -104,13 +104,13 @@ class FRFSet:
         output the mode shows wherever it moves the structure (the CMIF idea of Shih et al. 1988, in its
         cheapest, single-reference form). Peaks below ``f_min`` Hz (DC, window leakage) are ignored.
         """
-        from scipy.signal import find_peaks
+        from analysis.frf_levels import prominent_peaks  # scipy.signal.find_peaks' prominences, without its import
 
         mif = np.abs(self.H).sum(axis=(0, 1))
-        idx, props = find_peaks(np.where(self.freq >= f_min, mif, 0.0), prominence=0.0)
+        idx, prom = prominent_peaks(np.where(self.freq >= f_min, mif, 0.0))
         if idx.size == 0:
             return idx
-        keep = idx[np.argsort(props["prominences"])[::-1][:n]]
+        keep = idx[np.argsort(prom, kind="stable")[::-1][:n]]
         return np.sort(keep)
 
 

@@ -172,13 +172,40 @@ def _modes(f: np.ndarray, mif: np.ndarray, peaks_hz: np.ndarray | None, band: tu
     if peaks_hz is not None:
         p = np.sort(np.asarray(peaks_hz, dtype=float).ravel())
         return p[(p > f[0]) & (p < f[-1])]
-    from scipy.signal import find_peaks
-
     lo, hi = band if band is not None else (1.0, float(f[-1]))
-    idx, props = find_peaks(np.where((f >= lo) & (f <= hi), mif, 0.0), prominence=0.0)
-    keep = idx[np.argsort(props["prominences"])[::-1][:n_peaks]]
+    idx, prom = prominent_peaks(np.where((f >= lo) & (f <= hi), mif, 0.0))
+    keep = idx[np.argsort(prom, kind="stable")[::-1][:n_peaks]]
     return np.sort(f[keep])
 
 
+def prominent_peaks(y: np.ndarray, candidates: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Local maxima of ``y`` (above both neighbours; a flat top counts once, at its middle) and their topographic
+    prominence, for the ``candidates`` highest maxima: what ``scipy.signal.find_peaks(y, prominence=0)`` gives
+    for them (tests/test_frf_levels.py compares the two).
+
+    Why not scipy: importing scipy.signal costs ~0.5-1.3 s of CPU here, more than the whole identification of
+    `gvt modal` that calls this once per level pair (bench/bench_quality.py). A mode indicator's modes are
+    among its highest maxima (the noise ripple on a mode's skirt is lower than the mode), so the prominence of
+    the highest few hundred is all the level check needs; each takes two passes over ``y``."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 3:
+        return np.empty(0, int), np.empty(0)
+    start = np.flatnonzero(np.r_[True, y[1:] != y[:-1]])  # runs of equal values (plateaus) as one sample each
+    end = np.r_[start[1:], y.size] - 1
+    v = y[start]
+    k = 1 + np.flatnonzero((v[1:-1] > v[:-2]) & (v[1:-1] > v[2:]))
+    i = (start[k] + end[k]) // 2  # a plateau's peak is its middle sample, as scipy's
+    i = i[np.argsort(y[i], kind="stable")[::-1][:candidates]]
+    prom = np.empty(i.size)
+    for k, p in enumerate(i):
+        left = np.flatnonzero(y[:p] > y[p])
+        right = np.flatnonzero(y[p + 1 :] > y[p])
+        a = left[-1] + 1 if left.size else 0
+        b = p + 1 + right[0] if right.size else y.size
+        prom[k] = y[p] - max(y[a : p + 1].min(), y[p:b].min())
+    order = np.argsort(i)
+    return i[order], prom[order]
+
+
 __all__ = ["LEVEL_RATIO", "MAX_RATIO_DB", "MAX_SHIFT_PCT", "MIN_LEVEL_HITS", "LinearityCheck", "choose_level",
-           "level_groups", "linearity_check", "mode_indicator", "peak_in"]  # fmt: skip
+           "level_groups", "linearity_check", "mode_indicator", "peak_in", "prominent_peaks"]  # fmt: skip

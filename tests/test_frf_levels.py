@@ -105,3 +105,22 @@ def test_a_peak_moved_far_is_still_its_mode():
 def test_shape_mismatch_is_bad_input():
     with pytest.raises(BadInput):
         linearity_check(FREQ, accelerance(FREQ, MODES), accelerance(FREQ[:-1], MODES))
+
+
+def test_prominent_peaks_are_scipys_on_noise_and_on_a_mode_indicator():
+    """The numpy peak prominence the level check uses (no scipy.signal import in `gvt modal`) equals
+    scipy.signal.find_peaks(prominence=0) on every maximum it returns: white noise (ties included, as rounded
+    values make them) and a six-mode indicator with 1 % noise."""
+    from scipy.signal import find_peaks
+
+    from analysis.frf_levels import prominent_peaks
+
+    rng = np.random.default_rng(3)
+    f = np.linspace(0, 1000, 4001)
+    mif = sum(1 / np.abs(fn**2 - f**2 + 2j * 0.01 * fn * f) for fn in (21, 68, 194, 387, 645, 964))
+    for y in (np.round(rng.normal(size=3000), 1), mif * (1 + 0.01 * rng.normal(size=f.size))):
+        idx, prom = prominent_peaks(y, candidates=10**6)
+        ref, props = find_peaks(y, prominence=0.0)
+        assert np.array_equal(idx, ref) and np.allclose(prom, props["prominences"])
+    idx, prom = prominent_peaks(mif)
+    assert np.allclose(np.sort(f[idx[np.argsort(prom)[::-1][:6]]]), [21, 68, 194, 387, 645, 964], atol=0.25)

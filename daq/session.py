@@ -104,6 +104,7 @@ class SessionOptions:
     analysis_frame_s: float | None = None  # the analysis lane's frame wait (None: its default; 0: block by block)
     frf: bool = True  # the live FRF lane (False: --no-frf)
     frf_line: Callable[[str], None] | None = None  # where its one line per hit goes (the terminal)
+    line: Callable[[str], None] | None = None  # other one-line notices (the timeline's); None: frf_line's terminal
 
 
 def run_session(cfg: SessionConfig, rig: Rig, out: Path, stop: threading.Event | None = None,
@@ -287,8 +288,23 @@ class Session:
                                    suspect_after=t.suspect_after, **extra)  # fmt: skip
         detector = HitDetector(settings, det_channels, self.fs, self._ranges())
         maxsize = max(64, self._queue_blocks(cfg.queue_seconds))
-        return HitGateLane(self.fan, detector, self.results.emit, aligner=aligner, maxsize=maxsize,
+        sink = self.results.emit if aligner is None else self._timeline_sink()
+        return HitGateLane(self.fan, detector, sink, aligner=aligner, maxsize=maxsize,
                            metadata=self.log.add_metadata, offsets=self.log.set_offset).start()  # fmt: skip
+
+    def _timeline_sink(self) -> Callable[[str, Any, int | None], None]:
+        """The hit gate's results, and a console line when the timeline fixes or moves an offset (issue 30: a moved
+        offset used to be only an event in the log)."""
+        from daq.timeline import timeline_line
+
+        say, emit = self.opts.line or self.opts.frf_line, self.results.emit
+
+        def sink(topic: str, obj: Any, log_time_ns: int | None) -> None:
+            emit(topic, obj, log_time_ns)
+            if say is not None and topic == layout.TIMELINE_TOPIC and (line := timeline_line(obj, self.fs)) is not None:
+                say(line)
+
+        return sink
 
     def _frf_lane(self):
         """Live FRFs of the accepted hits (daq/lanes/frf.py), after the hit gate: its last hits come first."""

@@ -11,17 +11,23 @@ nearly constant, so the lower envelope of ``x`` is the device's clock offset (th
 of NTP, Mills, RFC 5905 §10). We keep one point per ``window_s`` of device time — the window's
 minimum — in a bounded deque; once the points span ``drift_min_span_s`` a least-squares line through
 them, refitted without the points far above it, gives the device clock's rate error against the host
-(drift, ppm). The offset is the lowest detrended point among the last ``recent_windows`` (NTP's
-minimum filter over a short recent history, so a clock step is followed within ~1 s instead of being
-hidden by an older minimum); the uncertainty is the robust spread (1.4826 × MAD) of those points.
+(drift, ppm). The offset is the lowest detrended point within ``horizon_s`` (30 s): scheduling delay on a
+loaded host only ever makes a block late, so a longer history can only bring the floor nearer the link's
+minimum latency (issue 30: with the minimum of the last second, a host at load 5 put the offset at 0.78 s
+against the true 0.2371 s, because every block of that second arrived late). A clock that steps later is
+followed when the last ``recent_windows`` minima sit together above the old floor (a step moves them all
+alike; delay scatters them). The uncertainty is the floor's sharpness: the lowest point to the 10th
+percentile of the points (:func:`_floor_spread`).
 The relative offset of a stream to the reference is the difference of the two offsets: valid when both
 links have the same minimum latency (same transport), which the estimate cannot check — an asymmetric
 link biases it by the latency difference.
 
 :class:`StreamAligner` — merges the blocks of several streams into blocks on the reference stream's
 sample index. Stream ``s``'s sample ``i`` is reference sample ``i + offset_samples[s]``. It buffers until
-the offset is fixed (after ``settle_s`` of data from every estimated stream, or at once when every
-offset is configured), then emits only index ranges where every stream has data: a gap in any stream
+the offset is fixed (after ``settle_s`` of data from every estimated stream once the estimate's
+uncertainty is within ``accept_s`` — one sample period unless told — and at the latest after ``settle_max_s``,
+max(settle_s, max_buffer_s / 2) unless told, saying then that it was fixed above that bound; at once when
+every offset is configured), then emits only index ranges where every stream has data: a gap in any stream
 is an index discontinuity (``GAP_BEFORE``) in the merged stream, so the hit gate marks a record cut by
 it ``too_short``. The offset, once fixed, is never changed (a jump would tear the merged stream); the
 estimate keeps being tracked, and a move by more than max(2 samples, 3 × uncertainty) is reported.
@@ -94,11 +100,13 @@ class ClockOffsetEstimator:
     """Per-stream lower envelope of ``t_arrival − end_index / fs`` (see the module docstring)."""
 
     def __init__(
-        self, window_s: float = 0.1, max_windows: int = 3000, drift_min_span_s: float = 10.0, recent_windows: int = 10
-    ) -> None:
-        if window_s <= 0 or max_windows < 2 or drift_min_span_s <= 0 or recent_windows < 2:
-            raise ValueError("window_s and drift_min_span_s must be > 0, max_windows and recent_windows >= 2")
+        self, window_s: float = 0.1, max_windows: int = 3000, drift_min_span_s: float = 10.0, recent_windows: int = 10,
+        horizon_s: float = 30.0,
+    ) -> None:  # fmt: skip
+        if window_s <= 0 or max_windows < 2 or drift_min_span_s <= 0 or recent_windows < 2 or horizon_s <= 0:
+            raise ValueError("window_s, drift_min_span_s and horizon_s must be > 0, max_windows and recent_windows >= 2")
         self.window_s = float(window_s)
+        self.horizon_s = float(horizon_s)
         self.recent_windows = int(recent_windows)
         self.max_windows = int(max_windows)
         self.drift_min_span_s = float(drift_min_span_s)
@@ -146,26 +154,34 @@ class ClockOffsetEstimator:
         t = np.array([p[0] for p in pts])
         x = np.array([p[1] for p in pts])
         t_last = float(t[-1])
-        slope = 0.0
-        keep = np.ones(t.size, bool)
         span = float(t[-1] - t[0])
-        if t.size >= 3 and span >= self.drift_min_span_s:
-            for _ in range(3):  # least squares through the envelope, without points far above it
-                b, a = np.polyfit(t[keep], x[keep], 1)
-                r = x - (a + b * t)
-                s = float(np.std(r[keep]))
-                new = r <= 2.0 * s if s > 0 else keep
-                if new.sum() < 3 or np.array_equal(new, keep):
-                    break
-                keep = new
-            slope = float(np.polyfit(t[keep], x[keep], 1)[0])
-        d = (x - slope * (t - t_last))[-self.recent_windows :]  # detrended to the newest point; recent ones
-        # robust spread (1.4826 × MAD = σ for normal scatter): one window in which every block was held up
-        # (a CPU stall) must not inflate it; the minimum itself already ignores that window
-        unc = float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size >= 2 else math.nan
-        est = ClockEstimate(float(d.min()), t_last, slope * 1e6, unc, int(t.size), span)
+        slope = _envelope_slope(t, x) if t.size >= 3 and span >= self.drift_min_span_s else 0.0
+        d = x - slope * (t - t_last)  # every window minimum detrended to the newest point
+        d = d[t >= t_last - self.horizon_s]
+        if self._stepped(tr, d):
+            d = d[-self.recent_windows :]
+        est = ClockEstimate(float(d.min()), t_last, slope * 1e6, _floor_spread(d), int(t.size), span)
         tr.cache = est
         return est
+
+    def _stepped(self, tr: _Track, d: np.ndarray) -> bool:
+        """The device clock stepped later: the recent window minima sit together, well above the older floor.
+
+        Scheduling delay raises window minima too, but unevenly (a loaded host delays some windows by
+        milliseconds and others not at all), so their spread is large; a clock step moves every recent minimum
+        by the same amount. Accepted when the excess is over max(2 samples, 4 × their robust spread).
+        The older points are then forgotten (they describe the clock before the step)."""
+        r = d[-self.recent_windows :]
+        if d.size <= r.size + 2 or r.size < self.recent_windows:
+            return False
+        spread = float(1.4826 * np.median(np.abs(r - np.median(r))))
+        excess = float(r.min() - d.min())
+        if excess > max(2.0 / tr.fs, 4.0 * spread):
+            keep = self.recent_windows - (1 if math.isfinite(tr.w_min) else 0)  # the open window is among them
+            while len(tr.points) > max(keep, 0):
+                tr.points.popleft()
+            return True
+        return False
 
     def relative(self, stream: str, reference: str) -> RelativeOffset | None:
         """Offset of ``stream``'s clock to ``reference``'s (both must have blocks)."""
@@ -176,6 +192,49 @@ class ClockOffsetEstimator:
         off = e.x_s - r.x_s  # each at its newest point: both are "now" to within one window
         unc = math.hypot(e.uncertainty_s, r.uncertainty_s)
         return RelativeOffset(off, round(off * fs), unc, e.drift_ppm - r.drift_ppm, METHOD_ESTIMATED)
+
+
+def _envelope_slope(t: np.ndarray, x: np.ndarray) -> float:
+    """Slope of a least-squares line through the lower envelope: refitted without the points far above it."""
+    keep = np.ones(t.size, bool)
+    for _ in range(3):
+        b, a = np.polyfit(t[keep], x[keep], 1)
+        r = x - (a + b * t)
+        s = float(np.std(r[keep]))
+        new = r <= 2.0 * s if s > 0 else keep
+        if new.sum() < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+    return float(np.polyfit(t[keep], x[keep], 1)[0])
+
+
+def _floor_spread(d: np.ndarray) -> float:
+    """How sharply the floor of the window minima is defined: the lowest one to their 10th percentile (at least
+    the second lowest). The offset is the lowest; a late arrival only ever raises a point, so this is the
+    distance within which another window could have set the floor — small on a quiet host, large when
+    scheduling delay leaves few windows at the link's minimum latency. nan with a single point."""
+    if d.size < 2:
+        return math.nan
+    srt = np.sort(d)
+    return float(srt[max(1, d.size // 10)] - srt[0])
+
+
+def timeline_line(msg: Mapping, fs: float) -> str | None:
+    """The one console line of a ``/daq/timeline`` message worth a person's attention (fixed, moved), else None."""
+    kind, s, ref = msg.get("kind"), msg.get("stream"), msg.get("reference")
+    off, unc = float(msg.get("offset_s", math.nan)), float(msg.get("uncertainty_s", math.nan))
+    pm = f"± {unc * 1e3:.3f} ms" if math.isfinite(unc) else "± ?"
+    if kind == "fixed":
+        how = "configured" if msg.get("method") == METHOD_CONFIGURED else f"{pm}, from host arrival times"
+        line = f"timeline: {s} placed {msg.get('applied_samples')} samples ({off:.5f} s, {how}) after {ref}"
+        if msg.get("within_accept") is False:
+            line += (f"; NOT within one sample ({float(msg.get('accept_s', 1 / fs)) * 1e3:.3f} ms) after "
+                     f"{float(msg.get('settled_s', 0)):.1f} s: a loaded host; set timeline.offsets if the clocks are in sync")
+        return line
+    if kind == "moved":
+        return (f"timeline MOVED: {s}'s clock offset to {ref} is now {off:.5f} s {pm} ({float(msg.get('moved_samples', 0)):+.1f} "
+                f"samples); the merged stream keeps {msg.get('applied_samples')} (check the device clocks)")
+    return None
 
 
 class _Buffer:
@@ -240,6 +299,8 @@ class StreamAligner:
         report_s: float = 1.0,
         name: str = "timeline",
         estimator: ClockOffsetEstimator | None = None,
+        accept_s: float | None = None,
+        settle_max_s: float | None = None,
     ) -> None:
         if reference not in streams:
             raise ValueError(f"reference {reference!r} is not among the streams {list(streams)}")
@@ -259,10 +320,13 @@ class StreamAligner:
             raise ValueError(f"offsets for unknown streams {sorted(unknown)}")
         self.estimated = [s for s in self.order[1:] if s not in self.configured]
         self.settle_s = float(settle_s)
+        self.accept_s = 1.0 / self.fs if accept_s is None else float(accept_s)
+        self.settle_max_s = max(self.settle_s, max_buffer_s / 2 if settle_max_s is None else float(settle_max_s))
         self.max_buffer = max(1, round(max_buffer_s * self.fs))
         self.report_every = max(1, round(report_s * self.fs))
         self.estimator = estimator or ClockOffsetEstimator(window_s=window_s)
         self.applied: dict[str, int] | None = None  # offset samples per stream once fixed
+        self.unsure: dict[str, float] = {}  # streams fixed with an uncertainty above accept_s (the deadline came)
         self.fixed_offsets: dict[str, RelativeOffset] = {}
         self.dropped_samples = {s: 0 for s in self.order}
         self.merged_samples = 0
@@ -350,8 +414,18 @@ class StreamAligner:
     def _ready(self) -> bool:
         if any(self._buf[s].end is None for s in self.order):
             return False
-        need = [self.reference, *self.estimated] if self.estimated else []
-        return all(self.estimator.span_s(s) >= self.settle_s for s in need)
+        if not self.estimated:
+            return True
+        spans = [self.estimator.span_s(s) for s in [self.reference, *self.estimated]]
+        if min(spans) < self.settle_s:
+            return False
+        if min(spans) >= self.settle_max_s:
+            return True  # fixed with what it has; the message says the uncertainty was above accept_s
+        for s in self.estimated:
+            rel = self.estimator.relative(s, self.reference)
+            if rel is None or not rel.uncertainty_s <= self.accept_s:
+                return False
+        return True
 
     def _relative(self, s: str) -> RelativeOffset | None:
         if s in self.configured:
@@ -366,6 +440,8 @@ class StreamAligner:
             assert rel is not None
             self.fixed_offsets[s] = rel
             applied[s] = rel.offset_samples
+            if s in self.estimated and not rel.uncertainty_s <= self.accept_s:
+                self.unsure[s] = rel.uncertainty_s
             self._moved_from[s] = rel.offset_s * self.fs
         self.applied = applied
         ref_end = self._buf[self.reference].end or 0
@@ -374,7 +450,10 @@ class StreamAligner:
 
     def _report(self, kind: str) -> None:
         for s, d in self.current().items():
-            self._messages.append({"kind": kind, "reference": self.reference, "stream": s, **d})
+            extra = {}
+            if kind == "fixed" and s in self.estimated:
+                extra = {"accept_s": self.accept_s, "settled_s": self.estimator.span_s(s), "within_accept": s not in self.unsure}
+            self._messages.append({"kind": kind, "reference": self.reference, "stream": s, **d, **extra})
 
     def _track(self, s: str) -> None:
         """After fixing: report when the estimate moved by more than max(2 samples, 3 × uncertainty)."""

@@ -248,11 +248,13 @@ class Session:
     def _sources(self) -> list[DeviceSource]:
         out = []
         need = None if self.cfg.duration is None else round(self.cfg.duration * self.fs)
+        offsets = (self.cfg.timeline or TimelineSpec()).offsets
         for d in self.cfg.device_list:
             block_s = BLOCK_GUESS.get(d.driver, 256) / self.fs
             silence = self.cfg.silence_s or max(2.0, 4 * block_s)
+            held = self.cfg.multi and d.name != self.result.reference and d.name not in offsets  # waits for its offset
             out.append(DeviceSource(d.name, self.drivers[d.name], self.log, self.fan, self.results.emit, need_samples=need,
-                                    silence_s=silence))  # fmt: skip
+                                    silence_s=silence, held=held))  # fmt: skip
         return out
 
     def _ranges(self) -> dict[str, float]:

@@ -67,7 +67,7 @@ class DeviceSource:
 
     def __init__(
         self, name: str, driver: Driver, log: LogLane | None, fan: FanOut, sink: Sink, *, need_samples: int | None,
-        silence_s: float, poll_s: float = 0.1,
+        silence_s: float, poll_s: float = 0.1, held: bool = False,
     ) -> None:  # fmt: skip
         self.name = name
         self.driver = driver
@@ -78,6 +78,11 @@ class DeviceSource:
         self.silence_s = silence_s
         self.poll_s = poll_s
         self.report = SourceReport(name)
+        #: a second device's streams wait in the writer for the timeline's clock offset: each one's first index
+        #: is logged at once (a ``stream_held`` event), so a recorder killed before the offset is fixed leaves
+        #: a trace of what it held (issue 30)
+        self.held = held
+        self._held_seen: set[str] = set()
         #: per stream: (channels, peak |value| per channel since the last status); CAN streams' channels come from the DBC
         self._levels: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
         self.levels_lock = threading.Lock()
@@ -172,6 +177,12 @@ class DeviceSource:
             if blk.end_index > rep.end_index:  # cut the block at the session's end: exactly duration × fs
                 n = rep.end_index - blk.first_index
                 blk = SampleBlock(blk.stream, blk.first_index, blk.sample_rate, blk.channels, blk.data[:n], blk.status, blk.extra)
+        if self.held and blk.stream not in self._held_seen:
+            self._held_seen.add(blk.stream)
+            self.sink(layout.EVENTS_TOPIC, {
+                "kind": "stream_held", "stream": blk.stream, "first_index": blk.first_index,
+                "message": f"{blk.stream} held in memory from sample {blk.first_index} until the clock offset is fixed",
+            }, None)  # fmt: skip
         if self.log is not None:
             self.log.write_block(blk, wait=not self.driver.realtime)
         self.fan.publish(blk)

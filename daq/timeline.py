@@ -15,9 +15,10 @@ them, refitted without the points far above it, gives the device clock's rate er
 loaded host only ever makes a block late, so a longer history can only bring the floor nearer the link's
 minimum latency (issue 30: with the minimum of the last second, a host at load 5 put the offset at 0.78 s
 against the true 0.2371 s, because every block of that second arrived late). A clock that steps later is
-followed when the last ``recent_windows`` minima sit together above the old floor (a step moves them all
-alike; delay scatters them). The uncertainty is the floor's sharpness: the lowest point to the 10th
-percentile of the points (:func:`_floor_spread`).
+followed when the minima of the last ``step_s`` (5 s) sit together above the old floor (a step moves them
+all alike; delay scatters them, though a starved reader can lag steadily for a second or more). The
+uncertainty is the floor's sharpness: the lowest point to the 10th percentile of the points
+(:func:`_floor_spread`).
 The relative offset of a stream to the reference is the difference of the two offsets: valid when both
 links have the same minimum latency (same transport), which the estimate cannot check — an asymmetric
 link biases it by the latency difference.
@@ -101,12 +102,13 @@ class ClockOffsetEstimator:
 
     def __init__(
         self, window_s: float = 0.1, max_windows: int = 3000, drift_min_span_s: float = 10.0, recent_windows: int = 10,
-        horizon_s: float = 30.0,
+        horizon_s: float = 30.0, step_s: float = 5.0,
     ) -> None:  # fmt: skip
         if window_s <= 0 or max_windows < 2 or drift_min_span_s <= 0 or recent_windows < 2 or horizon_s <= 0:
             raise ValueError("window_s, drift_min_span_s and horizon_s must be > 0, max_windows and recent_windows >= 2")
         self.window_s = float(window_s)
         self.horizon_s = float(horizon_s)
+        self.step_s = float(step_s)
         self.recent_windows = int(recent_windows)
         self.max_windows = int(max_windows)
         self.drift_min_span_s = float(drift_min_span_s)
@@ -159,25 +161,26 @@ class ClockOffsetEstimator:
         d = x - slope * (t - t_last)  # every window minimum detrended to the newest point
         d = d[t >= t_last - self.horizon_s]
         if self._stepped(tr, d):
-            d = d[-self.recent_windows :]
+            d = d[-max(self.recent_windows, round(self.step_s / self.window_s)) :]
         est = ClockEstimate(float(d.min()), t_last, slope * 1e6, _floor_spread(d), int(t.size), span)
         tr.cache = est
         return est
 
     def _stepped(self, tr: _Track, d: np.ndarray) -> bool:
-        """The device clock stepped later: the recent window minima sit together, well above the older floor.
+        """The device clock stepped later: the last ``step_s`` of window minima sit together, well above the floor.
 
-        Scheduling delay raises window minima too, but unevenly (a loaded host delays some windows by
-        milliseconds and others not at all), so their spread is large; a clock step moves every recent minimum
-        by the same amount. Accepted when the excess is over max(2 samples, 4 × their robust spread).
-        The older points are then forgotten (they describe the clock before the step)."""
-        r = d[-self.recent_windows :]
-        if d.size <= r.size + 2 or r.size < self.recent_windows:
+        Scheduling delay raises window minima too, mostly unevenly, so their spread is large; a clock step moves
+        every minimum by the same amount. But a starved reader can also lag by a steady half second for a second
+        or more (measured at 6 busy loops on 2 cores: 0.54 s for 1 s), so a step must hold for ``step_s`` (5 s)
+        and exceed max(2 samples, 4 × the robust spread of those minima). The older points are then forgotten."""
+        n = max(self.recent_windows, round(self.step_s / self.window_s))
+        r = d[-n:]
+        if d.size <= n + 2:
             return False
         spread = float(1.4826 * np.median(np.abs(r - np.median(r))))
         excess = float(r.min() - d.min())
         if excess > max(2.0 / tr.fs, 4.0 * spread):
-            keep = self.recent_windows - (1 if math.isfinite(tr.w_min) else 0)  # the open window is among them
+            keep = n - (1 if math.isfinite(tr.w_min) else 0)  # the open window is among them
             while len(tr.points) > max(keep, 0):
                 tr.points.popleft()
             return True

@@ -68,6 +68,43 @@ def test_estimator_without_drift_span_reports_zero_drift_and_the_lower_envelope(
     assert rel.method == "host-arrival-lower-envelope"
 
 
+def _loaded(arr: tuple[np.ndarray, np.ndarray], rng: np.random.Generator, lag_s: float, lag_at: float, lag_for: float):
+    """A starved reader (issue 30, 6 busy loops on 2 cores): 40 % of blocks a further 1–20 ms late, and from
+    ``lag_at`` for ``lag_for`` s (device time) every block behind by a steady ``lag_s`` plus jitter (the reader
+    then catches up: the blocks that waited arrive together)."""
+    t, e = arr
+    late = rng.random(t.size) < 0.4
+    t = t + late * rng.uniform(1e-3, 20e-3, t.size)
+    dev = e / FS
+    backlog = (dev >= lag_at) & (dev < lag_at + lag_for)
+    t = t + backlog * (lag_s + rng.exponential(0.2e-3, t.size))
+    return np.maximum.accumulate(t), e  # one link is a FIFO: a block held up holds up the ones behind it
+
+
+def test_a_steady_backlog_of_a_second_neither_moves_the_offset_nor_counts_as_a_clock_step():
+    """Measured on main: the last-second minimum put the offset at 0.78 s (true 0.2371 s) after a second in which
+    every accelerometer block arrived 0.54 s late; the floor over the horizon must not move at all."""
+    rng = np.random.default_rng(5)
+    est = ClockOffsetEstimator(window_s=0.1, drift_min_span_s=10.0)
+    b = _loaded(_arrivals(100.2371, 0.0, 8.0, rng), rng, 0.54, 6.0, 2.5)  # the last 2 s: all late
+    _feed(est, {"A": _loaded(_arrivals(100.0, 0.0, 8.0, rng), rng, 0.0, 0.0, 0.0), "B": b})
+    rel = est.relative("B", "A")
+    # the floor of ~80 windows, each the minimum of 25 arrivals of which 60 % are at the quiet latency: tens of µs
+    assert abs(rel.offset_s - 0.2371) < 1 / FS, rel
+    assert rel.uncertainty_s < 1e-3  # the floor is sharp: most windows still had a quiet arrival
+
+
+def test_a_clock_step_held_for_step_s_is_followed_and_a_shorter_one_is_not():
+    rng = np.random.default_rng(6)
+    t, e = _arrivals(100.2371, 0.0, 12.0, rng)
+    stepped = t + (e / FS > 4.0) * 0.005  # B's clock steps 5 ms later at 4 s
+    for upto, want in ((8.0, 0.2371), (12.0, 0.2421)):  # 4 s after the step: not yet; 8 s after: followed
+        est = ClockOffsetEstimator(window_s=0.1, drift_min_span_s=30.0)
+        keep = e / FS <= upto
+        _feed(est, {"A": _arrivals(100.0, 0.0, upto, rng), "B": (stepped[keep], e[keep])})
+        assert abs(est.relative("B", "A").offset_s - want) < 1 / FS, (upto, est.relative("B", "A"))
+
+
 # --- the aligner --------------------------------------------------------------------------------
 def _blocks(stream: str, chans: tuple[str, ...], values, n: int, sizes, drop=()) -> list[SampleBlock]:
     """Blocks of a stream whose channel j holds values(index, j), split at ``sizes``; ranges in
@@ -161,12 +198,13 @@ def test_aligner_buffers_are_bounded_when_a_device_is_silent():
 def test_aligner_estimates_fixes_and_reports_a_moved_clock():
     rng = np.random.default_rng(7)
     al = StreamAligner({"A": ("hammer",), "B": ("a1", "a2")}, "A", FS, settle_s=0.5, window_s=0.1, report_s=1.0)
-    a, b = _ab(n_a=int(4 * FS), n_b=int(4 * FS) - D)
+    a, b = _ab(n_a=int(8 * FS), n_b=int(8 * FS) - D)
     t0 = 50.0
 
     def arrival(blk: SampleBlock) -> float:
         t0_dev = t0 + (D / FS if blk.stream == "B" else 0.0)
-        step = 0.005 if blk.stream == "B" and blk.end_index / FS > 2.0 else 0.0  # B's clock steps by 5 ms at 2 s
+        # B's clock steps by 5 ms at 2 s: followed once it has held for the estimator's step_s (5 s), so within 8 s
+        step = 0.005 if blk.stream == "B" and blk.end_index / FS > 2.0 else 0.0
         return t0_dev + step + blk.end_index / FS + 80e-6 + rng.exponential(0.3e-3)
 
     rows = sorted(((arrival(x), x) for x in a + b), key=lambda p: p[0])

@@ -52,6 +52,7 @@ def log_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
         over = [e for e in events if e.get("kind") == "overrun" and e.get("stream") == s["stream"]]
         s["overrun_samples"] = int(sum(int(e.get("count", 0)) for e in over if isinstance(e.get("count", 0), int)))
         s["overrun_ranges"] = [(e["start_index"], e["end_index"]) for e in over if "start_index" in e and "end_index" in e]
+    held_lost = _held_lost(events, streams)
     meta_names, attachment_names = sorted(r.metadata()), sorted(r.attachments())  # checked: before the health line
     rep = r.report
     damaged = {s["stream"]: s["damaged"] for s in streams if s.get("damaged")}
@@ -80,8 +81,44 @@ def log_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
         "topics": sorted({ch.topic for ch in r.channels()}),
         "metadata": meta_names,
         "attachments": attachment_names,
-        "problems": list(dict.fromkeys(r.problems)),
+        "problems": list(dict.fromkeys([*r.problems, *held_lost])),
+        "timeline": _timeline(r, counts),
     }
+
+
+def _held_lost(events: list[dict[str, Any]], streams: list[dict[str, Any]]) -> list[str]:
+    """A second device's stream waits in the writer for its clock offset; the recorder logs where each began
+    (``stream_held``). A held start the log's data does not reach was lost with the recorder (issue 30)."""
+    firsts = {s["stream"]: s.get("first_index") for s in streams if s.get("blocks")}
+    out = []
+    for e in events:
+        if e.get("kind") != "stream_held" or not isinstance(e.get("first_index"), int):
+            continue
+        name, first = str(e.get("stream", "?")), int(e["first_index"])
+        have = firsts.get(name)
+        if have is None or have > first:
+            upto = "its end" if have is None else f"sample {have}"
+            out.append(f"{name}: samples from {first} to {upto} were held in memory for the clock offset and never "
+                       "written (the recorder ended before the offset was fixed)")
+    return out
+
+
+def _timeline(r: LogReader, counts: dict[str, int]) -> dict[str, dict[str, Any]]:
+    """Per placed stream: the offset the session applied and its final estimate with their uncertainties
+    (``gvtlink.timeline``), and how often the estimate moved (``timeline_moved`` events)."""
+    rec = r.metadata().get("gvtlink.timeline") or {}
+    try:
+        fixed, final = json.loads(rec.get("fixed", "{}")), json.loads(rec.get("final", "{}"))
+    except ValueError:
+        return {}
+    out = {}
+    for name, f in fixed.items() if isinstance(fixed, dict) else ():
+        last = final.get(name, {}) if isinstance(final, dict) else {}
+        out[name] = {"reference": rec.get("reference", ""), "applied_samples": f.get("applied_samples"),
+                     "offset_s": f.get("offset_s"), "uncertainty_s": f.get("uncertainty_s"), "method": f.get("method"),
+                     "final_offset_s": last.get("offset_s"), "final_uncertainty_s": last.get("uncertainty_s"),
+                     "moved": counts.get("timeline_moved", 0)}  # fmt: skip
+    return out
 
 
 def _from_record(rec: dict[str, Any]) -> dict[str, Any]:
@@ -249,6 +286,8 @@ def info_text(info: dict[str, Any]) -> str:
             segs = ", ".join(f"[{a}, {b})" for a, b in s["segments"])
             lines.append(f"    segments (the device restarted; each gap before a segment is estimated): {segs}")
         lines.append(f"    channels: {', '.join(f'{c} [{u}]' for c, u in zip(s['channels'], s['units'], strict=False))}")
+    for name, t in info.get("timeline", {}).items():
+        lines.append("  " + _timeline_text(name, t))
     ev = ", ".join(f"{k}: {v}" for k, v in sorted(info["events"].items())) or "none"
     lines.append(f"  hits: {info['hits']}  events: {ev}")
     for what, items in info.get("named_events", {}).items():
@@ -258,6 +297,19 @@ def info_text(info: dict[str, Any]) -> str:
     for p in info.get("problems", []):
         lines.append(f"  problem: {p}")
     return "\n".join(lines)
+
+
+def _timeline_text(name: str, t: dict[str, Any]) -> str:
+    def ms(v: Any) -> str:
+        return f"± {float(v) * 1e3:.3f} ms" if isinstance(v, (int, float)) else "± ?"
+
+    def sec(v: Any) -> str:
+        return f"{float(v):.5f} s" if isinstance(v, (int, float)) else "?"
+
+    line = (f"timeline: {name} placed {t.get('applied_samples')} samples after {t.get('reference')} ({sec(t.get('offset_s'))} "
+            f"{ms(t.get('uncertainty_s'))}, {t.get('method')}); final estimate {sec(t.get('final_offset_s'))} "
+            f"{ms(t.get('final_uncertainty_s'))}")
+    return line + (f"; MOVED {t['moved']}x" if t.get("moved") else "")
 
 
 def info_json(info: dict[str, Any]) -> str:

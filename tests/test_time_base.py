@@ -277,3 +277,37 @@ def test_recorded_session_replays_in_session_time_order(recorded):
         seen[blk.stream] = seen.get(blk.stream, 0) + blk.n_samples
     assert stats.error is None and seen == res.streams
     assert all(b >= a for a, b in itertools.pairwise(starts))  # merged by session time, not own index
+
+
+def test_a_recorder_killed_while_a_stream_is_held_leaves_the_held_range_in_the_log(tmp_path):
+    """Issue 30: a SIGKILL inside a longer settle window (settle_s = 3) lost the held accelerometer stream without a
+    trace. The recorder logs each held stream's first index at once (``stream_held``, flushed with the reference's
+    data); ``gvt log info`` then names the samples that were held and never written."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    toml = (ROOT / "configs" / "sessions" / "sim_two_devices.toml").read_text()
+    toml = toml.replace("duration = 5.0", "duration = 8.0").replace("settle_s = 0.5 ", "settle_s = 3.0\nmax_buffer_s = 6.0 ")
+    cfg = tmp_path / "k.toml"
+    cfg.write_text(toml + "\n[analysis]\nenabled = false\n")
+    out = tmp_path / "k.mcap"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-m", "daq.cli", "record", str(cfg), "--out", str(out), "--no-frf"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+    try:
+        assert p.stdout is not None
+        for line in p.stdout:  # the status line after 2 s of wall time: at most 2 s of data, the offset not fixed
+            if line.lstrip().startswith("2.") and " samples " in line:
+                break
+        else:
+            pytest.fail("the recorder ended before 2 s")
+        p.send_signal(signal.SIGKILL)
+    finally:
+        p.kill()
+        p.wait()
+    info = log_info(out)
+    assert [s["stream"] for s in info["streams"]] == ["hammer_daq"]  # the held stream never reached the file
+    assert info["events"].get("stream_held") == 1
+    assert any(p.startswith("acc_daq: samples from 0 on were held in memory") for p in info["problems"]), info["problems"]

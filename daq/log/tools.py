@@ -97,8 +97,8 @@ def _held_lost(events: list[dict[str, Any]], streams: list[dict[str, Any]]) -> l
         name, first = str(e.get("stream", "?")), int(e["first_index"])
         have = firsts.get(name)
         if have is None or have > first:
-            upto = "its end" if have is None else f"sample {have}"
-            out.append(f"{name}: samples from {first} to {upto} were held in memory for the clock offset and never "
+            upto = "on" if have is None else f"to {have}"
+            out.append(f"{name}: samples from {first} {upto} were held in memory for the clock offset and never "
                        "written (the recorder ended before the offset was fixed)")
     return out
 

@@ -465,6 +465,8 @@ def test_the_offset_holds_within_one_sample_with_busy_loops_running(loaded):
     assert [(e["stream"], e["first_index"]) for e in held] == [("acc_daq", 0)]  # written before the offset was fixed
     info = log_info(out)
     assert info["timeline"]["acc_daq"]["applied_samples"] == final["applied_samples"] and info["problems"] == []
+    # issue 30 saw ~35,000 samples "NOT RECORDED (writer overrun)" in two-device logs; log info says what the writer counted
+    assert sum(s["overrun_samples"] for s in info["streams"]) == res.writer_overrun_samples
     assert "timeline: acc_daq placed" in info_text(info)
 
 

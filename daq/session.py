@@ -296,17 +296,47 @@ class Session:
 
     def _timeline_sink(self) -> Callable[[str, Any, int | None], None]:
         """The hit gate's results, and a console line when the timeline fixes or moves an offset (issue 30: a moved
-        offset used to be only an event in the log)."""
+        offset used to be only an event in the log) or when a hit's driving-point response leads its force."""
         from daq.timeline import timeline_line
 
         say, emit = self.opts.line or self.opts.frf_line, self.results.emit
 
         def sink(topic: str, obj: Any, log_time_ns: int | None) -> None:
             emit(topic, obj, log_time_ns)
-            if say is not None and topic == layout.TIMELINE_TOPIC and (line := timeline_line(obj, self.fs)) is not None:
+            line = None
+            if topic == layout.TIMELINE_TOPIC:
+                line = timeline_line(obj, self.fs)
+            elif topic == layout.HITS_TOPIC:
+                line = self._check_causality(obj)
+            if say is not None and line is not None:
                 say(line)
 
         return sink
+
+    def _check_causality(self, summary: dict) -> str | None:
+        """The physics check of the clock offset on one hit (daq/timeline.py ``response_lead``): an event, and the
+        console line the first time, when the driving point (on another device) moves before the hammer hits."""
+        from daq.timeline import response_lead
+
+        lane = getattr(self, "hits", None)
+        t, ref = self.cfg.trigger, self.result.reference
+        if lane is None or lane.aligner is None or t.driving_point is None or t.driving_point in self.streams.get(ref, ()):
+            return None
+        rec = next((h for h in reversed(list(lane.hits)) if h.hit == summary.get("hit")), None)
+        chans = list(lane.aligner.channels)
+        force = t.channel or self.rig.hammer.name
+        if rec is None or force not in chans or t.driving_point not in chans:
+            return None
+        lead = response_lead(rec.data[:, chans.index(force)], rec.data[:, chans.index(t.driving_point)])
+        limit = rec.pulse_width_s * self.fs / 2 + 2  # the force's steepest rise lies in its first half; 2 samples' grace
+        if lead is None or lead <= limit:
+            return None
+        self._acausal = getattr(self, "_acausal", 0) + 1
+        msg = (f"hit {rec.hit} at {rec.t_s:.3f} s: {t.driving_point} moved {lead} samples before the hammer hit: the clock "
+               f"offset of its device is wrong by at least {lead - limit:.0f} samples (set timeline.offsets)")
+        self.results.emit(layout.EVENTS_TOPIC, {"kind": "timeline_acausal", "hit": rec.hit, "lead_samples": lead,
+                                                "limit_samples": limit, "message": msg}, None)  # fmt: skip
+        return f"timeline ACAUSAL: {msg}" if self._acausal == 1 else None
 
     def _frf_lane(self):
         """Live FRFs of the accepted hits (daq/lanes/frf.py), after the hit gate: its last hits come first."""

@@ -214,8 +214,9 @@ def _envelope_slope(t: np.ndarray, x: np.ndarray) -> float:
 def _floor_spread(d: np.ndarray) -> float:
     """How sharply the floor of the window minima is defined: the lowest one to their 10th percentile (at least
     the third lowest: the gap to the second of five windows was 6 µs in a run whose offset was 99 µs off).
-    The offset is the lowest; a late arrival only ever raises a point, so this is the distance within which another window could have set the floor — small on a quiet host, large when
-    scheduling delay leaves few windows at the link's minimum latency. nan with a single point."""
+    The offset is the lowest; a late arrival only ever raises a point, so this is the distance within which
+    another window could have set the floor — small on a quiet host, large when scheduling delay leaves few
+    windows at the link's minimum latency. It cannot include the links' latency asymmetry. nan with one point."""
     if d.size < 2:
         return math.nan
     srt = np.sort(d)

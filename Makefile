@@ -44,6 +44,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_sweep.py
 	$(BIN)/python bench/bench_analysis.py
+	$(BIN)/python bench/bench_hits.py
 	$(BIN)/python bench/eval_detection.py
 	$(BIN)/python bench/bench_cwt.py
 	$(BIN)/python bench/eval_confirm.py

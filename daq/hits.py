@@ -117,6 +117,38 @@ def _flat(rec: np.ndarray) -> np.ndarray:
     return out
 
 
+def column_extrema(rec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column (max, min) of ``rec`` (rows x columns), NaN where a column holds one. A reduction along the rows of a
+    narrow C-ordered array runs one column at a time (15 channels x 16548 rows: ~0.6 ms each); reshaped to rows of
+    ``64 x columns`` it runs across them (~0.03 ms), and max and min are exact whatever the grouping."""
+    n, c = rec.shape
+    k = 64
+    m = n - n % k
+    if m == 0:
+        return rec.max(axis=0), rec.min(axis=0)
+    head = rec[:m].reshape(m // k, k * c)
+    hi = head.max(axis=0).reshape(k, c).max(axis=0)
+    lo = head.min(axis=0).reshape(k, c).min(axis=0)
+    if m < n:
+        hi, lo = np.maximum(hi, rec[m:].max(axis=0)), np.minimum(lo, rec[m:].min(axis=0))
+    return hi, lo
+
+
+def _median_without(vals: np.ndarray, skip: np.ndarray) -> np.ndarray:
+    """For each entry ``s`` of ``skip``: the median of ``vals`` without its element ``s`` (``-1``: of all of them),
+    as ``np.median`` gives it (the mean of the two middle values for an even count), from one sort; 0 for none."""
+    n = vals.size
+    order = np.argsort(vals, kind="stable")
+    srt = np.append(vals[order], 0.0)  # the extra slot is read only when nothing is left
+    pos = np.empty(n, np.int64)
+    pos[order] = np.arange(n)
+    gone = np.where(skip >= 0, pos[np.maximum(skip, 0)] if n else n, n)  # sorted position removed (n: none)
+    m = np.where(skip >= 0, n - 1, n)
+    lo_i, hi_i = np.maximum((m - 1) // 2, 0), m // 2
+    lo, hi = srt[lo_i + (lo_i >= gone)], srt[hi_i + (hi_i >= gone)]
+    return np.where(m == 0, 0.0, np.where(m % 2 == 1, hi, 0.5 * (lo + hi)))
+
+
 def _distinct_below_4(rec: np.ndarray) -> np.ndarray:
     """Per column: at most 3 distinct values — in O(n), without sorting."""
     mn, mx = rec.min(axis=0), rec.max(axis=0)
@@ -154,9 +186,18 @@ def judge_channels(
     so it is alive. See the dead-channel rule above for the thresholds and the measurements behind them."""
     excl = set(exclude)
     n, nc = rec.shape
-    finite = np.isfinite(rec).all(axis=0)
-    safe = np.where(np.isfinite(rec), rec, 0.0) if not finite.all() else rec
-    peak = np.maximum(safe.max(axis=0), -safe.min(axis=0)) if n else np.zeros(nc)
+    if n:  # one pass for the extrema; a column is finite when both are (max and min propagate NaN)
+        hi, lo = column_extrema(rec)
+        finite = np.isfinite(hi) & np.isfinite(lo)
+    else:
+        finite = np.ones(nc, bool)
+    if finite.all():
+        safe = rec
+        peak = np.maximum(hi, -lo) if n else np.zeros(nc)
+    else:
+        safe = np.where(np.isfinite(rec), rec, 0.0)
+        hi, lo = column_extrema(safe)
+        peak = np.maximum(hi, -lo)
     clipped = np.isfinite(ranges) & (peak >= ranges * CLIP_FRACTION) & finite
     flat = _flat(safe) if n else np.ones(nc, bool)
     resp = [k for k, c in enumerate(channels) if k != force and c not in excl]
@@ -192,10 +233,11 @@ def judge_channels(
         unjudged.update(channels[k] for k in cand)
         return ChannelJudgement(verdicts, why, frozenset(unjudged))
     cols = sorted(set(cand) | set(ref))
-    rise = dict(zip(cols, response_rise(safe[:base_end, cols], safe[pulse_start:post_end, cols]), strict=True))
-    for k in cand:
-        others = [rise[j] for j in ref if j != k]
-        med = float(np.median(others)) if others else 0.0
+    rise = dict(zip(cols, response_rise(safe[:base_end, cols], safe[pulse_start:post_end, cols]).tolist(), strict=True))
+    ref_rise = np.array([rise[j] for j in ref])
+    where = {j: i for i, j in enumerate(ref)}
+    meds = _median_without(ref_rise, np.array([where.get(k, -1) for k in cand]))  # the other judged channels' median
+    for k, med in zip(cand, meds.tolist(), strict=True):
         if med < LIVE_RISE:
             unjudged.add(channels[k])
         elif rise[k] <= DEAD_RISE:

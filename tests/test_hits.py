@@ -12,7 +12,7 @@ import pytest
 from analysis.model.config import RigConfig
 from analysis.model.loader import validate
 from analysis.model.rig import build_rig
-from daq.hits import ChannelHealth, HitDetector, TriggerSettings, judge_channels
+from daq.hits import ChannelHealth, HitDetector, TriggerSettings, _median_without, column_extrema, judge_channels
 from drivers.blocks import SampleBlock
 from drivers.sim.device import HitSchedule, SimulatedDevice
 from drivers.sim.sensor_model import measure
@@ -360,3 +360,19 @@ def test_bad_channel_settings_raise(device):
     with pytest.raises(ValueError, match="excluded channel 'a99'"):
         HitDetector(TriggerSettings(level=1.0, exclude=["a99"]), device.channels, device.fs)
     assert TriggerSettings(level=1.0, exclude=["a01"]).exclude == ("a01",)  # a config's list, kept hashable
+
+
+def test_block_reductions_equal_numpys():
+    """The channel judgment's block-wise extrema and leave-one-out medians against numpy's own (exact: max, min and
+    the mean of two middle values do not depend on the grouping), NaN and inf included, odd and even counts."""
+    rng = np.random.default_rng(3)
+    for n in (1, 63, 64, 1000):
+        rec = rng.normal(0, 1, (n, 5)).astype(np.float32)
+        rec[n // 2, 1], rec[0, 3] = np.nan, -np.inf
+        hi, lo = column_extrema(rec)
+        np.testing.assert_array_equal(hi, rec.max(axis=0))
+        np.testing.assert_array_equal(lo, rec.min(axis=0))
+    for n in range(1, 8):
+        v = rng.integers(0, 4, n).astype(float)  # ties on purpose
+        want = [np.median(v), *(np.median(np.delete(v, k)) if n > 1 else 0.0 for k in range(n))]
+        np.testing.assert_array_equal(_median_without(v, np.arange(-1, n)), want)

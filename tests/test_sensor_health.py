@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import scipy.signal
 
 from analysis.evaluation.detectors import modal_exchange_health
 from analysis.evaluation.errors import Measured
@@ -14,7 +15,7 @@ from analysis.evaluation.grid import GridCase, case_rig, simulate_cases
 from analysis.evaluation.score import score_events
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from analysis.records import WARNINGS_TOPIC
-from analysis.sensor_health import HealthSettings, SensorHealth, guyan_condense, reduced_basis
+from analysis.sensor_health import HealthSettings, SensorHealth, _bandpass_rows, guyan_condense, reduced_basis
 
 FS = 16384.0
 NAMES = tuple(f"c{i:02d}" for i in range(8))
@@ -51,6 +52,40 @@ def test_each_fault_on_synthetic_noise(fault, make, reason):
     got = _feed(h, x, np.zeros(x.shape[0], bool))
     assert [(v.channel, v.fault) for v in got] == [("c03", fault)], got
     assert reason in got[0].reason
+
+
+def test_whole_block_screen_judges_as_span_by_span():
+    """Replay blocks (whole level spans, screened together) and blocks shorter than a span (every span judged alone:
+    the scalar path) give the same verdicts at the same samples with the same reasons, every fault at once, on
+    quantised data (runs of repeats everywhere) with the pre-input noise judged; and the compiled band-pass is
+    scipy's ``sosfilt`` bit for bit."""
+    x = np.round(_noise(2.0, seed=4) * 400) / 400  # a coarse ADC: equal neighbours on every channel
+    x[3000:, 1] = 0.0  # flat
+    x[6000:, 2] = 0.7  # stuck
+    x[9000:, 3] *= 1e-3  # dead by level
+    x[100:104, 4] = 1.0  # clipping
+    x[200, 5] = np.nan  # in the first span: a block's non-finite count is judged at its first span's end
+    x[:, 6] *= 30  # noisy before the input
+    inp = np.zeros(x.shape[0], bool)
+    inp[20000:20016] = True
+    runs = []
+    for block in (8192, 245):  # a level span is 246 samples
+        h = SensorHealth(NAMES, FS, ranges=[1.0] * len(NAMES))
+        runs.append([(v.channel, v.fault, v.index, v.reason) for v in _feed(h, x, inp, block)])
+    assert runs[0] == runs[1] and {v[:2] for v in runs[0]} == {
+        ("c01", "dead"),
+        ("c02", "stuck"),
+        ("c03", "dead"),
+        ("c04", "clipping"),
+        ("c05", "dead"),
+        ("c06", "noisy"),
+    }
+    sos = scipy.signal.butter(4, (5.0, 300.0), "bandpass", fs=FS, output="sos")
+    z = np.random.default_rng(5).standard_normal((sos.shape[0], 2, 3))
+    want, zw = scipy.signal.sosfilt(sos, x[:2000, :3], axis=0, zi=z)
+    got = np.empty_like(want)
+    _bandpass_rows(sos, np.ascontiguousarray(x[:2000, :3]), z, got)
+    assert np.array_equal(got, want) and np.array_equal(z, zw)
 
 
 def test_healthy_noise_and_unknown_range_flag_nothing():

@@ -15,7 +15,11 @@
    (analysis/rq_spikes.py) against its per-window numpy form — ms per second of 14-channel data, and
    whether the outputs are identical bit for bit.
 
-    python bench/bench_analysis.py [--seconds 20] [--quick]
+4. ``--base REV`` (default: the commit before issue 30's speed work): the replay rows of 2. (gvt analyze's path,
+   health on, and the same with health off) and the literal batch, measured for that commit in the same run — a
+   subprocess importing a ``git archive`` of it — beside this tree's (``--base none``: skipped).
+
+    python bench/bench_analysis.py [--seconds 20] [--quick] [--base 7531466 | --base none]
 """
 
 from __future__ import annotations
@@ -26,6 +30,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the gvt CLI does (D19);
 import argparse
 import json
 import platform
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
 from pathlib import Path
 
@@ -37,6 +45,46 @@ from analysis.rq_spikes import RobustSpikeSettings
 from drivers.blocks import SampleBlock
 
 ROOT = Path(__file__).resolve().parents[1]
+BASE_DEFAULT = "7531466"  # main before issue 30's speed work (sensor health and the hit gate as block operations)
+
+
+def base_tree(rev: str) -> Path:
+    """A ``git archive`` of ``rev`` in the temporary directory (kept: the next run reuses it and its numba cache)."""
+    sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short=12", rev], check=True, capture_output=True,
+                         text=True).stdout.strip()  # fmt: skip
+    path = Path(tempfile.gettempdir()) / f"gvt-bench-archive-{sha}"
+    if not (path / "daq").exists():
+        path.mkdir(parents=True, exist_ok=True)
+        arc = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", sha], check=True, capture_output=True).stdout
+        tar = path / "tree.tar"
+        tar.write_bytes(arc)
+        with tarfile.open(tar) as t:
+            t.extractall(path, filter="data")
+        tar.unlink()
+    return path
+
+
+def at_base(rev: str, argv: list[str]) -> dict | None:
+    """This script's ``--measure-replay`` run with the packages of ``rev`` first on the path; None (and a line) when
+    that commit cannot run it."""
+    env = {**os.environ, "PYTHONPATH": str(base_tree(rev))}
+    p = subprocess.run([sys.executable, __file__, "--measure-replay", *argv], env=env, capture_output=True, text=True)
+    if p.returncode:
+        print(f"base {rev}: not measured ({p.stderr.strip().splitlines()[-1] if p.stderr.strip() else p.returncode})")
+        return None
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def replay_rows(secs: float) -> dict:
+    """The replay rows compared across commits: gvt analyze's path (8192-sample blocks, pipelined) with sensor health
+    on (the default) and off, and the literal batch seed method, on the same data."""
+    d14, ch14, fs14 = _data("beam_ch4_exp", secs)
+    m14 = RigModel.from_rig(open_rig("beam_ch4_exp"))
+    _run(m14, d14[: int(fs14)], ch14, fs14, 8192)  # warm-up
+    on = _median_run(m14, d14, ch14, fs14, 8192)
+    off = _median_run(m14, d14, ch14, fs14, 8192, settings=AnalysisSettings(health=None))
+    seeds = sorted((_seed_batch(m14, d14, fs14) for _ in range(3)), key=lambda r: r["wall_s"])
+    return {"health_on": on, "health_off": off, "seed_batch": seeds[1]}
 
 
 def _data(rig_name: str, seconds: float, period: float = 2.0, seed: int = 0) -> tuple[np.ndarray, tuple[str, ...], float]:
@@ -193,8 +241,13 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--quick", action="store_true", help="6 s of data")
+    ap.add_argument("--base", default=BASE_DEFAULT, help="git revision to compare the replay with ('none': skip)")
+    ap.add_argument("--measure-replay", action="store_true", help=argparse.SUPPRESS)  # the base tree's subprocess
     args = ap.parse_args()
     secs = 6.0 if args.quick else args.seconds
+    if args.measure_replay:
+        print(json.dumps(replay_rows(secs)))
+        return
     rows = []
     out: dict = {"benchmark": "bench_analysis", "python": platform.python_version(), "machine": platform.machine()}
     d14, ch14, fs14 = _data("beam_ch4_exp", secs)
@@ -240,6 +293,23 @@ def main() -> None:
         print(f"{name:32s} {k['library_ms']:8.2f} {k['compiled_ms']:8.2f} {k['identical']}")
     print(f"(eigh + RQ of the same windows: {kernels['window_covariances_8_grids']['eigh_ms']:.2f} ms per data-s; "
           f"load average {out['load_avg_1_5_15'][0]:.2f})")  # fmt: skip
+    if args.base != "none":  # the same replay rows, this tree and the base commit, one after the other
+        now = replay_rows(secs)
+        base = at_base(args.base, ["--seconds", str(secs)])
+        out["replay_vs_base"] = {"rev": args.base, "this_tree": now, "base": base}
+        print(f"{'replay, 14 ch x 16384 Hz, 8192':32s} {'this tree':>18s} {'@' + args.base:>18s}   (x real time | CPU s per data s)")
+        for key, name in (("health_on", "health on"), ("health_off", "health off"), ("seed_batch", "seed literal batch")):
+            cols = []
+            for r in (now, base):
+                cpu = r[key].get("cpu_per_data_s") if r else None
+                cols.append(f"{r[key]['x_real_time']:8.1f} | {cpu:6.4f}" if cpu else f"{r[key]['x_real_time']:8.1f} |      -"
+                            if r else f"{'-':>18s}")  # fmt: skip
+            print(f"{name:32s} {cols[0]:>18s} {cols[1]:>18s}")
+        for who, r in (("this tree", now), (f"@{args.base}", base)):
+            if r:
+                print(f"{who}: health on is {r['health_on']['x_real_time'] / r['seed_batch']['x_real_time']:.2f}x the seed's "
+                      f"literal batch; health costs {r['health_on']['cpu_per_data_s'] - r['health_off']['cpu_per_data_s']:.4f} "
+                      f"CPU-s per data-s")  # fmt: skip
     dest = ROOT / "bench" / "results" / "bench_analysis.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(out, indent=2))

@@ -30,36 +30,19 @@ import platform
 import statistics
 import subprocess
 import sys
-import tarfile
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE_DEFAULT = "7531466"  # main before issue 30's speed work (sensor health and the hit gate as block operations)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_analysis import BASE_DEFAULT, base_tree  # noqa: E402  (the sibling script, by path)
+
 LEVEL, PRE_S, RECORD_S = 20.0, 0.01, 1.0
 
 
-def base_tree(rev: str) -> Path:
-    """A ``git archive`` of ``rev`` in the temporary directory (kept: the next run reuses it and its numba cache)."""
-    sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short=12", rev], check=True, capture_output=True,
-                         text=True).stdout.strip()  # fmt: skip
-    path = Path(tempfile.gettempdir()) / f"gvt-bench-archive-{sha}"
-    if not (path / "daq").exists():
-        path.mkdir(parents=True, exist_ok=True)
-        arc = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", sha], check=True, capture_output=True).stdout
-        tar = path / "tree.tar"
-        tar.write_bytes(arc)
-        with tarfile.open(tar) as t:
-            t.extractall(path, filter="data")
-        tar.unlink()
-    return path
-
-
 def _data(seconds: float) -> tuple[np.ndarray, tuple[str, ...], float]:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_analysis import _data as data
 
     return data("beam_ch4_exp", seconds)

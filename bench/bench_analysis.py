@@ -297,7 +297,7 @@ def main() -> None:
         now = replay_rows(secs)
         base = at_base(args.base, ["--seconds", str(secs)])
         out["replay_vs_base"] = {"rev": args.base, "this_tree": now, "base": base}
-        print(f"{'replay, 14 ch x 16384 Hz, 8192':32s} {'this tree':>18s} {'@' + args.base:>18s}   (x real time | CPU s per data s)")
+        print(f"{'replay, 14 ch x 16384 Hz, 8192':32s} {'this tree':>18s} {'@' + args.base:>18s}   (x real time | CPU s/data s)")
         for key, name in (("health_on", "health on"), ("health_off", "health off"), ("seed_batch", "seed literal batch")):
             cols = []
             for r in (now, base):

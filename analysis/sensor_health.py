@@ -194,6 +194,31 @@ def _near_range(x: np.ndarray, ranges: np.ndarray) -> bool:
     return bool((np.maximum(hi, -lo) >= CLIP_FRACTION * ranges).any())
 
 
+def span_sums(x: np.ndarray, L: int) -> tuple[np.ndarray, np.ndarray]:
+    """Σx and Σx² per channel over each span of ``L`` rows of ``x`` (rows a multiple of ``L``): ``(spans, channels)``
+    each, added in row order, the order numpy's ``sum(axis=0)`` and ``einsum("ij,ij->j")`` add a C-ordered
+    ``(rows, channels)`` array in (the same numbers, tested), in one pass instead of two (~0.8 → 0.1 ms a 0.5 s block
+    of 14 channels)."""
+    k = x.shape[0] // L
+    s1, s2 = np.empty((k, x.shape[1])), np.empty((k, x.shape[1]))
+    _span_sums(np.ascontiguousarray(x, dtype=np.float64), L, s1, s2)
+    return s1, s2
+
+
+@numba.njit(cache=True, nogil=True)
+def _span_sums(x, L, s1, s2):  # pragma: no cover - compiled
+    c = x.shape[1]
+    for k in range(s1.shape[0]):
+        for j in range(c):
+            s1[k, j] = 0.0
+            s2[k, j] = 0.0
+        for i in range(k * L, (k + 1) * L):
+            for j in range(c):
+                v = x[i, j]
+                s1[k, j] += v
+                s2[k, j] += v * v
+
+
 @numba.njit(cache=True, nogil=True)
 def _bandpass_rows(sos, x, z, y):  # pragma: no cover - compiled
     """``y, z = scipy.signal.sosfilt(sos, x, axis=0, zi=z)`` (``z`` updated in place), bit for bit: the sections of
@@ -228,8 +253,7 @@ class _SpanStats:
         k, L, c = spans.shape
         x = spans.reshape(k * L, c)
         self.at = at
-        self.s1 = spans.sum(axis=1)
-        self.s2 = np.einsum("kij,kij->kj", spans, spans)
+        self.s1, self.s2 = span_sums(x, L)
         self.inp = np.zeros(k, bool) if inp is None else inp[at : at + k * L].reshape(k, L).any(axis=1)
         if np.isfinite(ranges).any() and _near_range(x, ranges):  # a block far from every range clips nowhere
             a = np.abs(spans)
@@ -461,8 +485,9 @@ class SensorHealth:
     def _level(self, x: np.ndarray) -> None:
         a = self._level_acc
         a[0] += x.shape[0]
-        a[1] += x.sum(axis=0)
-        a[2] += np.einsum("ij,ij->j", x, x)
+        s1, s2 = span_sums(x, x.shape[0])
+        a[1] += s1[0]
+        a[2] += s2[0]
 
     def _stuck(self, x: np.ndarray) -> None:
         """Longest run of identical consecutive samples per channel (counted in equal pairs), carried across blocks."""
@@ -541,8 +566,9 @@ class SensorHealth:
             take = min(x.shape[0] - i, self._drift_n - d[0])
             seg = x[i : i + take]
             d[0] += take
-            d[1] += seg.sum(axis=0)
-            d[2] += np.einsum("ij,ij->j", seg, seg)
+            s1, s2 = span_sums(seg, take)
+            d[1] += s1[0]
+            d[2] += s2[0]
             i += take
             if d[0] < self._drift_n:
                 break

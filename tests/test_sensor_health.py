@@ -15,7 +15,14 @@ from analysis.evaluation.grid import GridCase, case_rig, simulate_cases
 from analysis.evaluation.score import score_events
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from analysis.records import WARNINGS_TOPIC
-from analysis.sensor_health import HealthSettings, SensorHealth, _bandpass_rows, guyan_condense, reduced_basis
+from analysis.sensor_health import (
+    HealthSettings,
+    SensorHealth,
+    _bandpass_rows,
+    guyan_condense,
+    reduced_basis,
+    span_sums,
+)
 
 FS = 16384.0
 NAMES = tuple(f"c{i:02d}" for i in range(8))
@@ -86,6 +93,9 @@ def test_whole_block_screen_judges_as_span_by_span():
     got = np.empty_like(want)
     _bandpass_rows(sos, np.ascontiguousarray(x[:2000, :3]), z, got)
     assert np.array_equal(got, want) and np.array_equal(z, zw)
+    s1, s2 = span_sums(x[:, :5], 246 * 4)  # spans of 4 level spans, on 5 channels: numpy's sums to the last bit
+    spans = x[: s1.shape[0] * 984, :5].reshape(-1, 984, 5)
+    assert np.array_equal(s1, spans.sum(axis=1)) and np.array_equal(s2, np.einsum("kij,kij->kj", spans, spans))
 
 
 def test_healthy_noise_and_unknown_range_flag_nothing():

@@ -84,7 +84,32 @@ def replay_rows(secs: float) -> dict:
     on = _median_run(m14, d14, ch14, fs14, 8192)
     off = _median_run(m14, d14, ch14, fs14, 8192, settings=AnalysisSettings(health=None))
     seeds = sorted((_seed_batch(m14, d14, fs14) for _ in range(3)), key=lambda r: r["wall_s"])
-    return {"health_on": on, "health_off": off, "seed_batch": seeds[1]}
+    return {"health_on": on, "health_off": off, "seed_batch": seeds[1], "guard": _guard_cpu(m14, d14, ch14, fs14)}
+
+
+def _guard_cpu(model: RigModel, data: np.ndarray, chans, fs: float) -> dict:
+    """Sensor health alone, as the operator runs it (``HealthGuard.feed_clean``: the line canceller, then the checks)
+    on the replay's 8192-sample blocks with the hammer's input mask: ms CPU per data-s, median of 5; with the line
+    canceller off beside it. The difference of two whole-operator rows is too noisy on a shared machine for this."""
+    from analysis.sensor_health import HealthGuard
+
+    acc, inp = data[:, 1:].astype(np.float64), data[:, 0] > 20.0
+    secs = data.shape[0] / fs
+    out = {}
+    for name, kw in (("ms_per_data_s", {}), ("no_lines_ms_per_data_s", {"lines": None})):
+        def run(kw=kw):
+            g = HealthGuard(model.M, model.K, chans[1:], fs, 4, **kw)
+            for s in range(0, acc.shape[0], 8192):
+                g.feed_clean(acc[s : s + 8192], inp[s : s + 8192])
+
+        run()
+        times = []
+        for _ in range(5):
+            c0 = time.process_time()
+            run()
+            times.append(time.process_time() - c0)
+        out[name] = 1e3 * sorted(times)[2] / secs
+    return out
 
 
 def _data(rig_name: str, seconds: float, period: float = 2.0, seed: int = 0) -> tuple[np.ndarray, tuple[str, ...], float]:
@@ -305,6 +330,9 @@ def main() -> None:
                 cols.append(f"{r[key]['x_real_time']:8.1f} | {cpu:6.4f}" if cpu else f"{r[key]['x_real_time']:8.1f} |      -"
                             if r else f"{'-':>18s}")  # fmt: skip
             print(f"{name:32s} {cols[0]:>18s} {cols[1]:>18s}")
+        g = [f"{r['guard']['ms_per_data_s']:.2f} ({r['guard']['no_lines_ms_per_data_s']:.2f} without the line canceller)"
+             if r and "guard" in r else "-" for r in (now, base)]  # fmt: skip
+        print(f"sensor health alone (HealthGuard.feed_clean), ms CPU per data-s: this tree {g[0]}, @{args.base} {g[1]}")
         for who, r in (("this tree", now), (f"@{args.base}", base)):
             if r:
                 print(f"{who}: health on is {r['health_on']['x_real_time'] / r['seed_batch']['x_real_time']:.2f}x the seed's "

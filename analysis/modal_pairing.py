@@ -8,8 +8,8 @@ each mode at most once and shows the frequency error beside the MAC (Allemang, *
 Structural Dynamics*, 1995, §7: pairs by MAC *and* frequency, one to one).
 
 The rule (:class:`PairRules` holds the numbers): a pair is admissible when MAC >= ``mac_min`` (0.5) and
-``|f / f_FE - 1| <= df_max`` (30 %); among admissible pairs the assignment (``scipy.optimize.linear_sum_assignment``,
-the Hungarian method) minimises the sum of ``(1 - MAC) + |f / f_FE - 1| / df_scale`` (``df_scale`` 10 %: a 10 %
+``|f / f_FE - 1| <= df_max`` (30 %); among admissible pairs the assignment (:func:`assign`, the minimum-weight
+full bipartite matching) minimises the sum of ``(1 - MAC) + |f / f_FE - 1| / df_scale`` (``df_scale`` 10 %: a 10 %
 frequency error weighs as much as a MAC of 0). A mode or FE mode left without an admissible partner is unpaired;
 a pair past ``df_warn`` (5 %) or below ``mac_warn`` (0.8) is paired but warned about.
 """
@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from analysis.mac import mac
 
@@ -50,6 +49,29 @@ class Pairing:
         return sorted(set(range(n_fe)) - set(self.fe[self.fe >= 0].tolist()))
 
 
+def assign(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the minimum-cost one-to-one assignment of a dense ``cost`` matrix (min(n, m) pairs,
+    rows ascending): what ``scipy.optimize.linear_sum_assignment`` returns (tests/test_modal_quality.py compares
+    the costs), by scipy.sparse.csgraph's LAPJVsp on the complete bipartite graph.
+
+    Why not scipy.optimize: importing it costs ~120 ms, 12 % of a whole `gvt modal` on the demo log
+    (bench/bench_quality.py); csgraph costs ~20 ms after scipy.linalg, which identification loads anyway. The
+    costs are shifted by +1 so that no pair is a zero, which a sparse matrix would drop as "no edge"; a constant
+    shift does not move the optimum of a matching of fixed size."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+    c = np.asarray(cost, dtype=float)
+    if c.size == 0:
+        return np.empty(0, int), np.empty(0, int)
+    if c.shape[0] <= c.shape[1]:
+        cols = min_weight_full_bipartite_matching(csr_matrix(c - c.min() + 1.0))[1]
+        return np.arange(c.shape[0]), cols
+    rows = min_weight_full_bipartite_matching(csr_matrix(c.T - c.min() + 1.0))[1]
+    order = np.argsort(rows)
+    return rows[order], order
+
+
 def pair_modes(f_id: np.ndarray, shapes: np.ndarray, f_fe: np.ndarray, fe_shapes: np.ndarray,
                rules: PairRules = PairRules()) -> Pairing:  # fmt: skip
     """One-to-one pairs of identified modes (``f_id``, ``shapes (n_dof, n_id)``) with FE modes (``f_fe``,
@@ -61,7 +83,7 @@ def pair_modes(f_id: np.ndarray, shapes: np.ndarray, f_fe: np.ndarray, fe_shapes
     cost = np.where(ok, (1.0 - m) + np.abs(df) / rules.df_scale, 1e6)  # inadmissible: dropped after the assignment
     fe = np.full(f_id.size, -1, dtype=int)
     if ok.any():
-        rows, cols = linear_sum_assignment(cost)
+        rows, cols = assign(cost)
         keep = ok[rows, cols]
         fe[rows[keep]] = cols[keep]
     paired = fe >= 0

@@ -196,3 +196,22 @@ def test_uff58_states_the_window_and_sdypy_damping_agrees_once_taken_out(tmp_pat
     np.testing.assert_allclose(fn, f_gvt, rtol=1e-3)
     assert z_read[0] / z_gvt[0] - 1 > 1.0  # the window's damping, read as the structure's
     np.testing.assert_allclose(z_read - sigma / (2 * np.pi * fn), z_gvt, rtol=0.05)
+
+
+def test_the_assignment_is_scipys_optimum_on_rectangular_gated_costs():
+    """analysis/modal_pairing.py assign (csgraph, without importing scipy.optimize into `gvt modal`) reaches the
+    same minimum total cost as scipy.optimize.linear_sum_assignment, square and rectangular both ways, with gated
+    (1e6) pairs as pair_modes makes them; one pair per row and column."""
+    from scipy.optimize import linear_sum_assignment
+
+    from analysis.modal_pairing import assign
+
+    rng = np.random.default_rng(0)
+    for n, m in [(3, 5), (5, 3), (6, 6), (1, 4), (4, 1), (13, 10)]:
+        for _ in range(30):
+            c = rng.random((n, m))
+            c[rng.random((n, m)) < 0.3] = 1e6
+            r1, c1 = linear_sum_assignment(c)
+            r2, c2 = assign(c)
+            assert c[r2, c2].sum() == pytest.approx(c[r1, c1].sum(), rel=1e-12)
+            assert len(r2) == min(n, m) and np.all(np.diff(r2) > 0) and len(set(c2.tolist())) == len(c2)

@@ -43,12 +43,14 @@ def open_rig(rig: str):
 
 def check_output(path: Path, overwrite: bool, what: str = "--out", inputs: Sequence[Path] = ()) -> None:
     """A new output file: its directory exists, it is not a directory, it is none of the verb's ``inputs``
-    (not even with ``--overwrite``), and an existing file is replaced only when the user said so
-    (``--overwrite``). Raises :class:`BadInput` (exit 2) with the fix."""
-    from daq.outputs import refuse_own_input
+    (not even with ``--overwrite``), no running recorder is writing it (not even with ``--overwrite``), and an
+    existing file is replaced only when the user said so (``--overwrite``). Raises :class:`BadInput` (exit 2)
+    with the fix."""
+    from daq.outputs import refuse_live, refuse_own_input
 
     path = Path(path)
     refuse_own_input(path, inputs, what)
+    refuse_live(path, what)
     if path.is_dir():
         raise BadInput(f"{what} {path}: is a directory; give a file name inside it")
     parent = path.parent if str(path.parent) else Path(".")

@@ -267,6 +267,13 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
             if name != layout.META_STREAMS or not (r.report.data_lost or r.report.duplicates):
                 w.add_metadata(name, data)
         w.finish()
+    from daq.outputs import refuse_live
+
+    try:
+        refuse_live(dst, "DST")  # a recorder may have started on that name since the verb checked it
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(dst)
     return r.report
 

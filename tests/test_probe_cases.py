@@ -91,3 +91,80 @@ def test_the_rename_checks_again_for_a_recorder_that_started_meanwhile(tmp_path)
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     os.close(fd)
     assert target.read_text() == "" and not list(tmp_path.glob(".*.part*"))  # its file kept, no temporary left
+
+
+# --- item 7: flags meet the limits config files meet -------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--force", "1e30", "--out", "{t}/a.npz"], "outside 0 .. 1e+06 N"),  # 20 s of NaN energies before
+        (["--forces", "nan", "--out", "{t}/b.mcap"], "--forces nan"),  # a log of NaN, exit 0 before
+        (["--forces", "30,1e30", "--out", "{t}/b.mcap"], "--forces 1e+30"),
+        (["--duration", "1e9", "--out", "{t}/c.npz"], "above the limit"),  # MemoryError, "internal error" before
+        (["--duration", "1e9", "--out", "{t}/c.mcap"], "above the limit"),
+        (["--duration", "inf", "--out", "{t}/c.mcap"], "--duration inf"),
+    ],
+)
+def test_simulate_flags_meet_the_config_limits(tmp_path, capsys, argv, words):
+    line = one_error(capsys, run(["simulate", "two_dof", *[a.format(t=tmp_path) for a in argv]]))
+    assert words in line, line
+    assert list(tmp_path.iterdir()) == []  # refused before any work: nothing written
+
+
+def test_a_one_hit_duration_is_held_to_the_rigs_record_limit(tmp_path, capsys):
+    # 100 s x 16384 Hz x 15 channels = 2.5e7 channel-samples > 2^24 (analysis/model/config.py, ~1 GB to simulate)
+    line = one_error(capsys, run(["simulate", "beam_ch4_exp", "--duration", "100", "--out", str(tmp_path / "h.npz")]))
+    assert "channel-samples" in line and "16777216" in line, line
+
+
+# --- item 7: log export's time range -------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("flags", "words"),
+    [
+        (["--start", "nan"], "--start nan"),  # "internal error: cannot convert float NaN to integer" before
+        (["--start", "1e300"], "--start 1e+300"),  # OverflowError before
+        (["--end", "inf"], "--end inf"),
+        (["--start", "1e5"], "no samples from 100000 s"),  # an empty file, exit 0 before; the log spans 200 s
+    ],
+)
+def test_log_export_refuses_a_time_range_no_log_can_hold(tmp_path, capsys, flags, words):
+    line = one_error(capsys, run(["log", "export", str(SMALL_LOG), *flags, "--out", str(tmp_path / "x.npz")]))
+    assert words in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- item 7: files that are not logs -------------------------------------------------------------------------------
+def _mcap(path: Path, profile: str, topic: str | None, metadata: dict[str, str] | None = None) -> Path:
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile=profile, library="probe")
+        if topic is not None:
+            ch = w.register_channel(topic, "json", w.register_schema("x", "jsonschema", b"{}"), metadata or {})
+            w.add_message(ch, log_time=0, data=b"{}", publish_time=0)
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize("verb", ["info", "replay", "report"])
+@pytest.mark.parametrize("kind", ["foreign", "empty"])
+def test_info_replay_and_report_refuse_an_mcap_that_is_not_a_log(tmp_path, capsys, verb, kind):
+    f = _mcap(tmp_path / "f.mcap", "ros2", "/chatter") if kind == "foreign" else _mcap(tmp_path / "f.mcap", "", None)
+    argv = {"info": ["log", "info", str(f)], "replay": ["replay", str(f)],
+            "report": ["report", str(f), "--out", str(tmp_path / "r.html")]}[verb]  # fmt: skip
+    line = one_error(capsys, run(argv))  # exit 0 with an empty description/report before
+    assert "not a gvtlink session log" in line, line
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_log_info_on_a_directory_is_one_line(tmp_path, capsys):
+    line = one_error(capsys, run(["log", "info", str(tmp_path)]))  # IsADirectoryError as "internal error" before
+    assert "is a directory" in line, line
+
+
+def test_a_stream_at_an_implausible_rate_is_refused_before_replay(tmp_path, capsys):
+    meta = {"sample_rate": "1e-300", "t0_ns": "0", "channels": '["a"]', "units": '["m/s^2"]'}
+    f = _mcap(tmp_path / "slow.mcap", "gvtlink", "/daq/dev0/samples", meta)
+    line = one_error(capsys, run(["replay", str(f)]))  # ZeroDivisionError as "internal error" before
+    assert "sample rate 1e-300 Hz" in line, line

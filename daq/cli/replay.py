@@ -27,9 +27,11 @@ def replay(
     import signal
     import threading
 
+    from daq.log.reader import LogReader
     from daq.replay_session import run_replay
     from daq.studies.confirm import companion_path
 
+    LogReader(log).require_log()  # a file that is not a log: one line before anything starts (issue 30)
     companion = companion_path(log)
     if analysis and confirm:
         check_output(companion, overwrite, "the companion log", inputs=[log])

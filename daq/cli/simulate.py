@@ -31,6 +31,8 @@ def simulate(
     r = open_rig(rig)
     if out_path.suffix not in (".mcap", ".npz"):
         fail(f"--out {out_path}: use .mcap (session log) or .npz (one hit)")
+    peaks = _peaks(forces) if forces else None
+    _check_flags(r, force, peaks, duration, spacing, one_hit=out_path.suffix == ".npz")
     check_output(out_path, overwrite)
     if out_path.suffix == ".npz":
         from daq.studies.simulate.hit import simulate_to_npz
@@ -41,13 +43,8 @@ def simulate(
         fail(f"--out {out_path}: use .mcap (session log) or .npz (one hit)")
     from daq.studies.simulate.session import SessionPlan, default_forces, simulate_session
 
-    if forces:
-        try:
-            peaks = tuple(float(x) for x in forces.split(",") if x.strip())
-        except ValueError:
-            fail(f"--forces {forces!r}: expected comma-separated numbers, e.g. 30,1583")
-        if not peaks or min(peaks) < 0:
-            fail("--forces: give at least one non-negative force")
+    if peaks is not None:
+        pass
     elif force is not None:
         peaks = (force,) * hits
     else:
@@ -63,3 +60,37 @@ def simulate(
         f"clipped: {clip}",
         markup=False,
     )
+
+
+def _peaks(forces: str) -> tuple[float, ...]:
+    try:
+        peaks = tuple(float(x) for x in forces.split(",") if x.strip())
+    except ValueError:
+        fail(f"--forces {forces!r}: expected comma-separated numbers, e.g. 30,1583")
+    if not peaks:
+        fail("--forces: give at least one non-negative force")
+    return peaks
+
+
+def _check_flags(r, force, peaks, duration, spacing, one_hit: bool) -> None:
+    """The flags meet the limits a config file meets (analysis/model/config.py, daq/config/session.py), before
+    any work: a 1e30 N hit took 20 s to give an npz of NaN energies, ``nan`` a log of NaN, and ``--duration 1e9``
+    an allocation failure reported as an internal error (issue 30)."""
+    import math
+
+    from analysis.model.config import MAX_FORCE_N, MAX_SIMULATED_CHANNEL_SAMPLES
+    from daq.config.session import MAX_DURATION_S
+
+    for what, values in (("--force", () if force is None else (force,)), ("--forces", peaks or ())):
+        for f in values:
+            if not (math.isfinite(f) and 0 <= f <= MAX_FORCE_N):
+                fail(f"{what} {f:g}: outside 0 .. {MAX_FORCE_N:g} N (the simulator's cost grows with the force)")
+    for what, v in (("--duration", duration), ("--spacing", spacing)):
+        if v is not None and not (math.isfinite(v) and v <= MAX_DURATION_S):
+            fail(f"{what} {v:g} s: above the limit of {MAX_DURATION_S:g} s (one week)")
+    if one_hit and duration is not None:  # one hit is computed whole, in memory: the rig's record limit
+        fs, channels = r.sample_rate, len(r.sensor_dofs) + 1
+        if duration * fs * channels > MAX_SIMULATED_CHANNEL_SAMPLES:
+            fail(f"--duration {duration:g} s: {duration * fs * channels:.3g} channel-samples at {fs:g} Hz x {channels} "
+                 f"channels, above the limit of {MAX_SIMULATED_CHANNEL_SAMPLES} (~1 GB to simulate); shorten it, "
+                 "or write a session log (.mcap), which is simulated in segments")  # fmt: skip

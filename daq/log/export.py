@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -161,6 +162,21 @@ def _units(p: _Part) -> list[str]:
     return [units.get(c, "") for c in p.data.channels]
 
 
+#: The farthest --start/--end (s) a log can reach: log times are int64 ns (292 years); a week is the longest
+#: session (daq/config/session.py), so a value beyond 1e9 s (31 years) can only be a typo.
+MAX_TIME_S = 1e9
+
+
+def _check_range(start: float | None, end: float | None) -> None:
+    """--start/--end are finite seconds within :data:`MAX_TIME_S`: ``nan`` and ``1e300`` reached an int
+    conversion and ended as an internal error (issue 30)."""
+    for what, v in (("--start", start), ("--end", end)):
+        if v is not None and not (math.isfinite(v) and abs(v) <= MAX_TIME_S):
+            raise LogReadError(f"{what} {v:g}: give seconds since the session start, within ±{MAX_TIME_S:g} s")
+    if start is not None and end is not None and end <= start:
+        raise LogReadError(f"--end {end:g} s must be after --start {start:g} s")
+
+
 def export(
     path: str | Path, out: str | Path, fmt: str, channels: Sequence[str] | None = None, start: float | None = None,
     end: float | None = None, stream: str | None = None,
@@ -170,6 +186,7 @@ def export(
     if fmt not in ("npz", "csv"):
         raise LogReadError(f"unknown export format {fmt!r}; use npz or csv")
     path, out = Path(path), Path(out)
+    _check_range(start, end)
     refuse_own_input(out, [path])
     r = LogReader(path)
     infos = r.streams()
@@ -180,6 +197,9 @@ def export(
     ref = tb.reference if tb.reference in sel else next(iter(sel))
     fs = infos[ref].sample_rate
     parts = _read(r, tb, sel, start, end)
+    if (start is not None or end is not None) and not any(p.data.index.size for p in parts):
+        span = f"from {start:g} s" if end is None else f"before {end:g} s" if start is None else f"in [{start:g}, {end:g}) s"
+        raise LogReadError(f"{path}: no samples {span} of session time; `gvt log info {path}` shows each stream's span")
     merged = [p for p in parts if p.data.info.sample_rate == fs]
     apart = [p for p in parts if p.data.info.sample_rate != fs]
     grid, data = _merge(merged)

@@ -84,6 +84,22 @@ MAX_INDEX_DRIFT_S = 3600.0
 MAX_ABS_VALUE = 1e30
 
 
+#: The lowest stream rate a log may claim (Hz): a sample every ~17 min, below any polled stream a device serves
+#: (a Modbus ``poll_hz`` of a slow temperature) and far below the configs' 1 Hz for acquisition. A 1e-300 Hz stream
+#: used to reach replay and divide by zero there (issue 30).
+MIN_STREAM_RATE = 1e-3
+
+
+def _header_profile(f: BinaryIO) -> str | None:
+    """The profile string of the MCAP header record that follows the magic (opcode 0x01, u64 length, then the
+    profile as u32 length + UTF-8); None when the first record is not a header."""
+    head = f.read(13)
+    if len(head) < 13 or head[0] != 0x01:
+        return None
+    n = int.from_bytes(head[9:13], "little")
+    return f.read(n).decode("utf-8", "replace") if n <= 256 else None
+
+
 class LogReadError(BadInput):
     """The file cannot be read as a gvtlink log; ``str()`` is one line for the user."""
 
@@ -212,6 +228,8 @@ def _note_lost_times(d: Damage, body: bytes) -> None:
 class LogReader:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        if self.path.is_dir():
+            raise LogReadError(f"{self.path}: is a directory; give a log file (.mcap) inside it")
         try:
             self.file_size = os.path.getsize(self.path)
         except FileNotFoundError:
@@ -220,9 +238,15 @@ class LogReader:
             raise LogReadError(f"{self.path}: cannot read: {exc.strerror}") from None
         if self.file_size == 0:
             raise LogReadError(f"{self.path}: empty file, not an MCAP log")
-        with open(self.path, "rb") as f:
+        try:
+            f = open(self.path, "rb")
+        except OSError as exc:
+            raise LogReadError(f"{self.path}: cannot read: {exc.strerror}") from None
+        with f:
             if f.read(8) != MAGIC:
                 raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
+            #: the MCAP header's profile ("gvtlink" in every log this project writes; None when unreadable)
+            self.profile = _header_profile(f)
             try:
                 self.summary: Summary | None = read_summary(f, self.file_size)
                 problem = None
@@ -245,6 +269,20 @@ class LogReader:
     @property
     def indexed(self) -> bool:
         return self._indexed
+
+    def require_log(self) -> None:
+        """One line (:class:`LogReadError`, exit 2) for an MCAP file that is not a gvtlink log: another
+        profile and no sample stream. ``info``, ``replay`` and ``report`` used to describe such a file as an
+        empty session and exit 0 (issue 30). A gvtlink log without streams (a recorder that stopped before
+        the first block) is still a log."""
+        if self.profile == layout.PROFILE or self.streams():
+            return
+        topics = sorted({c.topic for c in self.channels()})
+        shown = ", ".join(topics[:3]) + (", …" if len(topics) > 3 else "") if topics else "no channels"
+        raise LogReadError(
+            f"{self.path}: an MCAP file but not a gvtlink session log (profile {self.profile!r}, no sample streams; "
+            f"{shown}); give a log written by gvt record or gvt simulate"
+        )
 
     # --- verified indexed path ------------------------------------------------------------------
     def _chunk(self, f: BinaryIO, ci: ChunkIndex, views: bool = False) -> list[Schema | Channel | Message]:
@@ -526,8 +564,12 @@ class LogReader:
                 )  # fmt: skip
             except (KeyError, ValueError) as exc:
                 raise LogReadError(f"{self.path}: channel {ch.topic} lacks valid stream metadata ({exc})") from None
-            if not (0 < info.sample_rate <= 1e7 and isinstance(info.channels, list) and info.channels):
-                raise LogReadError(f"{self.path}: channel {ch.topic} has implausible stream metadata; run `gvt log recover`")
+            if not (MIN_STREAM_RATE <= info.sample_rate <= 1e7 and isinstance(info.channels, list) and info.channels):
+                raise LogReadError(
+                    f"{self.path}: channel {ch.topic} claims an implausible stream (sample rate {info.sample_rate:g} Hz, "
+                    f"outside {MIN_STREAM_RATE:g} .. 1e7 Hz, or no channels): its metadata is damaged and the samples "
+                    "cannot be placed in time"
+                )
             out[stream] = info
         return out
 

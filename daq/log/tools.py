@@ -30,6 +30,7 @@ def log_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
     is read; bench/bench_log_info.py); an old log without the
     writer's ``gvtlink.streams`` record, or a damaged one, by decoding its blocks (every chunk CRC-checked)."""
     r = LogReader(path)
+    r.require_log()
     recs = {} if verify else r.stream_records()
     streams = []
     for name, info in sorted(r.streams().items()):

@@ -44,6 +44,7 @@ def read_inputs(log: str | Path, rig: Rig | None = None) -> ReportInputs:
     from daq.view.logger import ViewSetup
 
     reader = LogReader(log)
+    reader.require_log()  # an MCAP file of another tool is one line, not an empty report (issue 30)
     info = log_info(log)
     rig_note = None
     if rig is None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.errors import BadInput
+from analysis.errors import BadInput, RuntimeFailure
 
 
 def jsonable(x: object) -> object:
@@ -111,19 +111,58 @@ def part_path(target: str | Path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_output(target: str | Path) -> Iterator[Path]:
+def atomic_output(target: str | Path, what: str = "--out") -> Iterator[Path]:
     """Yield a temporary path to write; on success it replaces ``target``, on any exception it is removed.
 
     The caller has already checked ``--overwrite`` and the input (``check_output``); this only makes the
-    replacement all-or-nothing.
+    replacement all-or-nothing, refuses a live log (:func:`refuse_live`), and turns a failed write (a full or
+    read-only disk) into one line naming it (:func:`write_error`, exit 1).
     """
-    refuse_live(target)
+    refuse_live(target, what)
     tmp = part_path(target)
     try:
         yield tmp
-        refuse_live(target)  # a recorder may have started on that name while the verb worked
+        refuse_live(target, what)  # a recorder may have started on that name while the verb worked
         os.replace(tmp, target)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise write_error(target, exc) from None
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+#: What a failed write means, by errno, said to the user instead of "internal error: OSError" (issue 30).
+_WRITE_ERRORS = {
+    errno.ENOSPC: "the disk is full; free some space or choose another disk",
+    errno.EDQUOT: "the disk quota is used up; free some space or choose another disk",
+    errno.EROFS: "the file system is read-only; choose a writable location",
+    errno.EACCES: "permission denied; choose a location you can write to",
+    errno.EPERM: "permission denied; choose a location you can write to",
+    errno.EIO: "the disk reported an input/output error",
+    errno.EFBIG: "the file grew too large for the file system",
+}
+
+
+def write_error(target: str | Path, exc: OSError) -> RuntimeFailure:
+    """One line for a write to ``target`` that failed (exit 1: the input was fine, the disk was not); the
+    user's previous file, if any, is untouched (the temporary file is removed by the caller)."""
+    why = _WRITE_ERRORS.get(exc.errno or 0, f"cannot write: {exc.strerror or exc}")
+    return RuntimeFailure(f"{target}: not written: {why}")
+
+
+def refuse_unwritable(out: str | Path, what: str = "--out") -> None:
+    """One line (exit 2) before any work when ``out``'s directory cannot be written (a read-only file system,
+    no permission): a report built for a minute used to end as "internal error: OSError" at its last step."""
+    parent = Path(out).parent if str(Path(out).parent) else Path(".")
+    if os.access(parent, os.W_OK):
+        return
+    try:  # say why: EROFS even for root; EACCES otherwise
+        os.statvfs(parent)
+        ro = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
+    except OSError:
+        ro = False
+    why = "is on a read-only file system" if ro else "is not writable (permission denied)"
+    raise BadInput(f"{what} {out}: the directory {parent} {why}; choose a writable location")

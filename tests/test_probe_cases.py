@@ -168,3 +168,43 @@ def test_a_stream_at_an_implausible_rate_is_refused_before_replay(tmp_path, caps
     f = _mcap(tmp_path / "slow.mcap", "gvtlink", "/daq/dev0/samples", meta)
     line = one_error(capsys, run(["replay", str(f)]))  # ZeroDivisionError as "internal error" before
     assert "sample rate 1e-300 Hz" in line, line
+
+
+# --- item 7: full and read-only disks are named, not "internal error" -------------------------------------------
+@pytest.fixture
+def small_disks(tmp_path):
+    """A 64 kB tmpfs (fills during any export of the small log) and a read-only one; skipped where mounting
+    is not permitted (the recorder's own full-disk test, tests/test_record_failures.py, does the same)."""
+    full, ro = tmp_path / "full", tmp_path / "ro"
+    full.mkdir()
+    ro.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(full)], capture_output=True).returncode:
+        pytest.skip("mounting a tmpfs is not permitted here")
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], capture_output=True, check=True)
+    try:
+        yield full, ro
+    finally:
+        for d in (full, ro):
+            subprocess.run(["umount", "-l", str(d)], capture_output=True)
+
+
+def test_a_full_disk_keeps_the_previous_file_and_says_so(small_disks, capsys):
+    full, _ro = small_disks
+    old = full / "a.csv"
+    old.write_text("the user's previous export\n")
+    line = one_error(capsys, run(["log", "export", str(SMALL_LOG), "--format", "csv", "--out", str(old), "--overwrite"]), 1)
+    assert "the disk is full" in line, line  # "internal error: OSError: [Errno 28]" before
+    assert old.read_text() == "the user's previous export\n" and [p.name for p in full.iterdir()] == ["a.csv"]
+    line = one_error(capsys, run(["log", "recover", str(SMALL_LOG), str(full / "r.mcap")]), 1)
+    assert "the disk is full" in line and not (full / "r.mcap").exists(), line  # a 64 kB r.mcap.part was left
+    assert [p.name for p in full.iterdir()] == ["a.csv"]
+
+
+@pytest.mark.parametrize("verb", ["log export", "log recover", "report"])
+def test_a_read_only_disk_is_refused_before_the_work(small_disks, capsys, verb):
+    _full, ro = small_disks
+    argv = {"log export": ["log", "export", str(SMALL_LOG), "--out", str(ro / "a.npz")],
+            "log recover": ["log", "recover", str(SMALL_LOG), str(ro / "r.mcap")],
+            "report": ["report", str(SMALL_LOG), "--out", str(ro / "r.html")]}[verb]  # fmt: skip
+    line = one_error(capsys, run(argv))  # "internal error: OSError: [Errno 30]" after the whole report before
+    assert "read-only file system" in line, line

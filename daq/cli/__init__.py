@@ -79,6 +79,12 @@ def run(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         _say("gvt: interrupted")
         return 130
+    except OSError as exc:  # a file or disk failure no verb foresaw: which file and what, not "internal error"
+        if os.environ.get("GVT_DEBUG"):
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        _say(f"gvt: error: {where}{exc.strerror or exc} (set GVT_DEBUG=1 for the traceback)")
+        return 1
     except Exception as exc:  # never a traceback to a user
         if os.environ.get("GVT_DEBUG"):
             raise

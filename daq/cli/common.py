@@ -46,7 +46,7 @@ def check_output(path: Path, overwrite: bool, what: str = "--out", inputs: Seque
     (not even with ``--overwrite``), no running recorder is writing it (not even with ``--overwrite``), and an
     existing file is replaced only when the user said so (``--overwrite``). Raises :class:`BadInput` (exit 2)
     with the fix."""
-    from daq.outputs import refuse_live, refuse_own_input
+    from daq.outputs import refuse_live, refuse_own_input, refuse_unwritable
 
     path = Path(path)
     refuse_own_input(path, inputs, what)
@@ -58,6 +58,7 @@ def check_output(path: Path, overwrite: bool, what: str = "--out", inputs: Seque
         raise BadInput(f"{what} {path}: directory {parent} does not exist (create it first)")
     if not parent.is_dir():
         raise BadInput(f"{what} {path}: {parent} is not a directory")
+    refuse_unwritable(path, what)
     if path.exists() and not overwrite:
         raise BadInput(f"{what} {path}: the file exists; pass --overwrite to replace it, or choose another name")
 

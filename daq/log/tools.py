@@ -236,10 +236,11 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
         raise LogReadError(f"{dst}: output must differ from the input")
     r = LogReader(src)
     schemas = r.schemas()
-    tmp = dst.with_name(dst.name + ".part")
+    from daq.outputs import atomic_output
+
     seen: set[tuple[int, int, int, int]] = set()
     sequences: dict[int, set[int]] = {}  # per channel: the writer numbers each channel's messages 0, 1, 2, ...
-    with open(tmp, "wb") as f:
+    with atomic_output(dst, "DST") as tmp, open(tmp, "wb") as f:  # a disk that fills: one line, no .part left
         w = Writer(f, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         w.start(profile=layout.PROFILE, library="gvtlink recover")
         schema_ids: dict[int, int] = {}
@@ -268,14 +269,6 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
             if name != layout.META_STREAMS or not (r.report.data_lost or r.report.duplicates):
                 w.add_metadata(name, data)
         w.finish()
-    from daq.outputs import refuse_live
-
-    try:
-        refuse_live(dst, "DST")  # a recorder may have started on that name since the verb checked it
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(dst)
     return r.report
 
 

@@ -47,7 +47,7 @@ def _locked(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> None:
 
 # --- item 6: no verb replaces a file a running recorder holds, even with --overwrite ---------------------------
 def test_no_verb_replaces_the_log_a_running_recorder_writes(tmp_path, capsys):
-    path = session_file(tmp_path, "serial-binary", 16384, duration=20.0, forces=[300.0] * 10)
+    path = session_file(tmp_path, "serial-binary", 16384, duration=6.0, forces=[300.0])  # ~3 s to start, 6 s paced
     live = tmp_path / "live.mcap"
     rec = subprocess.Popen([*gvt_command(), "record", str(path), "--out", str(live)], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -68,6 +68,7 @@ def test_no_verb_replaces_the_log_a_running_recorder_writes(tmp_path, capsys):
             line = one_error(capsys, run(argv))
             assert f"(pid {rec.pid})" in line and "recorder" in line and "--overwrite does not" in line, (argv, line)
         assert live.stat().st_ino == inode  # the name still points at the recorder's file
+        assert rec.poll() is None  # every refusal above met a recorder still writing
     finally:
         rec.send_signal(signal.SIGTERM)
         rec.communicate(timeout=60)
@@ -208,3 +209,55 @@ def test_a_read_only_disk_is_refused_before_the_work(small_disks, capsys, verb):
             "report": ["report", str(SMALL_LOG), "--out", str(ro / "r.html")]}[verb]  # fmt: skip
     line = one_error(capsys, run(argv))  # "internal error: OSError: [Errno 30]" after the whole report before
     assert "read-only file system" in line, line
+
+
+# --- item 7: logs whose records or names are not what the writer writes ------------------------------------------
+def _rewrite(src: Path, dst: Path, hit=None, channels=None, metadata: dict[str, dict[str, str]] | None = None) -> Path:
+    """``src`` copied record by record, with each hit record passed through ``hit`` and the stream's channel
+    names replaced by ``channels`` (the writer's closing stream record is dropped: it repeats the names)."""
+    import json
+
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as g:
+        r, w = make_reader(f), Writer(g)
+        w.start(profile=r.get_header().profile, library="probe")
+        summ = r.get_summary()
+        sid = {k: w.register_schema(s.name, s.encoding, s.data) for k, s in summ.schemas.items()}
+        cid = {}
+        for k, c in summ.channels.items():
+            md = dict(c.metadata)
+            if channels is not None and "channels" in md:
+                md["channels"] = json.dumps(channels)
+            cid[k] = w.register_channel(c.topic, c.message_encoding, sid.get(c.schema_id, 0), md)
+        for a in r.iter_attachments():
+            w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        for _s, ch, m in r.iter_messages():
+            data = json.dumps(hit(json.loads(m.data))).encode() if hit is not None and ch.topic == "/daq/hits" else m.data
+            w.add_message(cid[ch.id], m.log_time, data, m.publish_time, m.sequence)
+        for md in r.iter_metadata():
+            if channels is None or md.name != "gvtlink.streams":
+                w.add_metadata(md.name, md.metadata)
+        for name, data in (metadata or {}).items():
+            w.add_metadata(name, data)
+        w.finish()
+    return dst
+
+
+@pytest.mark.parametrize("field", ["peak_force_N", "t_s", "input_energy_J"])
+def test_report_on_a_hit_record_missing_a_field_is_one_line(tmp_path, capsys, field):
+    log = _rewrite(SMALL_LOG, tmp_path / "h.mcap", hit=lambda d: {k: v for k, v in d.items() if k != field})
+    line = one_error(capsys, run(["report", str(log), "--out", str(tmp_path / "r.html")]))
+    assert f"hit record 0 on /daq/hits lacks {field!r}" in line, line  # "internal error: TypeError/KeyError" before
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_terminal_escapes_from_a_log_are_shown_escaped(tmp_path, capsys):
+    title, clear = "\x1b]0;owned\x07", "\x1b[2J"
+    log = _rewrite(SMALL_LOG, tmp_path / "e.mcap", channels=[f"{title}hammer", "x1", "x2"],
+                   metadata={f"evil{clear}": {"k": "v"}})  # fmt: skip
+    assert run(["log", "info", str(log)]) == 0
+    out, _err = capsys.readouterr()
+    assert "\x1b" not in out and "\x07" not in out  # raw before: the terminal retitled and cleared
+    assert "\\x1b]0;owned\\x07hammer" in out and "evil\\x1b[2J" in out  # shown, not hidden

@@ -17,8 +17,28 @@ from rich.console import Console
 
 from analysis.errors import BadInput
 
-out = Console(highlight=False, soft_wrap=True)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
+#: Control characters a log (or any file) may carry in a name or a message, each shown as its escape (``\x1b``):
+#: a channel named ``"\x1b]0;...\x07"`` or ``"\x1b[2J"`` retitled or cleared the user's terminal through
+#: ``gvt log info`` (issue 30). Tab and newline stay; the consoles' own styling is rendered after this.
+_CONTROL = {c: f"\\x{c:02x}" for c in (*range(0x20), 0x7F, *range(0x80, 0xA0)) if c not in (0x09, 0x0A)}
+
+
+def printable(text: str) -> str:
+    """``text`` with every control character but tab and newline written as ``\\xNN``."""
+    return text.translate(_CONTROL)
+
+
+class _Console(Console):
+    """A rich console that never hands a control character from the data to the terminal: every string given
+    to ``print`` is passed through :func:`printable` first (renderables such as tables are built by the verbs
+    from strings they print, and rich's own escape codes come after this)."""
+
+    def print(self, *objects, **kwargs) -> None:
+        super().print(*(printable(o) if isinstance(o, str) else o for o in objects), **kwargs)
+
+
+out = _Console(highlight=False, soft_wrap=True)
+err = _Console(stderr=True, highlight=False, soft_wrap=True)
 
 RigArg = Annotated[str, typer.Argument(help="Rig TOML file, or the name of a rig in configs/rigs (e.g. beam_ch4_exp).")]
 OverwriteOpt = Annotated[bool, typer.Option("--overwrite", help="Replace an existing output file.")]

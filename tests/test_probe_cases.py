@@ -261,3 +261,28 @@ def test_terminal_escapes_from_a_log_are_shown_escaped(tmp_path, capsys):
     out, _err = capsys.readouterr()
     assert "\x1b" not in out and "\x07" not in out  # raw before: the terminal retitled and cleared
     assert "\\x1b]0;owned\\x07hammer" in out and "evil\\x1b[2J" in out  # shown, not hidden
+
+
+# --- item 7: session configs that passed every check and failed at run time ----------------------------------------
+SESSIONS = ROOT / "configs" / "sessions"
+
+
+@pytest.mark.parametrize(
+    ("config", "edit", "words"),
+    [
+        ("sim_roving.toml", None, "last hit point is first hit at 30.2 s"),  # --duration 0.5: "duration must be positive"
+        ("sim_can.toml", "messages = 9223372036854775808", "device.config.messages"),  # 'int' is not subscriptable
+        ("sim_can.toml", "messages = [9223372036854775807]", "device.config.messages"),
+        ("sim_can.toml", 'messages = ["NOPE"]', "message 'NOPE' is not in"),  # DbcLayoutError after the start
+    ],
+)
+def test_a_session_that_cannot_run_is_refused_at_config_time(tmp_path, capsys, config, edit, words):
+    text = (SESSIONS / config).read_text()
+    if edit is not None:
+        text = text.replace('messages = ["GVT_FD3"]', edit)
+        assert edit in text
+    (tmp_path / config).write_text(text)
+    argv = ["record", str(tmp_path / config), "--out", str(tmp_path / "s.mcap")]
+    line = one_error(capsys, run([*argv, "--duration", "0.5"] if edit is None else argv))
+    assert words in line, line
+    assert not (tmp_path / "s.mcap").exists()  # refused before the output was opened

@@ -63,8 +63,33 @@ def _check_against_rig(cfg: SessionConfig, rig: Rig) -> None:
     check_recorded(cfg, recorded, label)
     if cfg.plan is not None:
         resolve_plan(cfg.plan, rig)  # raises ConfigFieldError naming plan.points[k].<field>
+        _check_roving_span(cfg, rig)
     _check_level(cfg, rig)
     _check_budgets(cfg, rig, len(recorded), max(rates))
+
+
+def _check_roving_span(cfg: SessionConfig, rig: Rig) -> None:
+    """A simulated roving session computes one simulation per hit point, from that point's first hit to the end of
+    the session; a point whose first hit comes after the end has no span to compute. ``sim_roving.toml --duration
+    0.5`` passed every check and ended as "internal error: duration must be positive" (issue 30)."""
+    from daq.roving import scheduled_dofs
+
+    sim = next((d.simulate for d in cfg.device_list if d.simulate is not None), None)
+    if sim is None or not sim.forces:
+        return
+    dofs = scheduled_dofs(cfg.plan, rig, list(sim.forces), list(sim.double_hits))
+    first: dict[int, float] = {}
+    for k, dof in enumerate(dofs):
+        first.setdefault(dof, sim.first + k * sim.period)
+    late = max(first.values())
+    if cfg.duration is None or late >= cfg.duration:
+        given = "none given" if cfg.duration is None else f"{cfg.duration:g} s"
+        raise ConfigFieldError(
+            "duration",
+            f"{given}: the simulated roving plan's last hit point is first hit at {late:g} s (simulate.first + "
+            f"k x simulate.period); give a duration of at least {math.ceil(late + sim.period):g} s, or fewer "
+            "simulate.forces",
+        )
 
 
 def _check_level(cfg: SessionConfig, rig: Rig) -> None:
@@ -145,3 +170,22 @@ def check_session_against_rig(cfg: SessionConfig, rig: Rig, path: str | Path | N
         _check_against_rig(cfg, rig)
     except ConfigFieldError as exc:
         raise ConfigError(cfg._source or path or cfg.name, exc.field, exc.problem) from None
+    _check_can_tables(cfg, cfg._source or path or cfg.name)
+
+
+def _check_can_tables(cfg: SessionConfig, source: str | Path) -> None:
+    """A CAN device's table through the driver's own model now (its DBC and message names), not when the
+    device opens: a simulated CAN node reads ``messages`` first, and an unknown name ended as "internal error:
+    DbcLayoutError" after the session had started (issue 30). Every CAN field has a default, so the table
+    validates alone; the session adds only the stream name."""
+    from pydantic import ValidationError
+
+    from daq.config.session import driver_table_error
+    from drivers.can.driver import CanConfig
+
+    for i, d in enumerate(cfg.device_list):
+        if d.driver == "can":
+            try:
+                CanConfig.model_validate({"stream": d.name, **d.config})
+            except ValidationError as exc:
+                raise driver_table_error(source, cfg._field(i, "config"), exc) from None

@@ -408,6 +408,11 @@ class SessionConfig(_Strict):
                     f"outside the limits of {MIN_SAMPLE_RATE:g} .. {MAX_SAMPLE_RATE:g} Hz (devices run 256 Hz .. 51.2 kHz) "
                     f"(got {v!r})",
                 )
+        if d.driver == "can" and "messages" in d.config:  # read by the simulated CAN node before the driver's model
+            m = d.config["messages"]
+            if not isinstance(m, list) or not m or not all(isinstance(x, str) and 0 < len(x) <= 64 for x in m):
+                raise ConfigFieldError(f"{p}.messages", f'give a list of DBC message names, e.g. ["GVT_FD3"] (got {m!r:.60})')
+            check_limit(f"{p}.messages", len(m), MAX_CHANNELS, "messages", "one stream each")
         if d.driver == "sim" and "forces" in d.config:  # the in-process simulated device's hit schedule
             forces = d.config["forces"]
             if not isinstance(forces, list) or not all(isinstance(f, int | float) and not isinstance(f, bool) for f in forces):

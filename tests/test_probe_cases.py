@@ -286,3 +286,38 @@ def test_a_session_that_cannot_run_is_refused_at_config_time(tmp_path, capsys, c
     line = one_error(capsys, run([*argv, "--duration", "0.5"] if edit is None else argv))
     assert words in line, line
     assert not (tmp_path / "s.mcap").exists()  # refused before the output was opened
+
+
+def test_a_rig_sensor_named_like_the_hammer_channel_is_refused(tmp_path):
+    from analysis.model.config import RigConfig
+    from analysis.model.loader import ConfigError, load_config
+
+    text = (ROOT / "configs" / "rigs" / "two_dof.toml").read_text().replace('name = "x1"', 'name = "hammer"', 1)
+    (tmp_path / "r.toml").write_text(text)
+    with pytest.raises(ConfigError, match="sensors: sensor name 'hammer' is the hammer's force channel"):
+        load_config(RigConfig, tmp_path / "r.toml")  # relabelled the force channel before
+
+
+@pytest.mark.parametrize("fmt", ["matlab", "harwell-boeing"])
+def test_a_sparse_fe_matrix_is_sized_before_it_is_densified(tmp_path, fmt):
+    """100,000 DOFs with 3 nonzeros: a file of a few hundred bytes that would densify to 80 GB (an 80 kB
+    file reached 2.4 GB before). Refused by its size, before any dense copy."""
+    import resource
+
+    import scipy.io
+    import scipy.sparse
+
+    from analysis.model.loader import ConfigFieldError
+    from analysis.model.matrices import read_matrix
+
+    n = 100_000
+    m = scipy.sparse.csc_matrix(([1.0, 2.0, 3.0], ([0, 1, n - 1], [0, 1, n - 1])), shape=(n, n))
+    name = {"matlab": "K.mat", "harwell-boeing": "K.rua"}[fmt]
+    if fmt == "matlab":
+        scipy.io.savemat(tmp_path / name, {"K": m})
+    else:
+        scipy.io.hb_write(tmp_path / name, m)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(ConfigFieldError, match="100000 x 100000, above the limit of 2000 DOFs"):
+        read_matrix(tmp_path, name, fmt, "structure.stiffness")
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 100_000  # kB: no dense copy (80 GB) was made

@@ -38,6 +38,8 @@ MAX_SENSORS = MAX_CHANNELS - 1
 #: 1 Hz .. 1 MHz a rate is a unit mistake (kHz for Hz), and above it one second of 256 channels is 1 GB.
 MIN_SAMPLE_RATE = 1.0
 MAX_SAMPLE_RATE = 1e6
+#: The force channel's name in every rig (analysis/model/rig.py places the hammer under it).
+HAMMER_CHANNEL = "hammer"
 #: Hammer and simulated hit forces (N). The largest impact hammers measure ~22 kN (PCB 086D50, 5000 lbf); 1 MN is
 #: 100 tonnes-force. The simulator sub-steps a hit by the stiffness it reaches: one second of beam_ch4_exp with
 #: one hit computed in 0.09 s at 1583 N and at 1e6 N, 0.16 s at 1e12 N, and 56 s at 1e30 N (the 4096-sub-step cap).
@@ -685,9 +687,14 @@ class RigConfig(_Strict):
                     raise ConfigFieldError(f"structure.springs[{i}].{end}", f"unknown DOF {v!r}; this rig has {names}")
 
     def _check_sensor_names(self) -> None:
-        """Each sensor, listed or expanded from an array, has its own name (a channel is found by it)."""
+        """Each sensor, listed or expanded from an array, has its own name (a channel is found by it), and none
+        takes the hammer's channel name: a sensor named "hammer" relabelled the force channel (issue 30)."""
         seen: set[str] = set()
         for sensor in self.all_sensors:
+            if sensor.name == HAMMER_CHANNEL:
+                raise ConfigFieldError(
+                    "sensors", f"sensor name {HAMMER_CHANNEL!r} is the hammer's force channel; give the sensor another name"
+                )
             if sensor.name in seen:
                 raise ConfigFieldError("sensors", f"sensor name {sensor.name!r} is used twice")
             seen.add(sensor.name)

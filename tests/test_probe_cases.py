@@ -321,3 +321,20 @@ def test_a_sparse_fe_matrix_is_sized_before_it_is_densified(tmp_path, fmt):
     with pytest.raises(ConfigFieldError, match="100000 x 100000, above the limit of 2000 DOFs"):
         read_matrix(tmp_path, name, fmt, "structure.stiffness")
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 100_000  # kB: no dense copy (80 GB) was made
+
+
+def test_pymodbus_keeps_its_own_lines_off_the_terminal(tmp_path):
+    """A Modbus TCP device that drops its connection for 0.3 s: pymodbus printed "Connection to (...) failed" and
+    "Repeating...." on stderr between the recorder's lines. Now the terminal shows only gvt's lines; the reconnect
+    is in the log's events and nothing is lost (a child process: pytest's own log capture would hide the lines)."""
+    import sys
+
+    path = session_file(tmp_path, "modbus-tcp", 16384, {"disconnect_at_s": 0.3, "disconnect_for_s": 0.3}, duration=1.0)
+    out = tmp_path / "m.mcap"
+    p = subprocess.run([sys.executable, "-m", "daq.cli", "record", str(path), "--out", str(out)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert p.stderr == "", p.stderr
+    r = LogReader(out)
+    assert [e["kind"] for e in r.json_messages("/daq/events") if e["kind"] == "reconnect"] == ["reconnect"]
+    assert r.read_stream("dev0").gaps == []

@@ -53,10 +53,26 @@ def _say(message: str) -> None:
     err.print(message, markup=False, soft_wrap=True)
 
 
+def _quiet_libraries() -> None:
+    """Library loggers that would write their own lines to the terminal are kept off it (``GVT_DEBUG`` lets
+    them through). pymodbus logs each reconnect attempt ("Connection to (...) failed", "Repeating....") through
+    Python's last-resort handler onto stderr, between the recorder's lines (issue 30); the Modbus driver counts
+    and logs every reconnect itself (``/daq/events``), so nothing is lost."""
+    import logging
+
+    lg = logging.getLogger("pymodbus")
+    if os.environ.get("GVT_DEBUG"):
+        return
+    if not any(isinstance(h, logging.NullHandler) for h in lg.handlers):
+        lg.addHandler(logging.NullHandler())
+    lg.propagate = False
+
+
 def run(argv: list[str] | None = None) -> int:
     """Run ``gvt`` with ``argv`` (default: the command line) and return the exit code; errors are mapped here
     and only here. Tests call this in-process; the console script is :func:`main`."""
     cx = _click_exceptions()
+    _quiet_libraries()
     try:
         code = app(args=argv, standalone_mode=False)
         return code if isinstance(code, int) else 0

@@ -52,7 +52,7 @@ def refuse_own_input(out: str | Path, inputs: Sequence[str | Path], what: str = 
 
 
 def lock_holder(path: str | Path) -> str | None:
-    """Who holds an ``flock`` on the file ``path`` names ("a recorder (pid N)"), or None when nobody does.
+    """Who holds an ``flock`` on the file ``path`` names ("another recorder (pid N)"), or None when nobody does.
 
     Why ``/proc/locks`` first: it answers without taking a lock, so the check can never make a recorder that
     starts at the same instant fail with "in use". Where it cannot be read (not Linux), a shared lock is tried
@@ -72,8 +72,8 @@ def lock_holder(path: str | Path) -> str | None:
         if len(parts) >= 6 and parts[1] == "FLOCK" and parts[5] == key:  # waiters ("->") have parts[1] == "->"
             pid = parts[4]
             if pid.isdigit() and int(pid) == os.getpid():
-                return "a recorder in this process"
-            return f"a running recorder (pid {pid})"
+                return "another writer in this process"
+            return f"another recorder (pid {pid})"
     return None
 
 
@@ -85,7 +85,7 @@ def _probe_lock(path: str | Path) -> str | None:
     try:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except BlockingIOError:
-        return "a running recorder"
+        return "another recorder"
     except OSError as exc:  # a file system without locks: nothing can be known, nothing is held
         if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP):
             return None
@@ -98,8 +98,8 @@ def refuse_live(out: str | Path, what: str = "--out") -> None:
     """One line (exit 2) when ``out`` is a log a recorder is writing: even ``--overwrite`` never replaces it."""
     who = lock_holder(out)
     if who is not None:
-        raise BadInput(f"{what} {out}: {who} is writing that file; --overwrite does not replace a live log; "
-                       "choose another name, or stop the recorder first")  # fmt: skip
+        raise BadInput(f"{what} {out}: in use by {who}, which is writing it; --overwrite does not replace a live "
+                       "log; choose another name, or stop the recorder first")  # fmt: skip
 
 
 def part_path(target: str | Path) -> Path:

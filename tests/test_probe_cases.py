@@ -66,7 +66,7 @@ def test_no_verb_replaces_the_log_a_running_recorder_writes(tmp_path, capsys):
         ]
         for argv in verbs:
             line = one_error(capsys, run(argv))
-            assert f"(pid {rec.pid})" in line and "recorder" in line and "--overwrite does not" in line, (argv, line)
+            assert f"in use by another recorder (pid {rec.pid})" in line and "--overwrite does not" in line, (argv, line)
         assert live.stat().st_ino == inode  # the name still points at the recorder's file
         assert rec.poll() is None  # every refusal above met a recorder still writing
     finally:

@@ -277,6 +277,9 @@ class LogReader:
         the first block) is still a log."""
         if self.profile == layout.PROFILE or self.streams():
             return
+        if self.profile is None and not self.channels():  # the magic, then no header: a log cut at its start
+            raise LogReadError(f"{self.path}: damaged: no MCAP header record after the magic "
+                               f"({self.path.stat().st_size} bytes); nothing in it can be read")  # fmt: skip
         topics = sorted({c.topic for c in self.channels()})
         shown = ", ".join(topics[:3]) + (", …" if len(topics) > 3 else "") if topics else "no channels"
         raise LogReadError(

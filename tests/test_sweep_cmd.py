@@ -329,9 +329,13 @@ def test_bad_input_is_one_line_and_exit_2(args, needle):
     assert len(lines) == 1 and lines[0].startswith("gvt: error:") and needle in lines[0], r.stderr
 
 
+SWEEP_RUNS = 24
+
+
 @pytest.mark.slow
 def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
-    """A 40-run sweep over the seed's P = 1e1 … 1e12 N, 1 s per run, all 100 translational outputs.
+    """A 24-run sweep over the seed's P = 1e1 … 1e12 N, 1 s per run, all 100 translational outputs (40 runs
+    until issue 29; 24 keep three runs at P >= 1e11 N and the suite within its 10 minutes).
 
     Oracle: the modal analysis of the low (springs removed) and high (springs pinned) limit structures,
     independent of the simulator, POD and RQ. Low end: NNM1–4 RQs within 2 % of fixed-free (measured
@@ -348,20 +352,21 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path):
     assert np.allclose(ff, [3.807, 23.861, 66.811, 130.923], rtol=2e-4)  # method-detection.md §2.3
     assert np.allclose(fp, [16.70, 54.11, 112.89, 193.05], rtol=3e-4)
 
-    r = _gvt("sweep", "beam_ch4_sim", "--n", "40", "--duration", "1", "--workers", "1", "--out", str(tmp_path), "--json")
+    n = str(SWEEP_RUNS)
+    r = _gvt("sweep", "beam_ch4_sim", "--n", n, "--duration", "1", "--workers", "1", "--out", str(tmp_path), "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert summary["runs"] == 40 and summary["n_outputs"] == 100 and summary["order"] == 4
+    assert summary["runs"] == SWEEP_RUNS and summary["n_outputs"] == 100 and summary["order"] == 4
 
     rows = np.loadtxt(tmp_path / "rqfep.csv", delimiter=",", skiprows=1)
     header = (tmp_path / "rqfep.csv").read_text().splitlines()[0].split(",")
     assert header == ["P_N", "input_energy_J", "f1_hz", "f2_hz", "f3_hz", "f4_hz", "substep_cap_hits", "f1_modal_hz",
                       "f2_modal_hz", "f1_modal_early_hz", "f2_modal_early_hz", "modal_ratio"]  # fmt: skip
-    assert rows.shape == (40, 12)
+    assert rows.shape == (SWEEP_RUNS, 12)
     assert np.allclose(rows[:, 11], rows[:, 8] / rows[:, 7], rtol=1e-5)
     # P = 10 N: near the linear modes, the hardening tip spring already a shade above (measured 3.844 / 23.872 Hz)
     assert np.allclose(rows[0, 7:9], [3.807, 23.861], rtol=0.02) and rows[0, 7] > 3.807
-    assert np.allclose(rows[:, 0], np.logspace(1, 12, 40), rtol=1e-8)
+    assert np.allclose(rows[:, 0], np.logspace(1, 12, SWEEP_RUNS), rtol=1e-8)
     f = rows[:, 2:6]
     assert np.all(np.diff(f, axis=1) >= 0)  # sorted ascending (L1251)
     low = np.median(f[:2], axis=0)

@@ -39,6 +39,9 @@ def analysis() -> None:
 
     rig = open_rig("beam_ch4_exp")
     rig.simulator.run(rig.hammer_force(10.0), 0.01, rig.sample_rate)
+    sim = open_rig("beam_ch4_sim")  # the batch of amplitudes, time series and moments (~20 s, test_simulator)
+    sim.simulator.run_moments(sim.hammer_force(), 0.01, sim.sample_rate, [1.0, 2.0])
+    sim.simulator.run(sim.hammer_force(), 0.01, sim.sample_rate, amplitudes=[1.0, 2.0])
     names = tuple(s.name for s in rig.sensors)
     warm_up(RigModel.from_rig(rig), "dev0", ("hammer", *names), rig.sample_rate)
 

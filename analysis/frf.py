@@ -107,7 +107,7 @@ class FRFSet:
         from analysis.frf_levels import prominent_peaks  # scipy.signal.find_peaks' prominences, without its import
 
         mif = np.abs(self.H).sum(axis=(0, 1))
-        idx, prom = prominent_peaks(np.where(self.freq >= f_min, mif, 0.0))
+        idx, prom = prominent_peaks(np.where(self.freq >= f_min, mif, 0.0), top=n)
         if idx.size == 0:
             return idx
         keep = idx[np.argsort(prom, kind="stable")[::-1][:n]]

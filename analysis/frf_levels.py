@@ -173,20 +173,21 @@ def _modes(f: np.ndarray, mif: np.ndarray, peaks_hz: np.ndarray | None, band: tu
         p = np.sort(np.asarray(peaks_hz, dtype=float).ravel())
         return p[(p > f[0]) & (p < f[-1])]
     lo, hi = band if band is not None else (1.0, float(f[-1]))
-    idx, prom = prominent_peaks(np.where((f >= lo) & (f <= hi), mif, 0.0))
+    idx, prom = prominent_peaks(np.where((f >= lo) & (f <= hi), mif, 0.0), top=n_peaks)
     keep = idx[np.argsort(prom, kind="stable")[::-1][:n_peaks]]
     return np.sort(f[keep])
 
 
-def prominent_peaks(y: np.ndarray, candidates: int = 256) -> tuple[np.ndarray, np.ndarray]:
+def prominent_peaks(y: np.ndarray, top: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Local maxima of ``y`` (above both neighbours; a flat top counts once, at its middle) and their topographic
-    prominence, for the ``candidates`` highest maxima: what ``scipy.signal.find_peaks(y, prominence=0)`` gives
-    for them (tests/test_frf_levels.py compares the two).
+    prominence, ascending in index: what ``scipy.signal.find_peaks(y, prominence=0)`` gives (tests/test_frf_levels.py
+    compares the two). With ``top``, only maxima that can be among the ``top`` most prominent are measured, and
+    those are exact: a maximum's prominence is at most its height above ``min(y)``, so once the next-highest
+    maximum stands lower than the ``top``-th prominence found, no maximum left can enter.
 
     Why not scipy: importing scipy.signal costs ~0.5-1.3 s of CPU here, more than the whole identification of
-    `gvt modal` that calls this once per level pair (bench/bench_quality.py). A mode indicator's modes are
-    among its highest maxima (the noise ripple on a mode's skirt is lower than the mode), so the prominence of
-    the highest few hundred is all the level check needs; each takes two passes over ``y``."""
+    `gvt modal` that calls this once per level pair (bench/bench_quality.py). Each maximum measured takes two
+    passes over ``y``; with ``top`` a mode indicator stops after its modes and the ripple next to them."""
     y = np.asarray(y, dtype=float)
     if y.size < 3:
         return np.empty(0, int), np.empty(0)
@@ -195,14 +196,23 @@ def prominent_peaks(y: np.ndarray, candidates: int = 256) -> tuple[np.ndarray, n
     v = y[start]
     k = 1 + np.flatnonzero((v[1:-1] > v[:-2]) & (v[1:-1] > v[2:]))
     i = (start[k] + end[k]) // 2  # a plateau's peak is its middle sample, as scipy's
-    i = i[np.argsort(y[i], kind="stable")[::-1][:candidates]]
+    i = i[np.argsort(y[i], kind="stable")[::-1]]  # highest first
+    floor = float(y.min())
     prom = np.empty(i.size)
-    for k, p in enumerate(i):
+    best: list[float] = []  # the ``top`` largest prominences so far, ascending
+    n = 0
+    for p in i:
+        if top is not None and len(best) >= top and y[p] - floor < best[0]:
+            break
         left = np.flatnonzero(y[:p] > y[p])
         right = np.flatnonzero(y[p + 1 :] > y[p])
         a = left[-1] + 1 if left.size else 0
         b = p + 1 + right[0] if right.size else y.size
-        prom[k] = y[p] - max(y[a : p + 1].min(), y[p:b].min())
+        prom[n] = y[p] - max(y[a : p + 1].min(), y[p:b].min())
+        if top is not None:
+            best = sorted([*best, prom[n]])[-top:]
+        n += 1
+    i, prom = i[:n], prom[:n]
     order = np.argsort(i)
     return i[order], prom[order]
 

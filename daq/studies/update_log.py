@@ -112,16 +112,9 @@ def modes_from_log(source: Path, rig: Rig, band: tuple[float, float] | None = No
         raise BadInput(f"{source}: file not found")
     bad = channel_health(source, rig)
     chans = [s.name for s in rig.sensors if s.name not in bad]
-    def frfs(lv: str | int | None):
-        return frf_from_log(source, rig, channels=chans or None, band_hz=None if band is None else band[1], level=lv,
-                            progress=None if progress is None else (lambda f: progress("hits", f)))  # fmt: skip
-
-    fr = frfs(level)
-    q = (fr.frf.quality or {}) if fr.frf is not None else {}
-    lin, used = q.get("linearity"), [lv["level"] for lv in q.get("levels", []) if lv.get("averaged")]
-    if level is None and lin and not lin["linear"] and used and used[0] != 1:
-        level = 1  # the levels differ: the lowest one, even of a single hit, is nearer the linear model than any other
-        fr = frfs(level)
+    # the FRF study's default levels: the lowest, and those linear with it (docs/decisions.md D41, D46)
+    fr = frf_from_log(source, rig, channels=chans or None, band_hz=None if band is None else band[1], level=level,
+                      progress=None if progress is None else (lambda f: progress("hits", f)))  # fmt: skip
     if fr.frf is None:
         refused = sum(h["verdict"] != "accepted" for h in fr.hits)
         raise BadInput(f"{source}: no accepted hit to build FRFs from ({refused} refused; `gvt frf {source}` says why)")

@@ -29,17 +29,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_session import worktree  # a detached worktree of the base commit, kept in the temp dir
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
-
-
-def worktree(base: str) -> Path:
-    """A detached worktree of ``base`` in the temp dir (kept between runs: the checkout is the slow part)."""
-    path = Path(tempfile.gettempdir()) / f"gvt-bench-base-{base}"
-    if not (path / "daq").exists():
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(path), base], check=True,
-                       capture_output=True)  # fmt: skip
-    return path
 
 
 def gvt_cpu(tree: Path, *args: str) -> tuple[float, float, int]:

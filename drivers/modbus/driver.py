@@ -262,6 +262,8 @@ class ModbusDriver(Driver):
                 self._flags |= BlockStatus.TIMEOUT
                 attempt += 1
                 self._drain()
+                if reconnect and self.stopping:  # a silent device is retried and relinked for ever: stop now
+                    raise _Stopping from None
                 if attempt <= self.cfg.retries:
                     self.stats.retries += 1
                     continue

@@ -212,9 +212,11 @@ def test_a_read_only_disk_is_refused_before_the_work(small_disks, capsys, verb):
 
 
 # --- item 7: logs whose records or names are not what the writer writes ------------------------------------------
-def _rewrite(src: Path, dst: Path, hit=None, channels=None, metadata: dict[str, dict[str, str]] | None = None) -> Path:
-    """``src`` copied record by record, with each hit record passed through ``hit`` and the stream's channel
-    names replaced by ``channels`` (the writer's closing stream record is dropped: it repeats the names)."""
+def _rewrite(src: Path, dst: Path, hit=None, channels=None, metadata: dict[str, dict[str, str]] | None = None,
+             extra_block=None) -> Path:  # fmt: skip
+    """``src`` copied record by record, with each hit record passed through ``hit``, the stream's channel names
+    replaced by ``channels`` (the writer's closing stream record is dropped: it repeats the names), and after the
+    k-th sample block the (log time, bytes) ``extra_block(message, k)`` returns, if any."""
     import json
 
     from mcap.reader import make_reader
@@ -233,9 +235,14 @@ def _rewrite(src: Path, dst: Path, hit=None, channels=None, metadata: dict[str, 
             cid[k] = w.register_channel(c.topic, c.message_encoding, sid.get(c.schema_id, 0), md)
         for a in r.iter_attachments():
             w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        k = 0
         for _s, ch, m in r.iter_messages():
             data = json.dumps(hit(json.loads(m.data))).encode() if hit is not None and ch.topic == "/daq/hits" else m.data
             w.add_message(cid[ch.id], m.log_time, data, m.publish_time, m.sequence)
+            if extra_block is not None and ch.topic.endswith("/samples"):
+                if (more := extra_block(m, k)) is not None:
+                    w.add_message(cid[ch.id], more[0], more[1], more[0], 1_000_000)
+                k += 1
         for md in r.iter_metadata():
             if channels is None or md.name != "gvtlink.streams":
                 w.add_metadata(md.name, md.metadata)
@@ -371,3 +378,35 @@ def test_sigterm_stops_a_recorder_whose_modbus_device_went_silent(tmp_path):
     s = r.read_stream("dev0")
     assert r.report.complete and s.gaps == []  # finalised, nothing missing inside what was recorded
     assert 0 < s.data.shape[0] <= 8192 and s.index[0] == 0  # what the device sent before it fell silent at 0.5 s
+
+
+# --- item 7: logs whose blocks disagree ---------------------------------------------------------------------------
+def _overlapping(dst: Path) -> Path:
+    """SMALL_LOG (dev0: 1024-sample blocks at 50 Hz) with one more block after the third: samples 2560..3584, which
+    blocks 2 and 3 already hold, with other values (+1). Its log time is its first sample's, as the writer's are."""
+    from daq.log.proto import decode_block, encode_block
+
+    def extra(m, k):
+        if k != 2:
+            return None
+        b = decode_block(m.data)
+        half = b.data.shape[0] // 2
+        lt = m.log_time + round(half * 1e9 / b.sample_rate)
+        return lt, encode_block(b.stream, b.first_index + half, b.sample_rate, b.data + 1.0, b.status)
+
+    return _rewrite(SMALL_LOG, dst, extra_block=extra)
+
+
+def test_overlapping_blocks_are_damage_in_export_and_verify(tmp_path, capsys):
+    """Merged silently before: export wrote 9005 rows (one block's values chosen without a word) and --verify said
+    "ok" (and invented a 1024-sample gap). Now both name the stream and the samples, exit 3, and write nothing."""
+    log = _overlapping(tmp_path / "o.mcap")
+    for fmt in ("npz", "csv"):
+        line = one_error(capsys, run(["log", "export", str(log), "--format", fmt, "--out", str(tmp_path / f"o.{fmt}")]), 3)
+        assert "samples [2560, 3584) of stream dev0" in line and "overlapping blocks" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.mcap"]
+    assert run(["log", "info", "--verify", str(log)]) == 3
+    out, _err = capsys.readouterr()
+    assert "health: damaged: dev0 samples [2560, 3584): two overlapping blocks" in out, out
+    assert "gaps: 0" in out  # the samples the blocks agree on are all there
+    assert run(["log", "export", str(log), "--end", "50", "--out", str(tmp_path / "e.npz")]) == 0  # before them: fine

@@ -783,6 +783,8 @@ class LogReader:
         lo_i = None if start is None else int(np.ceil(start * info.sample_rate))
         hi_i = None if end is None else int(np.ceil(end * info.sample_rate))
         damaged = tracker.finish(end_hint, lo_i, hi_i)
+        if samples.firsts:  # samples two blocks claim with different values: damage, never merged silently
+            damaged += _clipped(samples.kept()[1], lo_i, hi_i)
         if damaged and on_damage == "refuse":
             raise self._damaged_error(info, damaged)
         return samples.assemble(info, [info.channels[i] for i in sel], start, end, damaged)
@@ -817,10 +819,13 @@ class LogReader:
     def _damaged_error(self, info: StreamInfo, damaged: list[tuple[int, int, str]]) -> LogDamagedError:
         a, b, why = damaged[0]
         more = f" and {len(damaged) - 1} more range(s)" if len(damaged) > 1 else ""
+        # recover copies every block it can read: it cannot choose between two that disagree
+        then = ("; gvt record never writes that: use the original file, or export a range without them (--start/--end)"
+                if why == OVERLAP
+                else f"; `gvt log recover {self.path} FIXED.mcap` keeps the rest, the damage as a gap")  # fmt: skip
         return LogDamagedError(
             f"{self.path}: samples [{a}, {b}) of stream {info.stream} "
-            f"(t = {a / info.sample_rate:.3f}–{b / info.sample_rate:.3f} s)"
-            f"{more} are damaged ({why}); `gvt log recover {self.path} FIXED.mcap` keeps the rest, the damage as a gap"
+            f"(t = {a / info.sample_rate:.3f}–{b / info.sample_rate:.3f} s){more} are damaged ({why}){then}"
         )
 
 
@@ -879,12 +884,17 @@ class DamageRanges:
             if hi > lo:
                 self.ranges.append((lo, hi, why))
         self.pending = []
-        out = []
-        for a, b, why in self.ranges:
-            a, b = max(a, lo_i) if lo_i is not None else a, min(b, hi_i) if hi_i is not None else b
-            if b > a:
-                out.append((a, b, why))
-        return out
+        return _clipped(self.ranges, lo_i, hi_i)
+
+
+def _clipped(ranges: list[tuple[int, int, str]], lo_i: int | None, hi_i: int | None) -> list[tuple[int, int, str]]:
+    """``ranges`` cut to ``[lo_i, hi_i)`` (None: open), the empty ones left out."""
+    out = []
+    for a, b, why in ranges:
+        a, b = max(a, lo_i) if lo_i is not None else a, min(b, hi_i) if hi_i is not None else b
+        if b > a:
+            out.append((a, b, why))
+    return out
 
 
 class _Samples:
@@ -905,6 +915,7 @@ class _Samples:
         self.firsts: list[int] = []
         self.lengths: list[int] = []
         self.statuses: list[int] = []
+        self._kept: tuple[np.ndarray, list[tuple[int, int, str]]] | None = None
 
     def add(self, b: DecodedBlock) -> None:
         """Copy block ``b`` (its selected channels) to the end."""
@@ -919,6 +930,35 @@ class _Samples:
         self.firsts.append(b.first_index)
         self.lengths.append(n)
         self.statuses.append(b.status)
+
+    def kept(self) -> tuple[np.ndarray, list[tuple[int, int, str]]]:
+        """The blocks that make the stream (:func:`kept_blocks`) and the samples of a dropped block that are not the
+        kept blocks' same values (:data:`OVERLAP`): a chunk logged twice is kept once quietly; a block that says
+        something else about samples, or holds samples no kept block has, is damage."""
+        if self._kept is None:
+            firsts, lengths = np.asarray(self.firsts, np.int64), np.asarray(self.lengths, np.int64)
+            keep, dropped = kept_blocks(firsts, lengths)
+            conflicts = [(int(firsts[i]), int(firsts[i] + lengths[i]), OVERLAP) for i in dropped
+                         if not self._repeats(i, keep, firsts, lengths)]  # fmt: skip
+            self._kept = keep, _merged_ranges(conflicts)
+        return self._kept
+
+    def _repeats(self, i: int, keep: np.ndarray, firsts: np.ndarray, lengths: np.ndarray) -> bool:
+        """Every sample of block ``i`` is in the kept blocks, bit for bit."""
+        offsets = np.cumsum(lengths) - lengths
+        k_first, k_end = firsts[keep], firsts[keep] + lengths[keep]
+        pos, end = int(firsts[i]), int(firsts[i] + lengths[i])
+        k = int(np.searchsorted(k_first, pos, side="right")) - 1
+        while pos < end:
+            if k < 0 or k >= len(keep) or k_end[k] <= pos:
+                return False  # samples only this block holds: dropping it would lose them
+            j, hi = keep[k], min(end, int(k_end[k]))
+            mine = self.buf[offsets[i] + pos - firsts[i] : offsets[i] + hi - firsts[i]]
+            kept = self.buf[offsets[j] + pos - firsts[j] : offsets[j] + hi - firsts[j]]
+            if mine.tobytes() != kept.tobytes():
+                return False
+            pos, k = hi, k + 1
+        return True
 
     def _reserve(self, n: int) -> None:
         if self.rows + n <= len(self.buf):
@@ -938,7 +978,7 @@ class _Samples:
             none = np.zeros(0, np.int64)
             return StreamData(info, names, none, np.zeros((0, len(names)), np.float32), none, np.zeros(0, np.uint32), [], damaged)
         firsts, lengths = np.asarray(self.firsts, np.int64), np.asarray(self.lengths, np.int64)
-        keep = _kept_blocks(firsts, lengths)
+        keep = self.kept()[0]
         data = self._rows_of(keep, lengths)
         first, lengths = firsts[keep], lengths[keep]
         index = _sample_index(first, lengths)
@@ -958,18 +998,37 @@ class _Samples:
         return np.concatenate([self.buf[offsets[i] : offsets[i] + lengths[i]] for i in keep])
 
 
-def _kept_blocks(firsts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Which blocks make the stream, in index order: sorted by first index (stable: the first read wins a tie), a
-    block that starts before the previous kept one ends (a duplicate, an overlap) dropped. In a log as written
-    every block follows the one before: all of them, as read, without sorting."""
+#: why samples two blocks hold are damage: the log says two things about them (issue 30: merged silently before)
+OVERLAP = "two overlapping blocks hold them and do not agree: which is right cannot be told"
+
+
+def kept_blocks(firsts: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Which blocks make the stream, in index order, and which were dropped: sorted by first index (stable: the
+    first read wins), a block that starts before the previous kept one ends is dropped (a duplicated chunk, an
+    overlap; :meth:`_Samples.kept` says whether it agrees with what was kept). In a log as written every block
+    follows the one before: all of them, as read, without sorting."""
     if (firsts[1:] >= firsts[:-1] + lengths[:-1]).all():
-        return np.arange(len(firsts))
-    keep, reach = [], None
+        return np.arange(len(firsts)), []
+    keep: list[int] = []
+    dropped: list[int] = []
+    reach = None
     for i in np.argsort(firsts, kind="stable"):
         if reach is None or firsts[i] >= reach:
             keep.append(i)
             reach = firsts[i] + lengths[i]
-    return np.asarray(keep, np.intp)
+        else:
+            dropped.append(int(i))
+    return np.asarray(keep, np.intp), dropped
+
+
+def _merged_ranges(ranges: list[tuple[int, int, str]]) -> list[tuple[int, int, str]]:
+    out: list[tuple[int, int, str]] = []
+    for a, b, why in sorted(ranges):
+        if out and a <= out[-1][1] and why == out[-1][2]:
+            out[-1] = (out[-1][0], max(out[-1][1], b), why)
+        else:
+            out.append((a, b, why))
+    return out
 
 
 def _sample_index(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:

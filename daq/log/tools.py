@@ -18,7 +18,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from daq.log import layout
-from daq.log.reader import Damage, DamageRanges, LogReader, LogReadError, SalvageReport, StreamInfo
+from daq.log.reader import OVERLAP, Damage, DamageRanges, LogReader, LogReadError, SalvageReport, StreamInfo, kept_blocks
 from drivers.blocks import BlockStatus
 
 RESTART = int(BlockStatus.RESTART)
@@ -64,7 +64,7 @@ def log_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
         "health": _health(rep, r, damaged, checked),
         "checked": checked,
         "complete": rep.complete,
-        "data_lost": rep.data_lost or bool(r.damage),
+        "data_lost": rep.data_lost or bool(r.damage) or bool(damaged),
         "salvage": {
             "messages": rep.messages,
             "chunks_ok": rep.chunks_ok,
@@ -152,12 +152,11 @@ def _by_decoding(r: LogReader, name: str, info: StreamInfo) -> dict[str, Any]:
             restarts.append(b.first_index)
     # damage at the end reaches the stream's end, which the writer's sealed closing record says (when it is there)
     damaged = tracker.finish(r.stream_records().get(name, {}).get("end_index"))
-    order = np.argsort(firsts, kind="stable") if firsts else []
-    f = np.asarray(firsts, np.int64)[order] if firsts else np.zeros(0, np.int64)
-    n = np.asarray(counts, np.int64)[order] if counts else np.zeros(0, np.int64)
-    keep = np.ones(len(f), bool)  # a duplicated block is counted once
-    keep[1:] = f[1:] >= np.maximum.accumulate(f + n)[:-1]
-    f, n = f[keep], n[keep]
+    # a duplicated block is counted once; blocks that disagree about samples are damage (read_stream compares them)
+    keep, dropped = kept_blocks(np.asarray(firsts, np.int64), np.asarray(counts, np.int64))
+    if dropped:
+        damaged = sorted(damaged + [d for d in r.read_stream(name, on_damage="skip").damaged if d[2] == OVERLAP])
+    f, n = np.asarray(firsts, np.int64)[keep], np.asarray(counts, np.int64)[keep]
     holes = [(int(f[i] + n[i]), int(f[i + 1])) for i in range(len(f) - 1) if f[i + 1] > f[i] + n[i]]
     gaps = [g for g in holes if not any(a <= g[0] and g[1] <= b for a, b, _w in damaged)]
     cuts = [int(f[0]), *sorted(restarts)] if len(f) else []
@@ -208,6 +207,9 @@ def _health(rep: SalvageReport, r: LogReader, damaged: dict[str, list], checked:
         first = next(iter(r.damage.values()))
         return (f"damaged: {len(r.damage)} chunk(s) or block(s) fail their checks (first: {first.reason})"
                 + (f"; lost: {where}" if where else "") + " — run `gvt log recover`")  # fmt: skip
+    if damaged:  # no chunk or block failed, but two blocks disagree about samples
+        where = "; ".join(f"{s} samples " + ", ".join(f"[{a}, {b})" for a, b, _w in rs) for s, rs in damaged.items())
+        return f"damaged: {where}: {next(iter(damaged.values()))[0][2]}"
     if r.problems:
         return f"damaged: {r.problems[0]}" + (f" (and {len(r.problems) - 1} more)" if len(r.problems) > 1 else "") + (
             "; the samples are intact — `gvt log recover` rewrites the rest" if rep.complete else " — run `gvt log recover`"

@@ -211,7 +211,11 @@ def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
     assert d.data.tobytes() == data[d.index].tobytes()
     proc = subprocess.run([*gvt_command(), "log", "export", str(p), "--out", str(tmp_path / "x.npz")],
                           capture_output=True, text=True, timeout=60)  # fmt: skip
-    assert proc.returncode == 3 and "gvt log recover" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert proc.returncode == 3 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert f"without the damaged samples [{a}, {b}) of stream dev0" in proc.stderr and "left out as a gap" in proc.stderr
+    with np.load(tmp_path / "x.npz") as z:  # the export holds the rest, and says where the damage was
+        assert z["dev0/damaged"].tolist() == [[a, b]] and [a, b] in z["dev0/gaps"].tolist()
+        assert z["dev0/data"].tobytes() == data[d.index].tobytes()
     assert "suspect channels: c2" in __import__("daq.log.tools", fromlist=["x"]).info_text(info)
 
 

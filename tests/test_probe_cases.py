@@ -410,3 +410,31 @@ def test_overlapping_blocks_are_damage_in_export_and_verify(tmp_path, capsys):
     assert "health: damaged: dev0 samples [2560, 3584): two overlapping blocks" in out, out
     assert "gaps: 0" in out  # the samples the blocks agree on are all there
     assert run(["log", "export", str(log), "--end", "50", "--out", str(tmp_path / "e.npz")]) == 0  # before them: fine
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_an_export_carries_a_damaged_first_chunk_as_a_gap(tmp_path, capsys, fmt):
+    """The first chunk damaged, and its message indexes with it (no log time says where its blocks were): the
+    export left its 256 samples out and exited 0, the file starting at sample 256 with no gap. Now the file holds
+    the rest, exact, with the damaged range in its gaps, and the one line names it: exit 3."""
+    import numpy as np
+
+    from .test_log_integrity import _chunk_spans, _log
+
+    data = _log(tmp_path / "clean.mcap", n_blocks=8)  # a chunk per 256-sample block
+    raw = bytearray((tmp_path / "clean.mcap").read_bytes())
+    a, z = _chunk_spans(bytes(raw))[0]
+    end = a + 9 + int.from_bytes(raw[a + 1 : a + 9], "little")
+    raw[end - 20] ^= 0x10  # its compressed samples
+    raw[end:z] = bytes(z - end)  # its message indexes
+    (tmp_path / "bad.mcap").write_bytes(bytes(raw))
+    out = tmp_path / f"x.{fmt}"
+    line = one_error(capsys, run(["log", "export", str(tmp_path / "bad.mcap"), "--format", fmt, "--out", str(out)]), 3)
+    assert "without the damaged samples [0, 256) of stream dev0" in line and "left out as a gap" in line, line
+    if fmt == "npz":
+        with np.load(out) as x:
+            assert x["dev0/gaps"].tolist() == [[0, 256]] and x["dev0/damaged"].tolist() == [[0, 256]]
+            assert x["index"].tolist() == list(range(256, 2048)) and x["data"].tobytes() == data[256:].tobytes()
+    else:
+        rows = out.read_text().splitlines()
+        assert len(rows) == 1 + 2048 - 256 and rows[1].split(",")[1] == "256"

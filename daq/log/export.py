@@ -30,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.errors import DataLost
 from daq.log import layout
-from daq.log.reader import LogReader, LogReadError, StreamData, StreamInfo
+from daq.log.reader import OVERLAP, LogReader, LogReadError, StreamData, StreamInfo
 from daq.outputs import atomic_output, refuse_own_input
 
 CSV_ROWS = 16384  # rows formatted at a time
@@ -132,15 +133,43 @@ def _select(path: Path, infos: dict[str, StreamInfo], tb: TimeBase, stream: str 
 
 
 def _read(r: LogReader, tb: TimeBase, sel: dict[str, list[str] | None], start: float | None, end: float | None) -> list[_Part]:
-    """Each stream's samples in [start, end) seconds of session time (each read on its own clock)."""
+    """Each stream's samples in [start, end) seconds of session time (each read on its own clock). Damaged samples
+    are left out and listed (``StreamData.damaged``: the export carries them, then exits 3); samples two blocks
+    disagree about refuse the export (:data:`OVERLAP`: the file would have to choose one of them)."""
     infos = r.streams()
     parts = []
     for s, chans in sel.items():
         shift = tb.offset_samples.get(s, 0) / infos[s].sample_rate
         a = None if start is None or start - shift <= 0 else start - shift  # own time < 0 holds no samples
         b = None if end is None else end - shift
-        parts.append(_Part(s, r.read_stream(s, chans, a, b), tb.offset_samples.get(s, 0)))
+        d = r.read_stream(s, chans, a, b, on_damage="skip")
+        if conflicts := [x for x in d.damaged if x[2] == OVERLAP]:
+            raise r.damaged_error(infos[s], conflicts)
+        parts.append(_Part(s, d, tb.offset_samples.get(s, 0)))
     return parts
+
+
+def _missing(d: StreamData) -> list[tuple[int, int]]:
+    """The stream's missing sample ranges: its gaps and its damaged ranges (a damaged first or last chunk leaves
+    no gap between blocks), merged."""
+    out: list[tuple[int, int]] = []
+    for a, b in sorted([*d.gaps, *((a, b) for a, b, _w in d.damaged)]):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def _damage_line(out: Path, parts: list[_Part], fmt: str) -> str:
+    """The one line (exit 3) after an export that left damaged samples out: which, and where the file says so."""
+    dmg = [(p, a, b, why) for p in parts for a, b, why in p.data.damaged]
+    p, a, b, why = dmg[0]
+    rate = p.data.info.sample_rate
+    more = f" and {len(dmg) - 1} more range(s)" if len(dmg) > 1 else ""
+    where = f"{p.stream}/gaps and {p.stream}/damaged in it" if fmt == "npz" else "no rows for them"
+    return (f"wrote {out} without the damaged samples [{a}, {b}) of stream {p.stream} (t = {a / rate:.3f}–{b / rate:.3f} "
+            f"s){more} ({why}): left out as a gap ({where}); the rest is exact")  # fmt: skip
 
 
 def _merge(parts: list[_Part]) -> tuple[np.ndarray, np.ndarray]:
@@ -207,6 +236,8 @@ def export(
         _write_npz(out, tb, fs, ref, merged, apart, grid, data)
     else:
         _write_csv(out, tb, fs, merged, grid, data)
+    if any(p.data.damaged for p in parts):
+        raise DataLost(_damage_line(out, merged + apart, fmt))
     holes = int(np.isnan(data).any(axis=1).sum())
     notes = [f"{holes} rows lack some stream's samples (NaN{'' if fmt == 'npz' else ': empty cells'})"] if holes else []
     if apart:
@@ -237,7 +268,9 @@ def _write_npz(out: Path, tb: TimeBase, fs: float, ref: str, merged: list[_Part]
         arrays[f"{p.stream}/data"] = d.data
         arrays[f"{p.stream}/channels"] = np.array(d.channels)
         arrays[f"{p.stream}/units"] = np.array(_units(p))
-        arrays[f"{p.stream}/gaps"] = np.array(d.gaps, dtype=np.int64).reshape(-1, 2)
+        arrays[f"{p.stream}/gaps"] = np.array(_missing(d), dtype=np.int64).reshape(-1, 2)
+        arrays[f"{p.stream}/damaged"] = np.array([(a, b) for a, b, _w in d.damaged], dtype=np.int64).reshape(-1, 2)
+        arrays[f"{p.stream}/damaged_why"] = np.array([w for _a, _b, w in d.damaged], dtype=str)
     with atomic_output(out) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 

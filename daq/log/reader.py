@@ -771,7 +771,8 @@ class LogReader:
         sel = self._channel_indices(info, channels)
         start_ns, end_ns = _fetch_window(info, start, end)
         samples = _Samples(sel, len(info.channels), self.message_count(info.topic), self._max_rows(info, start_ns, end_ns))
-        tracker = DamageRanges(info, self._channel_ids(info))
+        recorded = self.stream_records().get(stream, {})
+        tracker = DamageRanges(info, self._channel_ids(info), recorded.get("first_index") if start is None else None)
         for item in self._verified_blocks(info, start_ns, end_ns, view=True):
             if isinstance(item, Damage):
                 tracker.damage(item)
@@ -779,14 +780,14 @@ class LogReader:
             b = item[1]
             tracker.block(b.first_index, b.first_index + b.data.shape[0])
             samples.add(b)
-        end_hint = self.stream_records().get(stream, {}).get("end_index")
+        end_hint = recorded.get("end_index")
         lo_i = None if start is None else int(np.ceil(start * info.sample_rate))
         hi_i = None if end is None else int(np.ceil(end * info.sample_rate))
         damaged = tracker.finish(end_hint, lo_i, hi_i)
         if samples.firsts:  # samples two blocks claim with different values: damage, never merged silently
             damaged += _clipped(samples.kept()[1], lo_i, hi_i)
         if damaged and on_damage == "refuse":
-            raise self._damaged_error(info, damaged)
+            raise self.damaged_error(info, damaged)
         return samples.assemble(info, [info.channels[i] for i in sel], start, end, damaged)
 
     def _max_rows(self, info: StreamInfo, start_ns: int | None, end_ns: int | None) -> int | None:
@@ -816,7 +817,8 @@ class LogReader:
             raise LogReadError(f"{self.path}: stream {info.stream!r} has no channel(s) {missing}; it has {info.channels}")
         return [info.channels.index(c) for c in channels]
 
-    def _damaged_error(self, info: StreamInfo, damaged: list[tuple[int, int, str]]) -> LogDamagedError:
+    def damaged_error(self, info: StreamInfo, damaged: list[tuple[int, int, str]]) -> LogDamagedError:
+        """The one line (exit 3) for ``damaged`` samples of ``info``'s stream: the first range, how many more, why."""
         a, b, why = damaged[0]
         more = f" and {len(damaged) - 1} more range(s)" if len(damaged) > 1 else ""
         # recover copies every block it can read: it cannot choose between two that disagree
@@ -839,11 +841,13 @@ def _fetch_window(info: StreamInfo, start: float | None, end: float | None) -> t
 
 class DamageRanges:
     """Exact [start, end) sample ranges of one stream lost to damage: a damaged chunk's lost blocks start at the
-    indices their log times say (its message indexes; else its first log time, else the previous block's end)
-    and end where the next block read starts (at the end: the stream's recorded end, or one block on)."""
+    indices their log times say (its message indexes; else the previous block's end; before any block was read,
+    the stream's recorded first index ``first_hint``, else the chunk's first log time) and end where the next
+    block read starts (at the end: the stream's recorded end, or one block on). A damaged first chunk whose
+    message indexes were damaged too used to give no range at all: its samples left an export without a word."""
 
-    def __init__(self, info: StreamInfo, cids: set[int]) -> None:
-        self.info, self.cids = info, cids
+    def __init__(self, info: StreamInfo, cids: set[int], first_hint: int | None = None) -> None:
+        self.info, self.cids, self.first_hint = info, cids, first_hint
         self.pending: list[tuple[int | None, int | None, str]] = []
         self.ranges: list[tuple[int, int, str]] = []
         self.prev_end: int | None = None
@@ -855,6 +859,10 @@ class DamageRanges:
         why = f"{d.reason}{at}"
         if times:
             self.pending.append((self.info.index_at(min(times)), self.info.index_at(max(times)), why))
+        elif self.prev_end is None and (self.first_hint is not None or d.start_ns >= self.info.t0_ns):
+            # nothing read yet: the stream starts inside this chunk (or a later one: then no range is left)
+            start = self.first_hint if self.first_hint is not None else self.info.index_at(d.start_ns)
+            self.pending.append((start, None, why))
         else:
             self.pending.append((None, None, why))
 

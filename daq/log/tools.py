@@ -137,7 +137,8 @@ def _by_decoding(r: LogReader, name: str, info: StreamInfo) -> dict[str, Any]:
     """A stream's entry from its blocks, each chunk CRC-checked and each block checked (``block_problem``);
     damage is given as exact sample ranges, and left out of the gaps (which are the device's)."""
     firsts, counts, statuses, restarts, bad = [], [], 0, [], 0
-    tracker = DamageRanges(info, {ch.id for ch in r.channels() if ch.topic == info.topic})
+    tracker = DamageRanges(info, {ch.id for ch in r.channels() if ch.topic == info.topic},
+                           r.stream_records().get(name, {}).get("first_index"))  # fmt: skip
     for item in r.iter_blocks(name):
         if isinstance(item, Damage):
             bad += item.offset < 0

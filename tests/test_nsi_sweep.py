@@ -67,3 +67,28 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
     old = identify_sweep(rig, tmp_path, opts)
     assert "re-simulated" in old.source and (tmp_path / NSI_CSV).exists()
     assert np.allclose(old.runs.dbar, swept.dbar, rtol=1e-8) and old.fit.beta == pytest.approx(ident.fit.beta, rel=1e-9)
+    _full_disk_keeps_the_previous_files(rep, tmp_path / "full")
+
+
+def _full_disk_keeps_the_previous_files(rep, full) -> None:
+    """The sweep's files on a full 64 kB tmpfs (issue 30: "internal error" and .part files left before): one line,
+    each file all or nothing, the 50 kB plot and the JSON after it the previous ones, no temporary file left."""
+    import subprocess
+
+    from analysis.errors import RuntimeFailure
+    from daq.studies.sweep import write_outputs
+
+    full.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(full)], capture_output=True).returncode:
+        return  # mounting not permitted here: tests/test_probe_cases.py skips its full-disk cases too
+    try:
+        names = ["nsi.csv", "rqfep.csv", "rqfep.png", "sweep.json"]
+        for name in names:
+            (full / name).write_text("previous")
+        (full / "filler").write_bytes(bytes(32 * 1024))  # 16 kB left: the two tables fit, the plot does not
+        with pytest.raises(RuntimeFailure, match=r"rqfep\.png: not written: the disk is full"):
+            write_outputs(rep, full)
+        assert sorted(p.name for p in full.iterdir()) == sorted([*names, "filler"])
+        assert (full / "rqfep.png").read_text() == "previous" and (full / "sweep.json").read_text() == "previous"
+    finally:
+        subprocess.run(["umount", "-l", str(full)], capture_output=True)

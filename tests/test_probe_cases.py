@@ -201,6 +201,33 @@ def test_a_full_disk_keeps_the_previous_file_and_says_so(small_disks, capsys):
     assert [p.name for p in full.iterdir()] == ["a.csv"]
 
 
+def test_simulate_writers_on_a_full_disk_keep_the_previous_file(small_disks, capsys):
+    """`gvt simulate`'s one-hit npz and the NSI run table (written by `gvt sweep` and `gvt identify`) on a full
+    disk: "internal error: OSError: [Errno 28]" and a .part file left beside the user's previous file before. Now
+    one line, exit 1, the previous file as it was and nothing else (the sweep's own files: tests/test_nsi_sweep.py)."""
+    import numpy as np
+
+    from analysis.errors import RuntimeFailure
+    from daq.studies.nsi_table import NsiRuns, write_runs
+
+    full, _ro = small_disks
+    (full / "filler").write_bytes(bytes(40 * 1024))  # 24 kB left: the 52 kB npz and the 150 kB table cannot fit
+    old = full / "h.npz"
+    old.write_bytes(b"the previous hit")
+    line = one_error(capsys, run(["simulate", "two_dof", "--duration", "10", "--out", str(old), "--overwrite"]), 1)
+    assert "the disk is full" in line, line
+    assert old.read_bytes() == b"the previous hit" and sorted(p.name for p in full.iterdir()) == ["filler", "h.npz"]
+    table = full / "nsi.csv"
+    table.write_text("the previous table\n")
+    n = 2000
+    P = np.linspace(1.0, 30.0, n)
+    runs = NsiRuns(P, P * 1e-6, P * 1e-5, P, P, np.ones(n), np.zeros(n, bool), np.zeros(n, np.int64), 0.0)
+    with pytest.raises(RuntimeFailure, match="not written: the disk is full"):
+        write_runs(runs, table)
+    assert table.read_text() == "the previous table\n"
+    assert sorted(p.name for p in full.iterdir()) == ["filler", "h.npz", "nsi.csv"]
+
+
 @pytest.mark.parametrize("verb", ["log export", "log recover", "report"])
 def test_a_read_only_disk_is_refused_before_the_work(small_disks, capsys, verb):
     _full, ro = small_disks

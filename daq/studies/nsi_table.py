@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import BadInput
+from daq.outputs import atomic_output
 
 NSI_CSV = "nsi.csv"
 COLUMNS = ("P_N", "input_energy_J", "dbar_m", "f_rq_hz", "f_pom_hz", "mac", "capture", "pom_index")
@@ -35,15 +36,14 @@ class NsiRuns:
 
 
 def write_runs(runs: NsiRuns, path: Path) -> None:
-    """``path`` (``nsi.csv``) written to a ``.part`` file, then renamed."""
-    tmp = path.with_suffix(".csv.part")
-    with open(tmp, "w", newline="") as fh:
+    """``path`` (``nsi.csv``) written to a temporary file, then renamed (:func:`daq.outputs.atomic_output`: a full
+    disk leaves the previous table and no temporary file, and is one line)."""
+    with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(COLUMNS)
         for k in range(runs.P.size):
             w.writerow([f"{runs.P[k]:.9g}", f"{runs.energy[k]:.9g}", f"{runs.dbar[k]:.9g}", f"{runs.f_rq[k]:.9g}",
                         f"{runs.f_pom[k]:.9g}", f"{runs.mac[k]:.6f}", int(runs.capture[k]), int(runs.pom_index[k])])  # fmt: skip
-    tmp.replace(path)
 
 
 def read_runs(path: Path) -> NsiRuns:

@@ -58,7 +58,7 @@ from analysis.rqfep import (
     rq_fep,
 )
 from analysis.sweep_capture import CaptureReport, CaptureSettings, confirm_captures
-from daq.outputs import jsonable
+from daq.outputs import atomic_output, jsonable
 
 N_KEEP = 4  # "the RQ-FEP for the first four POMs" (L1251)
 JITTER = 1e-6  # relative change of P for the robustness re-check (docs/simulator.md §3: "1 ppm")
@@ -329,7 +329,8 @@ def summary_json(rep: SweepReport) -> str:
 
 
 def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
-    """DIR/rqfep.csv, DIR/rqfep.png, DIR/sweep.json (each written to a .part file, then renamed), and DIR/nsi.csv
+    """DIR/rqfep.csv, DIR/rqfep.png, DIR/sweep.json (each written to a temporary file, then renamed: a full disk
+    leaves the previous file and no temporary one, :func:`daq.outputs.atomic_output`), and DIR/nsi.csv
     (the per-run NSI columns ``gvt identify`` reads instead of re-simulating) when the rig has an attachment."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "rqfep.csv", "png": out_dir / "rqfep.png", "json": out_dir / "sweep.json"}
@@ -341,11 +342,10 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
         paths["nsi"] = out_dir / NSI_CSV
         write_runs(NsiRuns(res.amplitudes, res.input_work, cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3], cols[:, 4] > 0,
                            cols[:, 5].astype(np.int64)), paths["nsi"])  # fmt: skip
-    tmp = paths["csv"].with_suffix(".csv.part")
     mod, mratio = rep.modal_hz, rep.modal_ratio
     mcols = [] if mod is None else [f"f{j + 1}_modal{'' if w == 'whole' else '_' + w}_hz"
                                     for w in MODAL_WINDOW_NAMES[: mod.shape[1]] for j in range(2)] + ["modal_ratio"]  # fmt: skip
-    with open(tmp, "w", newline="") as fh:
+    with atomic_output(paths["csv"]) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["P_N", "input_energy_J", *[f"f{j + 1}_hz" for j in range(rep.freqs.shape[1])], "substep_cap_hits", *mcols])
         for k in range(res.amplitudes.size):
@@ -359,11 +359,9 @@ def write_outputs(rep: SweepReport, out_dir: Path) -> dict[str, Path]:
                     *extra,
                 ]
             )
-    tmp.replace(paths["csv"])
     plot_rqfep(rep, paths["png"])
-    tmp = paths["json"].with_suffix(".json.part")
-    tmp.write_text(json.dumps(rep.summary(), indent=2, default=jsonable))
-    tmp.replace(paths["json"])
+    with atomic_output(paths["json"]) as tmp:
+        tmp.write_text(json.dumps(rep.summary(), indent=2, default=jsonable))
     return paths
 
 
@@ -413,10 +411,11 @@ def plot_rqfep(rep: SweepReport, path: Path) -> None:
     )
     ax.legend(loc="upper left", fontsize=8, markerscale=3)
     fig.tight_layout()
-    tmp = path.with_suffix(".png.part")
-    fig.savefig(tmp, format="png")
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        with atomic_output(path) as tmp:
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
 
 
 def _span(lo: float, hi: float, fmt: str) -> str:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.model.rig import Rig, channel_signals
+from daq.outputs import atomic_output
 from drivers.sim.sensor_model import AdcModel, channel_models_for, measure
 
 
@@ -30,8 +31,7 @@ def simulate_to_npz(
     res, models, meas, physical = simulate_hit(rig, force, duration, seed)
     elapsed = time.perf_counter() - t0
     e = res.energy
-    tmp = path.with_name(path.name + ".part")
-    with open(tmp, "wb") as fh:
+    with atomic_output(path) as tmp, open(tmp, "wb") as fh:  # a full disk: one line, the previous file kept, no .part
         np.savez_compressed(
             fh,
             t=res.t,
@@ -55,7 +55,6 @@ def simulate_to_npz(
             rig_name=rig.name,
             rig_toml=Path(rig.path).read_text() if Path(rig.path).exists() else "",
         )
-    tmp.replace(path)
     clipped = {k: v for k, v in meas.clip_counts.items() if v}
     clip_txt = "none" if not clipped else ", ".join(f"{k}: {v} samples" for k, v in clipped.items())
     return (

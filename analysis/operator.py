@@ -24,6 +24,8 @@ emitted as a warning.
 
 from __future__ import annotations
 
+import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -348,6 +350,27 @@ INPUT_OVER_FLOOR = 100.0
 DRIFT_SETTLE_S = 0.15
 
 
+#: the interpreter's thread switch interval while a pipelined operator runs (the default is 5 ms). The seed lane's worker
+#: gives up the GIL in every compiled kernel and LAPACK call and needs it back after each; with the main thread busy
+#: in the modal lane's Python, each re-acquisition waited out the whole interval, and the pipelined replay was no
+#: faster than the serial one (issue 30: 30x against 31x real time; 43x with 1 ms). Restored by ``close``.
+PIPELINE_SWITCH_S = 0.001
+_switch_lock = threading.Lock()
+_switch_users: list = [0, None]  # pipelined operators running, the interval before the first
+
+
+def _pipeline_switch(delta: int) -> None:
+    """Count a pipelined operator in (+1) or out (-1): the first one in lowers the switch interval to
+    :data:`PIPELINE_SWITCH_S`, the last one out restores the one it found."""
+    with _switch_lock:
+        if delta > 0 and _switch_users[0] == 0:
+            _switch_users[1] = sys.getswitchinterval()
+            sys.setswitchinterval(min(_switch_users[1], PIPELINE_SWITCH_S))
+        _switch_users[0] += delta
+        if delta < 0 and _switch_users[0] == 0:
+            sys.setswitchinterval(_switch_users[1])
+
+
 class _Grid:
     def __init__(self, offset: int, length: int, first: int, rule: CausalSpikeRule) -> None:
         self.offset, self.length = offset, length
@@ -425,6 +448,7 @@ class AnalysisOperator:
             # modal k, …): the same emits in the same order, the seed ones one block later
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
+                _pipeline_switch(+1)
             planned = self._pool.submit(self._seed_compute, acc)
             self._drain()
             self._inflight = (planned, t_arrival)
@@ -488,6 +512,7 @@ class AnalysisOperator:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+            _pipeline_switch(-1)
 
     # --- lanes --------------------------------------------------------------------------------
     def _start(self, first: int) -> None:

@@ -228,7 +228,12 @@ def test_operator_results_do_not_depend_on_the_block_split():
 
 def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     """Pipelined (gvt analyze), the seed lane's numerics run on a worker thread one block ahead: the emits —
-    every topic, every value, their order — equal the single-threaded run's, across a gap restart too."""
+    every topic, every value, their order — equal the single-threaded run's, across a gap restart too. While it runs the
+    interpreter's thread switch interval is lowered (analysis/operator.py ``PIPELINE_SWITCH_S``); ``finish`` restores it."""
+    import sys
+
+    from analysis.operator import PIPELINE_SWITCH_S
+
     rig, res = hit(1583.0)
     fs = rig.sample_rate
     data = np.column_stack([res.force[0], noisy(res.acceleration[0])]).astype(np.float32)
@@ -238,10 +243,12 @@ def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     for pipelined in (False, True):
         got: list = []
         op = AnalysisOperator(model, chans, fs, emit=lambda t, o, got=got: got.append((t, o)), pipelined=pipelined)
+        before = sys.getswitchinterval()
         for s in (*range(0, 16384, 4096), *range(20480, data.shape[0], 6000)):  # a 4096-sample gap at 16384
             op.feed(SampleBlock("dev0", s, fs, chans, data[s : min(s + (4096 if s < 16384 else 6000), data.shape[0])]))
+            assert sys.getswitchinterval() == (min(before, PIPELINE_SWITCH_S) if pipelined else before)
         op.finish()
-        assert op._pool is None  # finish stops the worker
+        assert op._pool is None and sys.getswitchinterval() == before  # finish stops the worker and restores the interval
         runs.append(got)
     serial, pipelined = runs
     assert [t for t, _ in serial].count("/analysis/rq") >= 60
@@ -528,6 +535,37 @@ def test_detector_labels_by_the_slowest_slow_phase_not_the_nearest_ratio():
         ev += det.feed(WindowFeatures(k, k * 177, k * 177 + 354, k * 0.0108, k * 0.0108 + 0.0216, np.array([1.0, e]), f))
     (e,) = ev + det.finish()
     assert (e.m, e.n) == (3, 1)  # (its lock score is 0: 3.29 is 9.7 % from 3, outside lock_tolerance; the phase turns)
+
+
+def test_lock_residuals_equal_a_least_squares_fit_at_every_free_frequency():
+    """Issue 30: :func:`analysis.exchange.lock_residuals` solves the lock fit by blocks (the Schur complement of the
+    locked columns' Gram matrix, every free frequency at once) where it solved the full normal equations per candidate.
+    Oracle: an independent ``lstsq`` of the explicit design matrix at every free frequency, on a seeded receiver (a
+    3:1-locked part, a free oscillation at 2.6 f1, noise). Tolerance 1e-11 of ``y·y``: the ridge ``1e-12 yy`` on the
+    diagonal moves a residual by about that much (measured 1.0e-12 yy for the per-candidate normal equations before
+    issue 30 and for the blocks alike; the two agree within 1e-15 yy)."""
+    from analysis.exchange import lock_residuals
+
+    rng = np.random.default_rng(7)
+    f1, cands = 26.0, [(2, 1), (3, 1), (4, 1)]
+    ts = np.arange(200) / 1024
+    th = 2 * np.pi * f1 * ts + 0.01 * np.cumsum(rng.standard_normal(ts.size))
+    y = np.cos(2 * np.pi * 2.6 * f1 * ts) + 0.3 * np.cos(3 * th + 1.0) + 0.05 * rng.standard_normal(ts.size)
+    r0, res = lock_residuals(ts, y, th, f1, cands, 1.0)
+
+    def brute(cols: list) -> float:
+        best = np.inf
+        for f in np.arange(1.25 * f1, 4.75 * f1, 1.0):
+            X = np.column_stack([*cols, np.cos(2 * np.pi * f * ts), np.sin(2 * np.pi * f * ts)])
+            r = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+            best = min(best, float(r @ r))
+        return best
+
+    base = [np.cos(th), np.sin(th)]
+    want = [brute([*base, np.cos(m / n * th), np.sin(m / n * th)]) for m, n in cands]
+    assert abs(r0 - brute(base)) <= 1e-11 * float(y @ y)
+    np.testing.assert_allclose(res, want, rtol=0, atol=1e-11 * float(y @ y))
+    assert int(np.argmin(res)) == 1  # the 3:1-locked part is the one that removes most
 
 
 def test_detector_labels_the_m_n_locked_to_the_giving_phase_where_the_mean_ratio_misleads():

@@ -2,7 +2,8 @@
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba_cache
+# numba's cache is this checkout's .numba_cache for make, pytest and gvt alike: the package chooses it when
+# NUMBA_CACHE_DIR is not set (analysis/jit_cache.py, docs/decisions.md D70)
 
 .PHONY: run test bench lint fuzz clean
 

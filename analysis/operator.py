@@ -341,6 +341,20 @@ def _lattice_covariances(buf, edges, seg_s2, seg_idx, n):  # pragma: no cover - 
     return out
 
 
+def compiled_kernels() -> list:
+    """The operator's cached numba kernels, its own and those of the modules it runs (analysis/jit_cache.py): what a
+    cold cache compiles on the first block (~40 s), and a warm one loads in well under a second."""
+    import analysis.exchange
+    import analysis.modal_filter
+    import analysis.preprocess
+    import analysis.rq_spikes
+    import analysis.sensor_health
+    from analysis.jit_cache import kernels
+
+    return kernels(sys.modules[__name__], analysis.exchange, analysis.modal_filter, analysis.preprocess,
+                   analysis.rq_spikes, analysis.sensor_health)  # fmt: skip
+
+
 #: without a hammer channel, an energy jump counts as an input only this far above the quietest window
 #: seen: the noise floor's own window-to-window fluctuations exceed ×1.5 but never ×100
 INPUT_OVER_FLOOR = 100.0

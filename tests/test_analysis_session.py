@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -81,6 +82,9 @@ def test_gvt_analyze_cli_prints_events_and_json(session_log):
     assert obj["rig"] == "beam_ch4_exp" and obj["rq_windows"] >= 140 and len(obj["events"]) >= 1
     p = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out)], capture_output=True, text=True)
     assert p.returncode == 0 and "internal-resonance events" in p.stdout
+    # the first line says what is analysed, before the analysis libraries load (issue 30: first output < 1 s,
+    # measured by bench/bench_analysis.py)
+    assert re.fullmatch(rf"analysing {re.escape(str(out))}: \w+, 15 channels at 16384 Hz, 3\.\d\d s", p.stdout.splitlines()[0])
     bad = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--rig", "no_such_rig"],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr

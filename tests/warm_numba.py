@@ -4,7 +4,7 @@ On a fresh clone the cache is empty, and the first test of each worker, and ever
 before some process has written the cache, compiled the same kernels again (the simulator's integrator alone is
 ~14 s). ``make test`` runs the two groups here side by side, one a core, so the suite's processes load the
 kernels instead of compiling them; the tests are unchanged (a kernel whose signature is missed here is compiled
-where it is first used, as before).
+where it is first used, as before). The cache is the one ``gvt`` run directly uses (analysis/jit_cache.py, D70).
 """
 
 from __future__ import annotations
@@ -49,4 +49,6 @@ def analysis() -> None:
 if __name__ == "__main__":
     t0 = time.perf_counter()
     {"sweep": sweep, "analysis": analysis}[sys.argv[1]]()
-    print(f"numba cache warmed ({sys.argv[1]}): {time.perf_counter() - t0:.1f} s")
+    from analysis.jit_cache import cache_dir
+
+    print(f"numba cache warmed ({sys.argv[1]}, in {cache_dir()}): {time.perf_counter() - t0:.1f} s")

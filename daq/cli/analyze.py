@@ -21,17 +21,26 @@ def analyze(
     overwrite: OverwriteOpt = False,
 ) -> None:
     """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
-    from analysis.operator import AnalysisSettings
+    console = err if json_out else out
+    if rrd is not None:
+        check_output(rrd, overwrite, "--rrd", inputs=[log])
+    if window is not None and window <= 0:
+        fail("--window must be > 0 s")
+    if not json_out:  # what is being analysed, before the analysis libraries load (~1-3 s): the first line in < 1 s
+        header = log_header(log)
+        if header:
+            out.print(header, markup=False)
+    r = open_rig(rig) if rig is not None else None
+    from analysis.jit_cache import compile_notice
+    from analysis.operator import AnalysisSettings, compiled_kernels
     from daq.studies.analyze.batch import AnalyzeError, analyze_log
     from daq.studies.analyze.tables import print_json, print_report
 
-    if rrd is not None:
-        check_output(rrd, overwrite, "--rrd", inputs=[log])
-    r = open_rig(rig) if rig is not None else None
-    if window is not None and window <= 0:
-        fail("--window must be > 0 s")
+    notice = compile_notice(compiled_kernels())  # a cold numba cache: ~40 s of compiling before the first window
+    if notice:
+        console.print(notice, markup=False)
     try:
-        with Progress(err if json_out else out) as report:
+        with Progress(console) as report:
             run = analyze_log(log, r, stream, AnalysisSettings(window_s=window), progress=lambda f: report("analysing", f))
     except AnalyzeError as exc:
         fail(str(exc))
@@ -44,10 +53,28 @@ def analyze(
 
         with atomic_output(rrd) as tmp:
             summary = build_rrd(log, tmp, rig=r, results=run.results)
-        (err if json_out else out).print(f"wrote {rrd} ({summary.blocks} blocks); open it: {rerun_hint()} {rrd}", markup=False)
+        console.print(f"wrote {rrd} ({summary.blocks} blocks); open it: {rerun_hint()} {rrd}", markup=False)
     if json_out:
         print_json(out, run, full=windows_out)
     else:
         print_report(out, run)
     if run.bad_blocks:  # the results are of what was readable: say so in the exit code (docs/log-format.md)
         raise typer.Exit(3)
+
+
+def log_header(log: Path) -> str | None:
+    """``analysing LOG: dev0, 15 channels at 16384 Hz, 2.10 s``: what the log holds, from its summary (no samples read,
+    no analysis library loaded); None when the log cannot be opened (the analysis says why, one line)."""
+    from daq.log.reader import LogReader
+
+    try:
+        reader = LogReader(log)
+        streams, counts = reader.streams(), reader.stream_records()
+    except Exception:  # only a header: the analysis opens the log again and says what is wrong (one line)
+        return None
+    parts = []
+    for name, info in sorted(streams.items()):
+        n = counts.get(name, {}).get("samples")
+        secs = f", {n / info.sample_rate:.2f} s" if isinstance(n, int) and info.sample_rate > 0 else ""
+        parts.append(f"{name}, {len(info.channels)} channels at {info.sample_rate:g} Hz{secs}")
+    return f"analysing {log}: {'; '.join(parts) or 'no sample streams'}"

@@ -28,7 +28,14 @@ def default_dir() -> Path:
     root = Path(__file__).resolve().parents[1]
     if (root / "pyproject.toml").is_file() and os.access(root, os.W_OK):
         return root / ".numba_cache"
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = str(Path.home() / ".cache")
+        except RuntimeError:  # no home directory (a service account): the temporary directory, still one place
+            import tempfile
+
+            base = tempfile.gettempdir()
     return Path(base) / "gvtlink" / "numba"
 
 

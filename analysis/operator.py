@@ -638,9 +638,9 @@ class AnalysisOperator:
         for g in self._grids:
             g.flagged = [w for w in g.flagged if w[1] >= horizon]
 
-    def _seed_compute(self, acc: np.ndarray | None) -> tuple[list, list, np.ndarray, np.ndarray, int] | None:
+    def _seed_compute(self, acc: np.ndarray | None) -> tuple | None:
         """The seed lane's numerics for one block (``None``: flush the filters at the end of the stream):
-        displacement, the windows every grid completes, their covariances and POD + RQ. Touches only
+        displacement, the windows every grid completes, their covariances, POD + RQ and spike flags. Touches only
         seed-lane state, so it may run on the worker thread while the modal lane runs (``feed``)."""
         _, disp = self._pre.feed(acc) if acc is not None else self._pre.flush()
         if disp.shape[0] == 0:
@@ -657,7 +657,8 @@ class AnalysisOperator:
             if len(ready) > i0:
                 runs.append((g, i0, len(ready)))
         if not ready:
-            return ready, runs, np.empty((0, self.n_keep)), np.empty((0, self.n_keep)), self._keep_disp()
+            empty = np.empty((0, self.n_keep))
+            return ready, runs, empty, empty, np.zeros(0, bool), np.zeros(0, bool), self._keep_disp()
         lo = min(st for _, st in ready)
         hi = max(st + g.length for g, st in ready)
         # every grid's edges in [lo, hi]: origin + k·length with k = ceil((lo − origin) / length) onwards
@@ -667,7 +668,14 @@ class AnalysisOperator:
         spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
         C = window_covariances(self._disp, spans, edges)
         f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
-        return ready, runs, f, pv, self._keep_disp()
+        # the spike rules (compiled, seed-lane state only) see each grid's windows in order; the seed's literal rule the
+        # base grid's
+        flags, seed = np.zeros(len(ready), bool), np.zeros(0, bool)
+        for g, i0, i1 in runs:
+            flags[i0:i1] = g.rule.feed_many(f[i0:i1])
+            if g is self._base:
+                seed = self._seed_rule.feed_many(f[i0:i1])
+        return ready, runs, f, pv, flags, seed, self._keep_disp()
 
     def _keep_disp(self) -> int:
         """Drop displacement no grid needs any more; returns the first stream index still needed (every grid
@@ -679,21 +687,18 @@ class AnalysisOperator:
             self._disp_start = keep_from
         return keep_from
 
-    def _seed_emit(self, planned: tuple[list, list, np.ndarray, np.ndarray, int] | None, t_arrival: float) -> None:
-        """The seed lane's bookkeeping on the caller's thread: spike rules per grid, ``/analysis/rq``
-        emits, settling pending events up to the block's ``keep_from``."""
+    def _seed_emit(self, planned: tuple | None, t_arrival: float) -> None:
+        """The seed lane's bookkeeping on the caller's thread: flagged windows per grid, ``/analysis/rq`` emits, settling
+        pending events up to the block's ``keep_from``."""
         if planned is None:
             return
-        ready, runs, f, pv, keep_from = planned
+        ready, runs, f, pv, flags, seed, keep_from = planned
         if ready:
-            flags = np.zeros(len(ready), bool)
-            for g, i0, i1 in runs:  # the spike rules see each grid's windows in order, vectorised per feed
-                flags[i0:i1] = g.rule.feed_many(f[i0:i1])
+            for g, i0, i1 in runs:
                 if g is not self._base:
                     for i in np.flatnonzero(flags[i0:i1]) + i0:
                         g.flagged.append((ready[i][1] / self.fs, (ready[i][1] + g.length) / self.fs))
                     continue
-                seed = self._seed_rule.feed_many(f[i0:i1])
                 rq_rows, pov_rows = f[i0:i1].tolist(), pv[i0:i1].tolist()
                 for k in range(i1 - i0):
                     start = ready[i0 + k][1]

@@ -143,22 +143,21 @@ def robust_spike_intervals(
     # the same intervals whichever subset of windows a call sees
     ts = np.arange(np.ceil(t_start / resolution_s), np.floor(t_end / resolution_s) + 1) * resolution_s
     votes = np.zeros(ts.size)
-    for grid in flagged:
-        cover = np.zeros(ts.size, bool)
-        for t0, t1 in grid:
-            cover |= (ts >= t0) & (ts <= t1)
-        votes += cover
+    for grid in flagged:  # ts[k] is covered where t0 <= ts[k] <= t1 for one of the grid's windows: index ranges on the
+        if not grid:  # sorted lattice, marked by a running count (was one full-lattice comparison per window)
+            continue
+        t01 = np.asarray(grid, float)
+        mark = np.zeros(ts.size + 1, np.int64)
+        np.add.at(mark, np.searchsorted(ts, t01[:, 0], side="left"), 1)
+        np.add.at(mark, np.searchsorted(ts, t01[:, 1], side="right"), -1)
+        votes += np.cumsum(mark[:-1]) > 0
     frac = votes / len(flagged)
-    ok = frac >= min_fraction
-    out = []
-    k = 0
-    while k < ts.size:
-        if ok[k]:
-            j = k
-            while j + 1 < ts.size and ok[j + 1]:
-                j += 1
-            out.append((float(ts[k]), float(ts[j]), float(frac[k : j + 1].max())))
-            k = j + 1
-        else:
-            k += 1
-    return out
+    ok = np.concatenate([[False], frac >= min_fraction, [False]])
+    edges = np.flatnonzero(ok[1:] != ok[:-1])  # runs of agreement: [start, stop) pairs
+    starts, stops = edges[::2], edges[1::2]
+    if starts.size == 0:
+        return []
+    # each run's largest fraction: the maximum from its start to the next run's start is the run's own, the samples
+    # between two runs being below min_fraction
+    peak = np.maximum.reduceat(frac, starts)
+    return [(float(ts[a]), float(ts[b - 1]), float(m)) for a, b, m in zip(starts, stops, peak, strict=True)]

@@ -402,11 +402,12 @@ class AnalysisOperator:
         self, model: RigModel, channels: tuple[str, ...], sample_rate: float, settings: AnalysisSettings | None = None,
         emit: Emit | None = None, pipelined: bool = False,
     ) -> None:  # fmt: skip
-        """``pipelined``: run the seed lane's numerics (preprocessing, covariances, ``eigh``) on a worker
-        thread one block ahead, while this thread emits the previous block's seed results and runs the
-        modal lane. The compiled kernels and LAPACK release the GIL, so batch work (``gvt analyze``, the
-        bench) uses a second core; the emits and their order are those of the serial run, the seed ones one
-        block later. Live sessions stay serial: there each block's results should go out with it."""
+        """``pipelined``: run sensor health (with the line canceller) on one worker thread and the seed lane's
+        numerics (preprocessing, covariances, ``eigh``, spike rules) on another, each a block ahead of this thread,
+        which emits and runs the modal lane. The compiled kernels, numpy's array passes and LAPACK release the GIL, so
+        batch work (``gvt analyze``, the bench) uses a second core; the emits and their order are those of the serial
+        run, one feed later (``finish`` flushes). Live sessions stay serial: there each block's results should go out
+        with it."""
         self.s = settings or AnalysisSettings()
         self.pipelined = pipelined
         self.model = model
@@ -431,8 +432,10 @@ class AnalysisOperator:
         self._warned: set[str] = set()
         self._check_assumptions()
         self._next_index: int | None = None
-        self._pool: ThreadPoolExecutor | None = None
+        self._pool: ThreadPoolExecutor | None = None  # pipelined: the seed lane's worker ...
+        self._health_pool: ThreadPoolExecutor | None = None  # ... and sensor health's
         self._inflight: tuple[Future, float] | None = None
+        self._ahead: tuple | None = None  # pipelined: (health future, block, input mask, arrival) not yet through the lanes
 
     # --- public -------------------------------------------------------------------------------
     def feed(self, block: BlockLike, t_arrival: float | None = None) -> None:
@@ -455,23 +458,44 @@ class AnalysisOperator:
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
-        acc, switches = self._check_health(acc, inp) if self._guard is not None else (acc, None)
         if self.s.seed_lane and self.pipelined:
-            # the worker computes this block's seed numerics while this thread emits the previous
-            # block's seed results and runs this block's modal lane, in the serial order (modal k−1, seed k−1,
-            # modal k, …): the same emits in the same order, the seed ones one block later
+            # three stages, one block apart: sensor health (and the line canceller) of this block on one worker, while
+            # this thread hands the previous block to the seed lane's worker, emits the block before's seed results
+            # and runs the previous block's modal lane. The emits and their order are the serial run's (health
+            # warnings k, seed k−1, modal k, …), each block's one feed later; ``finish`` flushes
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
+                self._health_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-health")
                 _pipeline_switch(+1)
-            planned = self._pool.submit(self._seed_compute, acc)
-            self._drain()
-            self._inflight = (planned, t_arrival)
-            self._modal_lane(acc, inp, switches)
+            checked = None if self._guard is None else self._health_pool.submit(self._guard.feed_clean, acc, inp)
+            behind, self._ahead = self._ahead, (checked, acc, inp, t_arrival)
+            if behind is not None:
+                self._lanes_behind(behind)
             return
+        acc, switches = self._check_health(acc, inp) if self._guard is not None else (acc, None)
         self._drain()
         self._modal_lane(acc, inp, switches)
         if self.s.seed_lane:
             self._seed_emit(self._seed_compute(acc), t_arrival)
+
+    def _lanes_behind(self, behind: tuple) -> None:
+        """Pipelined: a block whose sensor health was checked on the health worker: its warnings, its seed numerics to
+        the seed worker, the previous block's seed results out, its modal lane."""
+        checked, acc, inp, t_arrival = behind
+        switches = None
+        if checked is not None:
+            acc, switches = checked.result()
+            self._health_warnings(switches)
+        planned = self._pool.submit(self._seed_compute, acc)
+        self._drain()
+        self._inflight = (planned, t_arrival)
+        self._modal_lane(acc, inp, switches)
+
+    def _flush_ahead(self) -> None:
+        """Pipelined: run the lanes of the block still on the health worker (end of stream, a gap)."""
+        if self._ahead is not None:
+            behind, self._ahead = self._ahead, None
+            self._lanes_behind(behind)
 
     def _check_health(self, acc: np.ndarray, inp: np.ndarray | None) -> tuple[np.ndarray, list]:
         """Sensor health on the block before the modal lane sees it (analysis/sensor_health.py): a channel judged bad
@@ -481,10 +505,13 @@ class AnalysisOperator:
         are removed from the block first, for both lanes (analysis/lines.py); the block returned is the cleaned one."""
         assert self._guard is not None
         acc, switches = self._guard.feed_clean(acc, inp)
+        self._health_warnings(switches)
+        return acc, switches
+
+    def _health_warnings(self, switches: list) -> None:
         for sw in switches:
             for kind, key, message in sw.warnings:
                 self._warn(key, message, kind=kind)
-        return acc, switches
 
     def _modal_lane(self, acc: np.ndarray, inp: np.ndarray | None, switches: list | None = None) -> None:
         if not np.isfinite(acc).all():
@@ -522,11 +549,15 @@ class AnalysisOperator:
     def close(self) -> None:
         """Emit what the worker thread still holds and stop it (if one was started); a later ``feed`` starts
         a new one. ``finish`` calls this."""
-        self._drain()
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
-            _pipeline_switch(-1)
+        try:
+            self._flush_ahead()
+            self._drain()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._health_pool.shutdown(wait=True)
+                self._pool = self._health_pool = None
+                _pipeline_switch(-1)
 
     # --- lanes --------------------------------------------------------------------------------
     def _start(self, first: int) -> None:
@@ -567,6 +598,7 @@ class AnalysisOperator:
         return band_noise_energy(self.basis, np.asarray(noise)[self._mf_cols], self.fs, mf.highpass_hz, mf.order)
 
     def _finish_lanes(self) -> None:
+        self._flush_ahead()
         self._drain()
         if self.s.seed_lane:
             t = time.perf_counter()

@@ -32,8 +32,10 @@ Every threshold is a named field of :class:`ExchangeSettings`, calibrated on the
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 
 import numba
@@ -314,9 +316,9 @@ class ModalWindower:
         windows' hops tile ``[starts[0], starts[-1] + hop)``, so the lattice is taken once and split at the starts."""
         first = starts[0] + (-starts[0]) % self._stride
         idx = np.arange(first, starts[-1] + self.hop, self._stride) - self._buf_start
-        cut = np.searchsorted(idx, np.asarray(starts[1:]) - self._buf_start)
-        t = idx / self.fs + self._buf_start / self.fs
-        return list(zip(np.split(t, cut), np.split(self._th[idx], cut), np.split(self._qb[idx], cut), strict=True))
+        cut = [0, *np.searchsorted(idx, np.asarray(starts[1:]) - self._buf_start).tolist(), idx.size]
+        t, th, qb = idx / self.fs + self._buf_start / self.fs, self._th[idx], self._qb[idx]
+        return [(t[a:b], th[a:b], qb[a:b]) for a, b in itertools.pairwise(cut)]  # slices (np.split: ~0.3 ms a block)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -485,8 +487,12 @@ class ExchangeDetector:
         damping: Sequence[float] | None = None,
         n_modes: int | None = None,
         noise_prior: Sequence[float] | FloatArray | None = None,
+        lock_submit: Callable[..., Future] | None = None,
     ) -> None:
+        """``lock_submit(fn, *args) -> Future``: where the phase-lock fits run (a worker's ``submit``); events then come
+        out as :class:`PendingEvent` s. None: here, at once."""
         self.s = settings or ExchangeSettings()
+        self.lock_submit = lock_submit
         self._prior: FloatArray | None = None
         self.set_noise_prior(noise_prior)
         self.damping = None if damping is None else np.asarray(damping, float)  # ζ per mode, for the exchange score
@@ -543,7 +549,7 @@ class ExchangeDetector:
             if len(self._quiet) > 256:  # bounded: ~2.8 s of 21.6 ms windows at half-window hops
                 self._quiet.pop(0)
 
-    def feed(self, w: WindowFeatures) -> list[IREvent]:
+    def feed(self, w: WindowFeatures) -> list[IREvent | PendingEvent]:
         out: list[IREvent] = []
         if w.input_active:
             self._measure_noise()
@@ -584,8 +590,8 @@ class ExchangeDetector:
                 st.open, st.hi = True, w
         return out
 
-    def finish(self) -> list[IREvent]:
-        out: list[IREvent] = []
+    def finish(self) -> list[IREvent | PendingEvent]:
+        out: list = []
         for p, st in self._pairs.items():
             if st.open:
                 out.extend(self._close(p, st))
@@ -604,26 +610,40 @@ class ExchangeDetector:
             return e >= self.s.known_floor_fraction * self._peak_total and e >= self.s.noise_factor * noise
         return e >= self.s.floor_fraction * self._peak_total
 
-    def _locked(self, g: int, r: int, f_give: float) -> tuple[int, int] | None:
-        """:func:`lock_fit` over the last ``lock_span_s`` of samples (after the last input), up to the window now."""
+    def _lock_args(self, g: int, r: int, f_give: float) -> tuple | None:
+        """:func:`lock_fit`'s arguments over the last ``lock_span_s`` of samples (after the last input), up to the window
+        now; None without samples."""
         t = np.concatenate([x[0] for x in self._recent])
         if t.size == 0:
             return None
         ok = t >= t[-1] - self.s.lock_span_s
         th = np.unwrap(np.concatenate([x[1][:, g] for x in self._recent]))
         y = np.concatenate([x[2][:, r] for x in self._recent])
-        return lock_fit(t[ok], y[ok], th[ok], f_give, self.s.ratios)
+        return t[ok], y[ok], th[ok], f_give, self.s.ratios
 
-    def _close(self, pair: tuple[int, int], st: _PairState) -> list[IREvent]:
+    def _close(self, pair: tuple[int, int], st: _PairState) -> list[IREvent] | list[PendingEvent]:
+        """The event of ``pair`` (none below ``min_confidence``). With a ``lock_submit``, its phase-lock fit runs there
+        and a :class:`PendingEvent` stands for it until resolved."""
         g, r = pair[0] - 1, pair[1] - 1
         lo, hi = st.lo, st.hi
         assert lo is not None and hi is not None
         span = [w for w in st.windows if lo.index <= w.index <= hi.index]
-        ratios = np.array([w.freq_hz[r] / w.freq_hz[g] for w in span if w.freq_hz[g] > 0])
+        st.reset()
         f_give = float(np.mean([w.freq_hz[g] for w in span]))
+        args = self._lock_args(g, r, f_give) if self.s.lock_label and self._recent else None
+        if args is not None and self.lock_submit is not None:
+            return [PendingEvent(lo.t_start_s, hi.t_end_s, self.lock_submit(lock_fit, *args),
+                                 lambda locked: self._event(pair, lo, hi, span, f_give, locked))]  # fmt: skip
+        return self._event(pair, lo, hi, span, f_give, None if args is None else lock_fit(*args))
+
+    def _event(self, pair: tuple[int, int], lo: WindowFeatures, hi: WindowFeatures, span: list[WindowFeatures],
+               f_give: float, locked: tuple[int, int] | None) -> list[IREvent]:  # fmt: skip
+        """The event from its windows ``lo`` .. ``hi`` and the phase-lock fit's m:n (None: none stood out, or no
+        samples), with its scores and confidences; none below ``min_confidence``."""
+        g, r = pair[0] - 1, pair[1] - 1
+        ratios = np.array([w.freq_hz[r] / w.freq_hz[g] for w in span if w.freq_hz[g] > 0])
         ratio = float(np.mean([w.freq_hz[r] for w in span])) / f_give if f_give > 0 else float("nan")
         m, n = slowest_phase_ratio(ratio, self.s.ratios) if np.isfinite(ratio) else (0, 0)
-        locked = self._locked(g, r, f_give) if self.s.lock_label and self._recent else None
         m, n = locked if locked is not None else (m, n)
         e_lo, e_hi = float(lo.energy[r]), float(hi.energy[r])
         gain = e_hi / e_lo if e_lo > 0 else float("inf")
@@ -643,8 +663,22 @@ class ExchangeDetector:
             f_give_hz=f_give, f_recv_hz=float(np.mean([w.freq_hz[r] for w in span])),
             gain=gain, scores=scores, confidence=confidence(scores), label_confidence=label_confidence(scores),
         )  # fmt: skip
-        st.reset()
         return [ev] if ev.confidence >= self.s.min_confidence else []
+
+
+@dataclass(frozen=True)
+class PendingEvent:
+    """An event whose phase-lock fit is running elsewhere (:class:`ExchangeDetector`'s ``lock_submit``): its interval
+    is known, its m:n, scores and confidence once :meth:`resolve` has the fit (waiting for it). ``resolve`` gives what
+    the detector would have returned without the worker: the event, or nothing below ``min_confidence``."""
+
+    start_s: float
+    end_s: float
+    future: Future
+    finish: Callable[[tuple[int, int] | None], list[IREvent]]
+
+    def resolve(self) -> list[IREvent]:
+        return self.finish(self.future.result())
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ from analysis.exchange import (
     ExchangeSettings,
     IREvent,
     ModalWindower,
+    PendingEvent,
     WindowFeatures,
     band_noise_energy,
     with_rq_score,
@@ -567,7 +568,10 @@ class AnalysisOperator:
         self._ex_settings = ex
         self._windower = ModalWindower(self.basis, fs, round(ex.window_s * fs), max(1, round(ex.hop * fs)), first,
                                        energy_bandpass=ex.band_limited_energy)  # fmt: skip
-        self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes, self._noise_prior())
+        # pipelined: the phase-lock fit of a closing event (~2 ms) runs on the health worker while this thread goes on
+        # with the modal lane; the event is resolved at the next settling, before anything reads it
+        lock_submit = (lambda fn, *a: self._health_pool.submit(fn, *a)) if self.pipelined and self.s.seed_lane else None
+        self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes, self._noise_prior(), lock_submit)
         self._prev_total: float | None = None
         self._min_total = np.inf  # lowest windowed modal energy so far: the noise floor once the rig was quiet
         self._f1_hist: deque[float] = deque(maxlen=7)
@@ -584,7 +588,7 @@ class AnalysisOperator:
         ]
         self._base = self._grids[0]  # offset 0, length 1: the seed's grid (RQ curves, RQ-FEP)
         self._max_len = max(g.length for g in self._grids)
-        self._pending: list[IREvent] = []
+        self._pending: list[IREvent | PendingEvent] = []
         self._spikes_until = first / fs
         self._seed_rule = CausalSpikeRule(RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,)))
 
@@ -635,7 +639,7 @@ class AnalysisOperator:
         for ev in self._detector.feed(w):
             self._event(ev)
 
-    def _event(self, ev: IREvent) -> None:
+    def _event(self, ev: IREvent | PendingEvent) -> None:
         """An event waits until every window grid has passed its end (+ one window), so its ``rq`` score
         sees the same windows whatever the block split; without the seed lane it goes out at once."""
         self._pending.append(ev)
@@ -645,6 +649,8 @@ class AnalysisOperator:
     def _settle(self, until: float) -> None:
         """Emit pending events and window-robust spike intervals that lie wholly before ``until`` (s):
         every grid has computed all windows that overlap them."""
+        if any(isinstance(ev, PendingEvent) for ev in self._pending):  # the serial run's pending list, in its order
+            self._pending = [x for ev in self._pending for x in (ev.resolve() if isinstance(ev, PendingEvent) else [ev])]
         keep = []
         for ev in self._pending:
             lo, hi = ev.start_s - self.window_s, ev.end_s + self.window_s

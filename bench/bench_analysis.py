@@ -15,11 +15,16 @@
    (analysis/rq_spikes.py) against its per-window numpy form — ms per second of 14-channel data, and
    whether the outputs are identical bit for bit.
 
-4. ``--base REV`` (default: the commit before issue 30's speed work): the replay rows of 2. (gvt analyze's path,
-   health on, and the same with health off) and the literal batch, measured for that commit in the same run — a
+4. ``--base REV`` (default: main before issue 30's replay-speed work, a37a3f0): the replay rows of 2. (gvt analyze's
+   path, health on, and the same with health off) and the literal batch, measured for that commit in the same run — a
    subprocess importing a ``git archive`` of it — beside this tree's (``--base none``: skipped).
+5. ``gvt analyze LOG`` first output (issue 30: < 1 s): seconds from process start to the first byte on stdout, median
+   of 5 warm runs on replay_logs/beam_ch4_exp_weak.mcap, for this tree and the base in the same run.
 
-    python bench/bench_analysis.py [--seconds 20] [--quick] [--base 7531466 | --base none]
+The summary line gives, per tree: replay x real time, its ratio to the seed's literal batch in the same run, and the
+first output (issue 30's targets: >= 100x, >= 2x, < 1 s).
+
+    python bench/bench_analysis.py [--seconds 20] [--quick] [--base a37a3f0 | --base none]
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ from analysis.rq_spikes import RobustSpikeSettings
 from drivers.blocks import SampleBlock
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE_DEFAULT = "7531466"  # main before issue 30's speed work (sensor health and the hit gate as block operations)
+BASE_DEFAULT = "a37a3f0"  # main before issue 30's replay-speed work (lock fit, pipeline, first output, one numba cache)
+FIRST_OUTPUT_LOG = ROOT / "replay_logs" / "beam_ch4_exp_weak.mcap"
 
 
 def base_tree(rev: str) -> Path:
@@ -73,6 +79,41 @@ def at_base(rev: str, argv: list[str]) -> dict | None:
         print(f"base {rev}: not measured ({p.stderr.strip().splitlines()[-1] if p.stderr.strip() else p.returncode})")
         return None
     return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def first_output_s(tree: Path, repeats: int = 5) -> dict:
+    """``gvt analyze`` of a small log with the packages of ``tree`` (``PYTHONPATH``): seconds from the process's start
+    to the first byte on stdout, median and all of ``repeats`` runs after one warm-up (bytecode, numba cache), and the
+    whole run's seconds. A run that fails gives its exit code."""
+    import selectors
+
+    cmd = [sys.executable, "-m", "daq.cli", "analyze", str(FIRST_OUTPUT_LOG)]
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+
+    def once() -> tuple[float, float, int]:
+        t0 = time.perf_counter()
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=tree, env=env)
+        sel = selectors.DefaultSelector()
+        sel.register(p.stdout, selectors.EVENT_READ)
+        first = None
+        while True:
+            sel.select(timeout=600)
+            chunk = os.read(p.stdout.fileno(), 65536)
+            if first is None and chunk:
+                first = time.perf_counter() - t0
+            if not chunk:
+                break
+        rc = p.wait()
+        total = time.perf_counter() - t0
+        return (first if first is not None else total), total, rc
+
+    once()
+    runs = [once() for _ in range(repeats)]
+    if any(rc for _, _, rc in runs):
+        return {"error": f"exit {max(rc for _, _, rc in runs)}"}
+    firsts = sorted(f for f, _, _ in runs)
+    return {"first_output_s": firsts[len(firsts) // 2], "runs_s": [f for f, _, _ in runs],
+            "total_s": sorted(t for _, t, _ in runs)[len(runs) // 2]}  # fmt: skip
 
 
 def replay_rows(secs: float) -> dict:
@@ -338,6 +379,21 @@ def main() -> None:
                 print(f"{who}: health on is {r['health_on']['x_real_time'] / r['seed_batch']['x_real_time']:.2f}x the seed's "
                       f"literal batch; health costs {r['health_on']['cpu_per_data_s'] - r['health_off']['cpu_per_data_s']:.4f} "
                       f"CPU-s per data-s")  # fmt: skip
+    trees = [("this tree", ROOT)] + ([(f"@{args.base}", base_tree(args.base))] if args.base != "none" else [])
+    out["first_output"] = {who: first_output_s(tree) for who, tree in trees}
+    for who, fo in out["first_output"].items():
+        runs = ", ".join(f"{x:.2f}" for x in fo.get("runs_s", []))
+        print(f"gvt analyze {FIRST_OUTPUT_LOG.name}, first output ({who}): "
+              f"{fo['first_output_s']:.2f} s (runs {runs}; whole run {fo['total_s']:.2f} s)" if "error" not in fo
+              else f"gvt analyze first output ({who}): {fo['error']}")  # fmt: skip
+    if args.base != "none":
+        for who, r in (("this tree", now), (f"@{args.base}", base)):
+            fo = out["first_output"].get(who, {})
+            if r:
+                on = r["health_on"]["x_real_time"]
+                print(f"summary {who}: replay {on:.1f}x real time (target >= 100x), {on / r['seed_batch']['x_real_time']:.2f}x "
+                      f"the seed's literal batch (target >= 2x), gvt analyze first output "
+                      f"{fo.get('first_output_s', float('nan')):.2f} s (target < 1 s)")  # fmt: skip
     dest = ROOT / "bench" / "results" / "bench_analysis.json"
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(json.dumps(out, indent=2))

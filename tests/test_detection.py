@@ -227,9 +227,10 @@ def test_operator_results_do_not_depend_on_the_block_split():
 
 
 def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
-    """Pipelined (gvt analyze), the seed lane's numerics run on a worker thread one block ahead: the emits —
-    every topic, every value, their order — equal the single-threaded run's, across a gap restart too. While it runs the
-    interpreter's thread switch interval is lowered (analysis/operator.py ``PIPELINE_SWITCH_S``); ``finish`` restores it."""
+    """Pipelined (gvt analyze), sensor health, the seed lane's numerics and the events' lock fits run on worker threads
+    (D27, D72): the emits — every topic, every value, their order — equal the single-threaded run's, across a gap
+    restart too. While it runs the interpreter's thread switch interval is lowered (analysis/operator.py
+    ``PIPELINE_SWITCH_S``); ``finish`` restores it."""
     import sys
 
     from analysis.operator import PIPELINE_SWITCH_S
@@ -253,6 +254,7 @@ def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     serial, pipelined = runs
     assert [t for t, _ in serial].count("/analysis/rq") >= 60
     assert any(t == "/analysis/warnings" and o["kind"] == "gap" for t, o in serial)
+    assert any(t == "/analysis/events" for t, _ in serial)  # pipelined, their lock fits ran on the health worker
     assert pipelined == serial
 
 

@@ -455,7 +455,8 @@ class AnalysisOperator:
         self._next_index = block.first_index + n
         self.stats.blocks += 1
         self.stats.samples += n
-        acc = block.data[:, self._acc_cols].astype(np.float64)
+        # C order (a column selection is laid out column-major): every kernel downstream reads rows of channels
+        acc = block.data[:, self._acc_cols].astype(np.float64, order="C")
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n

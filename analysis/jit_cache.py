@@ -1,8 +1,9 @@
 """Where numba keeps gvtlink's compiled kernels, and whether they are there yet (issue 30, docs/decisions.md D70).
 
 Why one place: ``make`` exported ``NUMBA_CACHE_DIR=.numba_cache`` while ``gvt`` run directly used numba's default, the
-``__pycache__`` next to each module: the kernels ``make test`` had compiled were compiled again (~40 s for the whole
-set) the first time an engineer ran ``gvt analyze``, and the other way round. Now :func:`configure` (run by
+``__pycache__`` next to each module: the kernels ``make test`` had compiled were compiled again the first time an
+engineer ran ``gvt`` (~5 s for the analysis kernels, ~14 s for the simulator's, ~40 s for the whole set), and the other
+way round. Now :func:`configure` (run by
 ``analysis/__init__.py``, before any module here imports numba) sets ``NUMBA_CACHE_DIR`` when the user has not:
 
 * a source checkout (the editable install ``make`` and the README set up: ``pyproject.toml`` beside the packages,

@@ -344,7 +344,7 @@ def _lattice_covariances(buf, edges, seg_s2, seg_idx, n):  # pragma: no cover - 
 
 def compiled_kernels() -> list:
     """The operator's cached numba kernels, its own and those of the modules it runs (analysis/jit_cache.py): what a
-    cold cache compiles on the first block (~40 s), and a warm one loads in well under a second."""
+    cold cache compiles on the first block (~5 s), and a warm one loads in well under a second."""
     import analysis.exchange
     import analysis.modal_filter
     import analysis.preprocess

@@ -36,7 +36,7 @@ def analyze(
     from daq.studies.analyze.batch import AnalyzeError, analyze_log
     from daq.studies.analyze.tables import print_json, print_report
 
-    notice = compile_notice(compiled_kernels())  # a cold numba cache: ~40 s of compiling before the first window
+    notice = compile_notice(compiled_kernels())  # a cold numba cache: ~5 s of compiling before the first window
     if notice:
         console.print(notice, markup=False)
     try:

@@ -549,10 +549,11 @@ class AnalysisOperator:
         return self.events
 
     def close(self) -> None:
-        """Emit what the worker thread still holds and stop it (if one was started); a later ``feed`` starts
-        a new one. ``finish`` calls this."""
+        """Emit the seed results the seed worker still holds and stop the workers (if they were started); a later
+        ``feed`` starts new ones. ``finish`` calls this after running every lane; called alone (a run that broke off),
+        a block still with the health worker is dropped, not run, so a failure there is not raised a second time."""
         try:
-            self._flush_ahead()
+            self._ahead = None
             self._drain()
         finally:
             if self._pool is not None:

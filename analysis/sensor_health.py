@@ -55,6 +55,9 @@ from analysis.lines import LineCanceller, LineFound, LineSettings
 from analysis.modal_filter import ModalBasis, modal_basis
 from analysis.preprocess import _sections
 
+#: the fewest samples a level span holds (a stuck run: half of it), at any sample rate
+MIN_SPAN_SAMPLES = 32
+
 Fault = Literal["dead", "stuck", "clipping", "drifting", "noisy", "inconsistent", "polarity"]
 
 #: a sample at or above this fraction of the stated range counts as clipped (daq/hits.py's CLIP_FRACTION)
@@ -311,8 +314,11 @@ class SensorHealth:
         self.bad: dict[str, Verdict] = {}
         self._index = 0  # samples seen
         self._at = 0  # the sample a verdict being made is judged at
-        self._level_n = max(2, round(self.s.level_min_s * self.fs))
-        self._stuck_n = max(2, round(self.s.stuck_s * self.fs))
+        # spans in seconds are tuned at 16 kHz; at the low end of lab rates (256 Hz: 4 samples) a span that short
+        # calls a sensor still at rest a few samples after the hit "flat at 0" (the seed's 2-DOF log at 50 Hz):
+        # a judgment needs a few dozen samples whatever the rate
+        self._level_n = max(MIN_SPAN_SAMPLES, round(self.s.level_min_s * self.fs))
+        self._stuck_n = max(MIN_SPAN_SAMPLES // 2, round(self.s.stuck_s * self.fs))
         self._drift_n = max(2, round(self.s.drift_window_s * self.fs))
         self._reset_level()
         self._last = np.full(n, np.nan)
@@ -333,8 +339,14 @@ class SensorHealth:
             b = modal_basis(M, K, min(self.n_modes + 1, n))
             f = b.freqs_hz
             hi = float(np.sqrt(f[self.n_modes - 1] * f[self.n_modes])) if f.size > self.n_modes else 1.5 * float(f[-1])
-            self._sos = scipy.signal.butter(4, (self.s.band_lo_hz, min(hi, 0.45 * self.fs)), "bandpass", fs=self.fs,
+            # the high-pass corner stays below the first mode: a structure whose modes lie under band_lo_hz (the
+            # seed's 2-DOF system at 0.16 and 0.28 Hz) keeps its band instead of an inverted one
+            lo = min(self.s.band_lo_hz, 0.5 * float(f[0]))
+            self._sos = scipy.signal.butter(4, (lo, min(hi, 0.45 * self.fs)), "bandpass", fs=self.fs,
                                             output="sos")  # fmt: skip
+            # a drift window holds at least 20 periods of the first mode (the default's rationale, above): a mean
+            # over less than a period moves with the oscillation itself (the 2-DOF log's 0.16 Hz mode)
+            self._drift_n = max(self._drift_n, round(20 * self.fs / float(f[0])))
             self._zi = np.zeros((self._sos.shape[0], 2, n))
 
     # --- public ---------------------------------------------------------------------------------
@@ -593,7 +605,7 @@ class SensorHealth:
                     if std[k] > 0 and abs(mean[k] - self._drift_ref[k]) > self.s.drift_factor * std[k]:
                         out += self._judge(k, "drifting", f"mean moved {abs(mean[k] - self._drift_ref[k]):.3g} "
                                                           f"({abs(mean[k] - self._drift_ref[k]) / std[k]:.0f}x its std) "
-                                                          f"since the first {self.s.drift_window_s:g} s")  # fmt: skip
+                                                          f"since the first {self._drift_n / self.fs:g} s")  # fmt: skip
             self._drift = [0, np.zeros(x.shape[1]), np.zeros(x.shape[1])]
         return out
 

@@ -389,7 +389,7 @@ class Session:
             return None
         from daq.lanes.confirm import DrainingConfirmLane, start_confirm_lane
 
-        lane = start_confirm_lane(self.fan, self.analysis, self.results.emit)
+        lane = start_confirm_lane(self.fan, self.analysis, self.results.emit, say=self.opts.line or self.opts.frf_line)
         self.results.route(lane, [layout.IR_EVENTS_TOPIC])
         return DrainingConfirmLane(lane, self.opts.drain_progress, self.opts.wait_confirmations)
 

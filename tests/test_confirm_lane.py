@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
 
 from daq.fanout import FanOut
-from daq.lanes.confirm import CONFIRM_TOPIC, ConfirmLane, LaneSettings, _Ring
+from daq.lanes.confirm import CONFIRM_TOPIC, FAILED_TWICE, RESTARTED, ConfirmLane, LaneSettings, _Ring
 from drivers.blocks import BlockStatus, SampleBlock
 
 FS = 1000.0
@@ -154,3 +156,72 @@ def test_a_replay_lane_ends_even_when_its_end_marker_is_taken_while_it_dispatche
         lane.finish(time.monotonic() + 60)
         assert time.monotonic() - t0 < 30 and not lane._thread.is_alive()
         assert sorted(r["event_id"] for r in lane.results) == [0, 1, 2, 3]
+
+
+def sleepy_confirm(seg, fs, t0_s, event, context):
+    """The event says how long its confirmation takes (a worker to kill while it holds one)."""
+    time.sleep(event.get("sleep_s", 0.0))
+    return echo_confirm(seg, fs, t0_s, event, context)
+
+
+class _Feed:
+    """Contiguous blocks into a fan-out that stays open, one at a time (each lets the lane dispatch and collect)."""
+
+    def __init__(self, fan: FanOut) -> None:
+        self.fan, self.data, self.end = fan, _data(60000), 0
+
+    def until(self, cond, timeout: float = 20.0) -> None:
+        t_end = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < t_end, "the lane did not get there in time"
+            self.fan.publish(SampleBlock("acc", self.end, FS, CHANNELS, self.data[self.end: self.end + 100], BlockStatus(0)))
+            self.end += 100
+            time.sleep(0.02)
+
+
+def _kill_worker_holding(lane, feed) -> None:
+    feed.until(lambda: lane._running and getattr(lane._pool, "_processes", None))
+    os.kill(next(iter(lane._pool._processes)), signal.SIGKILL)
+
+
+def test_a_killed_worker_is_restarted_once_then_the_lane_is_switched_off_with_one_line():
+    """Issue 30: at load 15 the pool broke and every later event became `error`. Now: the first death marks the event
+    in hand and a new worker confirms the next; the second switches the lane off with one line and later events are
+    skipped with the reason; the drain after the data ends does not wait on anything."""
+    fan, out, said = FanOut(), [], []
+    lane = ConfirmLane(fan, "acc", CHANNELS, SENSORS, FS, lambda t, o, ns: out.append((t, o)), Ctx(),
+                       confirm=sleepy_confirm, say=said.append).start()  # fmt: skip
+    feed = _Feed(fan)
+    feed.until(lambda: feed.end >= 2000)
+    lane.submit({"id": 0, "start_s": 1.0, "end_s": 1.1, "sleep_s": 60.0})
+    _kill_worker_holding(lane, feed)
+    feed.until(lambda: lane.worker_deaths == 1)
+    lane.submit({"id": 1, "start_s": 2.0, "end_s": 2.1})
+    feed.until(lambda: any(r["event_id"] == 1 for r in lane.results))
+    lane.submit({"id": 2, "start_s": 3.0, "end_s": 3.1, "sleep_s": 60.0})
+    _kill_worker_holding(lane, feed)
+    feed.until(lambda: lane.off is not None)
+    lane.submit({"id": 3, "start_s": 4.0, "end_s": 4.1})
+    feed.until(lambda: len(lane.results) == 4)
+    fan.close()
+    t0 = time.monotonic()
+    lane.finish(time.monotonic() + 60)
+    assert time.monotonic() - t0 < 5.0  # nothing in hand: stopping the worker is all that is left (seconds, not 58)
+    recs = {r["event_id"]: r for r in lane.results}
+    assert [recs[i]["status"] for i in range(4)] == ["error", "confirmed", "error", "skipped"]
+    assert recs[0]["reason"] == recs[2]["reason"] == RESTARTED and recs[3]["reason"] == FAILED_TWICE
+    kinds = [o["kind"] for t, o in out if t != CONFIRM_TOPIC]
+    assert kinds == ["confirm_restarted", "confirm_off"] and len(said) == 1 and "died 2 times" in said[0]
+
+
+def test_the_drain_after_the_data_ends_is_bounded_and_says_what_it_abandoned():
+    fan, out = FanOut(), []
+    lane = _lane(fan, lambda t, o, ns: out.append(o), sleepy_confirm, finish_timeout_s=1.0)
+    lane.submit({"id": 0, "start_s": 0.5, "end_s": 0.6, "sleep_s": 60.0})
+    _publish(fan, _data(2000))
+    t0 = time.monotonic()
+    lane.finish(time.monotonic() + 60)
+    assert time.monotonic() - t0 < 1.0 + 2.0  # the 1 s limit, and stopping the worker
+    (rec,) = lane.results
+    assert rec["status"] == "skipped" and "still running" in rec["reason"] and lane.abandoned == 1
+    assert [o["count"] for o in out if o.get("kind") == "confirm_abandoned"] == [1]

@@ -15,6 +15,13 @@ worker. Whatever cannot be confirmed is said, never dropped silently: an event w
 ring, fell in a gap, or arrived while ``max_pending`` confirmations were already queued gets a
 confirmation record with ``status="skipped"`` and the reason. Results go to the sink (the session
 log's ``/analysis/confirmations`` topic) as they complete.
+
+A worker that dies (killed, out of memory: the pool is then *broken* and fails every confirmation in hand)
+is restarted once: the events it had in hand get ``status="error"`` with the reason ``worker restarted``,
+and later events are confirmed by the new worker. A second death switches the lane off with one line
+(a ``confirm_off`` event, and ``say`` on the console); every later event is ``skipped`` with the reason
+``confirmation worker failed twice``. The drain after the data ends is bounded by ``finish_timeout_s``
+(and the caller's deadline) whatever the worker does, and says how many confirmations it abandoned.
 """
 
 from __future__ import annotations
@@ -26,8 +33,8 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -54,6 +61,12 @@ class LaneSettings:
     max_pending: int = 16  # confirmations queued in the worker at once (~1.5 MB of samples each); more are skipped and said
     event_queue: int = 256
     finish_timeout_s: float = 120.0  # at the end, confirmations still running after this are skipped and said
+    restarts: int = 1  # a worker that dies is restarted this many times; the next death switches the lane off
+
+
+#: reasons of the records of events a dead worker took with it, and of those after the lane was switched off
+RESTARTED = "worker restarted: the confirmation worker died while this event was in hand"
+FAILED_TWICE = "confirmation worker failed twice"
 
 
 def skipped(event: Mapping[str, Any], reason: str, status: str = "skipped") -> dict:
@@ -103,7 +116,7 @@ class ConfirmLane:
     def __init__(
         self, fan: FanOut, stream: str, channels: tuple[str, ...], sensors: tuple[str, ...], fs: float, sink: Sink,
         context: Any, confirm: Callable | None = None, settings: LaneSettings = LaneSettings(),
-        fetch: Callable[[int, int], np.ndarray | None] | None = None,
+        fetch: Callable[[int, int], np.ndarray | None] | None = None, say: Callable[[str], None] | None = None,
     ) -> None:  # fmt: skip
         if confirm is None:
             from analysis.confirm import confirm_segment as confirm
@@ -119,8 +132,11 @@ class ConfirmLane:
         self._ended = threading.Event()  # the end marker has been taken off the event queue
         self._waiting: list[dict] = []
         self._running: list[tuple[dict, Future]] = []
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=die_with_parent, initargs=(os.getpid(),))  # fmt: skip
+        self.say = say  # the console's one line when the lane is switched off (None: the event only)
+        self.worker_deaths = 0
+        self.off: str | None = None  # why the lane was switched off (a worker died more than ``restarts`` times)
+        self.abandoned = 0  # confirmations still running when the drain's time ran out
+        self._pool = _new_pool()
         self._thread = threading.Thread(target=self._main, name=f"confirm:{stream}", daemon=True)
 
     def start(self) -> ConfirmLane:
@@ -163,6 +179,12 @@ class ConfirmLane:
             self._drain(limit, progress, wait)
         self._pool.shutdown(wait=False, cancel_futures=True)
         _stop_workers(self._pool)
+        if self.abandoned:
+            self.sink(layout.EVENTS_TOPIC, {
+                "kind": "confirm_abandoned", "stream": self.stream, "count": self.abandoned,
+                "message": f"the confirmation drain gave up on {self.abandoned} confirmation(s) still running at its "
+                           "time limit (each recorded as skipped)",
+            }, None)  # fmt: skip
 
     def _drain(self, deadline: float, progress: Callable[[int, int], None] | None, wait: bool) -> None:
         total = len(self._running)
@@ -182,6 +204,7 @@ class ConfirmLane:
                 last = now
             if self._running:
                 wait_futures([f for _, f in self._running], timeout=0.2, return_when=FIRST_COMPLETED)
+        self.abandoned += len(self._running)
         for ev, _fut in self._running:
             self._emit(skipped(ev, f"still running {time.monotonic() - t0:.0f} s after the stream ended"))
         self._running = []
@@ -224,27 +247,69 @@ class ConfirmLane:
                 where = "the log has a gap there" if self.fetch is not None else (
                     f"not in the lane's buffer: older than {self.s.buffer_s} s, or in a gap")
                 self._emit(skipped(ev, f"its data ({a / self.fs:.3f}–{b / self.fs:.3f} s) is missing ({where})"))
+            elif self.off is not None:
+                self._emit(skipped(ev, FAILED_TWICE))
             elif self.fetch is None and len(self._running) >= self.s.max_pending:  # a replay has no deadline: all queue
                 self._emit(skipped(ev, f"{self.s.max_pending} confirmations were already queued (the lane fell behind)"))
             else:
-                self._running.append((ev, self._pool.submit(self.confirm, seg, self.fs, a / self.fs, ev, self.context)))
+                self._submit(ev, seg, a)
         self._waiting = keep
 
-    def _collect(self, wait: bool = False) -> None:
-        still = []
-        deadline = time.monotonic() + self.s.finish_timeout_s
+    def _submit(self, ev: dict, seg: np.ndarray, a: int) -> None:
+        """Hand one event to the worker; a pool found broken here is handled (restart or off) and tried once more."""
+        for _attempt in range(2):
+            try:
+                self._running.append((ev, self._pool.submit(self.confirm, seg, self.fs, a / self.fs, ev, self.context)))
+                return
+            except BrokenProcessPool as exc:
+                self._worker_died(exc)
+                if self.off is not None:
+                    break
+        self._emit(skipped(ev, FAILED_TWICE))
+
+    def _worker_died(self, exc: BaseException) -> None:
+        """The pool is broken (its worker died): every confirmation in hand failed with it. Mark them, then start a
+        new worker — or, after ``restarts`` restarts, switch the lane off with one line."""
+        self.worker_deaths += 1
+        lost, self._running = self._running, []
+        for ev, _fut in lost:
+            self._emit(skipped(ev, RESTARTED, status="error"))
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        _stop_workers(self._pool)
+        why = f"{type(exc).__name__}: {exc}"[:200]
+        if self.worker_deaths <= self.s.restarts:
+            self._pool = _new_pool()
+            self.sink(layout.EVENTS_TOPIC, {
+                "kind": "confirm_restarted", "stream": self.stream, "count": len(lost),
+                "message": f"the confirmation worker died ({why}); restarted, {len(lost)} event(s) in hand marked error",
+            }, None)  # fmt: skip
+            return
+        self.off = (f"confirmation off: the worker died {self.worker_deaths} times ({why}); later IR events are "
+                    "skipped, 'gvt confirm LOG' confirms them afterwards")  # fmt: skip
+        self.sink(layout.EVENTS_TOPIC, {"kind": "confirm_off", "stream": self.stream, "count": len(lost),
+                                        "message": self.off}, None)  # fmt: skip
+        if self.say is not None:
+            self.say(self.off)
+
+    def _collect(self) -> None:
+        """Emit the confirmations that are done. A future failed with BrokenProcessPool means the worker died: every
+        one still in hand failed with it, which is one death (``_worker_died``), not one per event."""
+        still, broken = [], None
         for ev, fut in self._running:
-            if wait or fut.done():
-                try:
-                    rec = fut.result(timeout=max(0.0, deadline - time.monotonic()) if wait else None)
-                except FutureTimeout:
-                    rec = skipped(ev, f"still running {self.s.finish_timeout_s:.0f} s after the stream ended")
-                except Exception as exc:  # reported as the event's record; the lane goes on
-                    rec = skipped(ev, f"{type(exc).__name__}: {exc}", status="error")
-                self._emit(rec)
-            else:
+            if not fut.done():
                 still.append((ev, fut))
+                continue
+            exc = fut.exception()
+            if isinstance(exc, BrokenProcessPool):
+                broken = exc
+                still.append((ev, fut))
+            elif exc is not None:  # reported as the event's record; the lane goes on
+                self._emit(skipped(ev, f"{type(exc).__name__}: {exc}", status="error"))
+            else:
+                self._emit(fut.result())
         self._running = still
+        if broken is not None:
+            self._worker_died(broken)
 
     def _main_fetch(self) -> None:
         try:
@@ -301,6 +366,12 @@ class DrainingConfirmLane:
         self.lane.finish(deadline, self.progress, self.wait)
 
 
+def _new_pool() -> ProcessPoolExecutor:
+    """One spawned worker that exits when this process dies (daq/children.py)."""
+    return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=die_with_parent, initargs=(os.getpid(),))  # fmt: skip
+
+
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """End the worker processes now: ``shutdown(wait=False)`` lets a running confirmation finish on its own
     (seconds of CPU, ~300 MB), which nobody waits for any more."""
@@ -311,7 +382,7 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
 
 def start_confirm_lane(
     fan: FanOut, analysis_lane, sink: Sink, settings: LaneSettings = LaneSettings(), log_path: str | None = None,
-    confirm_settings: ConfirmSettings | None = None,
+    confirm_settings: ConfirmSettings | None = None, say: Callable[[str], None] | None = None,
 ) -> ConfirmLane:  # fmt: skip
     """The confirmation lane beside a started analysis lane (same stream, same rig model). Feed it the
     analysis lane's ``/analysis/events`` with :meth:`ConfirmLane.offer`; join it after the analysis lane.
@@ -333,4 +404,4 @@ def start_confirm_lane(
             return None if d.gaps or d.data.shape[0] == 0 or int(d.index[0]) != a else np.asarray(d.data)
 
     return ConfirmLane(fan, analysis_lane.stream, tuple(analysis_lane.channels), tuple(op.model.sensors), op.fs, sink, ctx,
-                       settings=settings, fetch=fetch).start()  # fmt: skip
+                       settings=settings, fetch=fetch, say=say).start()  # fmt: skip

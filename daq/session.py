@@ -70,6 +70,7 @@ class SessionResult:
     events: dict[str, int] = field(default_factory=dict)
     driver_error: str | None = None
     writer_overrun_samples: int = 0
+    writer_backlog: dict[str, float] = field(default_factory=dict)  # LogWriter.backlog() at the end: how far it fell behind
     seconds: float = 0.0
     files: list[str] = field(default_factory=list)
     streams: dict[str, int] = field(default_factory=dict)  # samples recorded per device stream
@@ -223,7 +224,7 @@ class Session:
         overwrite = self.opts.overwrite if self.opts.overwrite is not None else cfg.overwrite
         hold_s = (cfg.timeline or TimelineSpec()).max_buffer_s  # a second device waits at most this for its offset
         meta = {"session": cfg.name, "rig": self.rig.name, **rig_identity(self.rig)}
-        lane = LogLane(self.out, queue_size=self._queue_blocks(cfg.queue_seconds), rotate_bytes=cfg.rotate_bytes,
+        lane = LogLane(self.out, buffer_bytes=round(cfg.writer_buffer_mib * 2**20), rotate_bytes=cfg.rotate_bytes,
                        rotate_seconds=cfg.rotate_seconds, metadata=meta,
                        overwrite=overwrite, max_hold_s=hold_s)  # fmt: skip
         infos = {c.name: c for c in channel_infos(self.rig)}
@@ -486,5 +487,6 @@ class Session:
         if self.view is not None:
             res.view_dropped_samples = self.view.sub.dropped_samples
         res.writer_overrun_samples = self.log.stats.overrun_samples
+        res.writer_backlog = self.log.backlog()
         res.files = list(self.log.stats.files)
         return res

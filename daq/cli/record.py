@@ -113,6 +113,7 @@ def _drain_reporter():
 
 
 def _print_results(cfg, res, target: Path) -> None:
+    from daq.log.writer import BACKLOG_NOTE_S, backlog_line
     from daq.terminal import hits_table
 
     out.print(hits_table(res.hits, f"{cfg.name}: {len(res.hits)} hits"))
@@ -124,6 +125,9 @@ def _print_results(cfg, res, target: Path) -> None:
     suspects = ", ".join(f"{c} ({why})" for c, why in res.suspect_reasons.items()) or "none"
     out.print(f"wrote {target}: {res.samples} samples in {res.seconds:.1f} s; lost: {lost}; writer overruns: "
               f"{res.writer_overrun_samples}{restarts}{rejected}; suspect channels: {suspects}", markup=False)  # fmt: skip
+    backlog = res.writer_backlog
+    if backlog.get("peak_seconds", 0.0) > BACKLOG_NOTE_S:  # how far behind the writer fell: what a crash then would lose
+        out.print(f"writer: {backlog_line(backlog['peak_seconds'], int(backlog['peak_bytes']))}", markup=False)
     if cfg.analysis.enabled:
         from daq.studies.analyze.tables import events_table
 

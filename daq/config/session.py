@@ -52,6 +52,11 @@ MAX_QUEUE_S = 60.0
 #: 256 MiB holds 270 s of the seed rig (15 ch x 16384 Hz x 4 B = 0.98 MB/s) but 20 s of 64 ch x 51.2 kHz
 #: (13 MB/s): one full buffer at most doubles the recorder's measured 270 MB peak RSS (docs/session.md).
 MAX_BUFFER_BYTES = 256 << 20
+#: The log writer's buffer (MiB, D67): blocks wait there only while the writer is behind (a stall's burst, a busy
+#: host), so it is a memory budget, not a crash bound. 256 MiB = 270 s of the seed rig, 20 s of 64 ch x 51.2 kHz;
+#: at most 4 GiB (a quarter of a 16 GB lab PC), at least 1 MiB (one 4096-sample block of 64 channels).
+WRITER_BUFFER_MIB = 256.0
+MAX_WRITER_BUFFER_MIB = 4096.0
 #: A hit record after the trigger edge (s); the seed's records are 0.3 s (hit gate) and 2 s (rig).
 MAX_RECORD_S = 60.0
 #: The pre-trigger (s). The hit gate keeps it in a float32 ring it shifts on every block: measured (np.roll, 1024-
@@ -292,7 +297,14 @@ class SessionConfig(_Strict):
     # a device silent for longer than this is a `silence` event (with its range); None = the larger of 2 s and
     # four block periods
     silence_s: Annotated[WaitSeconds, Field(gt=0)] | None = None
-    queue_seconds: QueueSeconds = 0.5  # the log writer's queue
+    # the hit gate's and the live FRF lane's input queues (s of data). Before issue 30 it also sized the log writer's
+    # queue; that is now writer_buffer_mib (D67), and an old config's queue_seconds still means the lanes' queues
+    queue_seconds: QueueSeconds = 0.5
+    # the log writer's buffer, a memory budget: blocks wait there while the writer is behind; overrun (samples NOT
+    # RECORDED, counted) only when it is exhausted
+    writer_buffer_mib: Annotated[
+        float, at_least(1.0, "MiB", "one block of 64 channels"), at_most(MAX_WRITER_BUFFER_MIB, "MiB", "4 GiB of memory")
+    ] = WRITER_BUFFER_MIB
     # start a new file past this size / after this many seconds of wall time
     rotate_bytes: Annotated[int, Field(gt=0), at_least(MIN_ROTATE_BYTES, "bytes", "1 MiB; a file per few blocks")] | None = None
     rotate_seconds: (

@@ -6,6 +6,11 @@ results arrive through :meth:`LogLane.sink` (the :class:`~daq.lanes.Results` rou
 fails (disk full, the file deleted, an I/O error) is reported once through :attr:`LogLane.failure`; the
 recorder then stops the session, and everything already written is finalised by :meth:`finish`.
 
+The writer's buffer is a memory budget (``buffer_bytes``, the session's ``writer_buffer_mib``, D67): a stall's
+burst or a busy host waits in memory and only an exhausted budget loses blocks (counted, ``overrun``).
+:meth:`backlog` says how far the writer is behind, now and at its peak; a SIGKILL loses that plus one flush
+interval, and a peak above :data:`~daq.log.writer.BACKLOG_NOTE_S` is a ``writer_backlog`` event in the log.
+
 The time base (docs/log-format.md, "Time base"): the lane tells the writer the session's origin — the host's
 UTC at the reference stream's sample 0, taken once from its first block — and each stream's offset on the
 reference's timeline (0 for the reference's device; a second device's when the timeline fixes it).
@@ -20,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from daq.log import layout
-from daq.log.writer import ChannelInfo, LogWriter, wall_at_sample0
+from daq.log.writer import BACKLOG_NOTE_S, ChannelInfo, LogWriter, wall_at_sample0
 from drivers.blocks import SampleBlock
 
 
@@ -28,13 +33,15 @@ class LogLane:
     name = "log"
 
     def __init__(
-        self, path: str | Path, *, queue_size: int, rotate_bytes: int | None = None, rotate_seconds: float | None = None,
+        self, path: str | Path, *, buffer_bytes: int = 256 << 20, queue_size: int | None = None,
+        rotate_bytes: int | None = None, rotate_seconds: float | None = None,
         metadata: Mapping[str, str] | None = None, overwrite: bool = False, max_hold_s: float = 5.0,
     ) -> None:  # fmt: skip
         self.path = Path(path)
         self.writer = LogWriter(
-            self.path, queue_size=queue_size, rotate_bytes=rotate_bytes, rotate_seconds=rotate_seconds,
-            session_metadata=metadata, overwrite=overwrite, origin_ns=None, max_hold_s=max_hold_s,
+            self.path, queue_size=queue_size, buffer_bytes=buffer_bytes, rotate_bytes=rotate_bytes,
+            rotate_seconds=rotate_seconds, session_metadata=metadata, overwrite=overwrite, origin_ns=None,
+            max_hold_s=max_hold_s, note_backlog_s=BACKLOG_NOTE_S,
         )  # fmt: skip
         self.dropped_results = 0
         self.reference: set[str] = set()  # streams on the reference's clock: the first block of one sets the origin
@@ -110,6 +117,10 @@ class LogLane:
     @property
     def stats(self):
         return self.writer.stats
+
+    def backlog(self) -> dict[str, float]:
+        """Blocks waiting for the writer: ``bytes``, ``seconds`` of data, and their peaks (``LogWriter.backlog``)."""
+        return self.writer.backlog()
 
     def offer(self, topic: str, obj: dict) -> None:  # the log takes results through sink(), first of all
         pass

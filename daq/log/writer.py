@@ -4,13 +4,24 @@ Why a thread of its own: the ``mcap`` writer keeps the open chunk in memory, com
 calling thread and never fsyncs (dependency-notes.md §2). Producers (drivers, the session, analysis)
 call ``write_*`` which only enqueue; this thread owns the file.
 
-Crash safety: every ``flush_interval`` seconds (0.5 s default) the thread closes the open chunk
-(``Writer.flush()``), flushes and ``fsync``s, so a SIGKILL loses at most the open chunk plus what is
-still queued — about one second at the configured rate when the queue holds about 0.5 s.
+The queue is a memory budget, not a crash bound (issue 30, D67): blocks are bounded by their bytes
+(``buffer_bytes``; a recording session gives 256 MiB, ``writer_buffer_mib``) and optionally by their count
+(``queue_size``), so a device's burst after a stall or a busy minute on the host waits in memory instead of
+being dropped. Control records (streams, metadata, attachments, events, hits, results) have their own
+bound (:data:`MAX_CONTROL_ITEMS`) and never wait for block space: a full block budget cannot starve them.
+One FIFO keeps their order with the blocks.
 
-No silent loss: ``write_block`` never blocks; when the queue is full the block is not recorded, its
+Crash safety: every ``flush_interval`` seconds (0.5 s default) the thread closes the open chunk
+(``Writer.flush()``), flushes and ``fsync``s, so a SIGKILL loses at most the open chunk (one flush interval
+of data) plus the *backlog* at that moment: what is still queued. The backlog is ~0 while the writer keeps
+up; ``backlog()`` says it now and at its peak (bytes and seconds of data), and a live recording
+(``note_backlog_s``, :data:`BACKLOG_NOTE_S` for a session) writes a peak above it as a ``writer_backlog``
+event when the file is finished. (An offline producer runs ahead of real time: its backlog in seconds of data
+says nothing about a crash.)
+
+No silent loss: ``write_block`` never blocks; when the budget is exhausted the block is not recorded, its
 exact sample range is remembered, and the thread writes an ``overrun`` event to ``/daq/events`` as
-soon as it can. Control records (streams, metadata, attachments, events) wait for queue space.
+soon as it can.
 
 The output is the user's (docs/log-format.md, "Output and writer failures"): the constructor opens it
 on the caller's thread and refuses, with one line, a path it cannot write, an existing file (unless
@@ -38,6 +49,7 @@ import queue
 import stat
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +68,11 @@ from drivers.blocks import BlockStatus, SampleBlock
 EVENT_SCHEMA = records.Event.SCHEMA  # every JSON topic's schema: analysis/records.py (TOPICS)
 HIT_SCHEMA = records.Hit.SCHEMA
 
+
+#: control records queued at most (events, hits, results, metadata: small, and never waiting for block space)
+MAX_CONTROL_ITEMS = 100_000
+#: a live recording's backlog peak above this many seconds of data is a ``writer_backlog`` event (and said by the session)
+BACKLOG_NOTE_S = 1.0
 
 #: /daq/events kept whole in the closing ``gvtlink.events`` record (a storm beyond it: counts only, and
 #: ``gvt log info`` reads the topic instead)
@@ -112,6 +129,12 @@ class WriterStats:
     lost_after_failure_ranges: list[tuple[str, int, int]] = field(default_factory=list)
     #: control records (events, hits, JSON, metadata, attachments, streams) dropped after a failure
     dropped_after_failure: int = 0
+    #: the block budget (bytes; None: blocks bounded by count only) and the deepest backlog of blocks waiting for
+    #: the writer thread, in bytes and in seconds of data (the slowest stream's): a SIGKILL at that moment would
+    #: have lost it plus one flush interval; final after ``close()``
+    buffer_bytes: int | None = None
+    peak_backlog_bytes: int = 0
+    peak_backlog_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -128,6 +151,87 @@ class ChannelInfo:
 
 
 _STOP = object()
+
+
+class _Backlog:
+    """The writer's queue: one FIFO (a stream's registration stays before its blocks) with two bounds — blocks
+    by bytes (``max_bytes``) and count (``max_blocks``), control records by count (``max_control``) — so that
+    neither kind waits for the other's space. It measures the backlog of blocks: bytes and, per stream, seconds of
+    data (the loss a SIGKILL would add to the open chunk), now and at its peak."""
+
+    def __init__(self, max_blocks: int | None, max_bytes: int | None, max_control: int = MAX_CONTROL_ITEMS) -> None:
+        self.max_blocks, self.max_bytes, self.max_control = max_blocks, max_bytes, max_control
+        self._items: deque = deque()
+        self._cv = threading.Condition()
+        self.blocks = self.bytes = self.control = 0
+        self._samples: dict[str, int] = {}
+        self._rates: dict[str, float] = {}
+        self.peak_bytes, self.peak_s = 0, 0.0
+
+    def _fits(self, nbytes: int) -> bool:
+        if self.blocks == 0:
+            return True  # one block larger than the whole budget still goes through: it could never fit otherwise
+        if self.max_blocks is not None and self.blocks >= self.max_blocks:
+            return False
+        return self.max_bytes is None or self.bytes + nbytes <= self.max_bytes
+
+    def put_block(self, block: SampleBlock, timeout: float | None = None) -> bool:
+        """Queue a block if the budget has room (waiting up to ``timeout`` for it; None: not at all)."""
+        n = int(block.data.nbytes)
+        with self._cv:
+            if not self._fits(n) and (not timeout or not self._cv.wait_for(lambda: self._fits(n), timeout)):
+                return False
+            self._items.append(("block", block))
+            self.blocks += 1
+            self.bytes += n
+            k = self._samples[block.stream] = self._samples.get(block.stream, 0) + block.n_samples
+            rate = self._rates[block.stream] = float(block.sample_rate) or 1.0
+            self.peak_bytes = max(self.peak_bytes, self.bytes)
+            self.peak_s = max(self.peak_s, k / rate)
+            self._cv.notify_all()
+            return True
+
+    def put_control(self, item: Any, timeout: float | None = None, bounded: bool = True) -> None:
+        """Queue a control record, waiting up to ``timeout`` for room among control records; raise queue.Full."""
+        with self._cv:
+            if bounded and self.control >= self.max_control:
+                if not self._cv.wait_for(lambda: self.control < self.max_control, timeout):
+                    raise queue.Full
+            self._items.append(item)
+            self.control += 1
+            self._cv.notify_all()
+
+    def put(self, item: Any, timeout: float | None = None) -> None:
+        """queue.Queue's ``put`` (tests, older callers): a block by its budget (raises queue.Full), else a control record."""
+        if isinstance(item, tuple) and item and item[0] == "block":
+            if not self.put_block(item[1], timeout):
+                raise queue.Full
+        else:
+            self.put_control(item, timeout, bounded=item is not _STOP)
+
+    def get(self, timeout: float | None = None) -> Any:
+        """The oldest item; raise queue.Empty after ``timeout`` (None: wait for ever)."""
+        with self._cv:
+            if not self._items and not self._cv.wait_for(lambda: bool(self._items), timeout):
+                raise queue.Empty
+            item = self._items.popleft()
+            if isinstance(item, tuple) and item[0] == "block":
+                b = item[1]
+                self.blocks -= 1
+                self.bytes -= int(b.data.nbytes)
+                self._samples[b.stream] -= b.n_samples
+            else:
+                self.control -= 1
+            self._cv.notify_all()
+            return item
+
+    def qsize(self) -> int:
+        return len(self._items)
+
+    def backlog_s(self) -> float:
+        """Seconds of data queued now: the slowest stream's (streams are recorded side by side)."""
+        with self._cv:
+            return max((k / self._rates[s] for s, k in self._samples.items()), default=0.0)
 
 #: held JSON records (waiting for the origin or a stream's offset) before the writer stops waiting
 MAX_HELD_RECORDS = 100_000
@@ -418,7 +522,8 @@ class LogWriter:
         self,
         path: str | Path,
         *,
-        queue_size: int = 64,
+        queue_size: int | None = 64,
+        buffer_bytes: int | None = None,
         chunk_size: int = 4 * 1024 * 1024,
         flush_interval: float = 0.5,
         fsync: bool = True,
@@ -429,10 +534,12 @@ class LogWriter:
         overwrite: bool = False,
         origin_ns: int | None = 0,
         max_hold_s: float = 5.0,
+        note_backlog_s: float | None = None,
     ) -> None:
         self.path = Path(path)
+        self._note_backlog_s = note_backlog_s
         self._overwrite = overwrite
-        self._queue: queue.Queue = queue.Queue(maxsize=max(2, queue_size))
+        self._queue = _Backlog(None if queue_size is None else max(2, queue_size), buffer_bytes)
         self._chunk_size = chunk_size
         self._flush_interval = flush_interval
         self._fsync = fsync
@@ -446,7 +553,7 @@ class LogWriter:
             "created_unix_ns": str(time.time_ns()),
             **dict(session_metadata or {}),
         }
-        self.stats = WriterStats()
+        self.stats = WriterStats(buffer_bytes=buffer_bytes)
         # the time base: origin (None until set_origin) and per-stream offsets (ns after the origin); items
         # that need one not yet known wait in ``_held`` (the writer thread's), at most ``max_hold_s`` per stream
         self._time_lock = threading.Lock()
@@ -497,8 +604,16 @@ class LogWriter:
         return self._queue.qsize()
 
     @property
-    def queue_size(self) -> int:
-        return self._queue.maxsize
+    def queue_size(self) -> int | None:
+        """The most blocks queued at once (None: bounded by ``buffer_bytes`` only)."""
+        return self._queue.max_blocks
+
+    def backlog(self) -> dict[str, float]:
+        """Blocks waiting for the writer thread, now and at the peak: ``bytes``, ``seconds`` (of data, the slowest
+        stream's), ``peak_bytes``, ``peak_seconds``. A SIGKILL loses the backlog at that moment plus at most one
+        ``flush_interval`` (the open chunk)."""
+        q = self._queue
+        return {"bytes": q.bytes, "seconds": q.backlog_s(), "peak_bytes": q.peak_bytes, "peak_seconds": q.peak_s}
 
     @property
     def failure(self) -> str | None:
@@ -581,26 +696,22 @@ class LogWriter:
     def write_block(self, block: SampleBlock, wait: bool = False) -> bool:
         """Queue a block; False if it was not taken. Never raises, and never blocks unless ``wait``.
 
-        A full queue counts the block as an overrun (logged as an event with its exact range); after a
-        failure it counts as lost (``stats.lost_after_failure_*``, ``lost_ranges``). Live producers never
-        wait. Offline producers (simulation, replay into a new log, recovery) pass ``wait=True`` and get
-        back-pressure instead: they wait for space, up to the control timeout, and only then count an overrun.
+        A full queue (its block budget, ``buffer_bytes`` / ``queue_size``, exhausted) counts the block as an
+        overrun (logged as an event with its exact range); after a failure it counts as lost
+        (``stats.lost_after_failure_*``, ``lost_ranges``). Live producers never wait. Offline producers
+        (simulation, replay into a new log, recovery) pass ``wait=True`` and get back-pressure instead: they
+        wait for space, up to the control timeout, and only then count an overrun.
         """
         if self.failed.is_set():
             self._lose(block.stream, block.first_index, block.end_index, block.sample_rate, written=False)
             return False
-        try:
-            if wait:
-                self._queue.put(("block", block), timeout=self._control_timeout)
-            else:
-                self._queue.put_nowait(("block", block))
+        if self._queue.put_block(block, self._control_timeout if wait else None):
             return True
-        except queue.Full:
-            with self._overrun_lock:
-                self._overruns.append((block.stream, block.first_index, block.end_index))
-                self.stats.overrun_blocks += 1
-                self.stats.overrun_samples += block.n_samples
-            return False
+        with self._overrun_lock:
+            self._overruns.append((block.stream, block.first_index, block.end_index))
+            self.stats.overrun_blocks += 1
+            self.stats.overrun_samples += block.n_samples
+        return False
 
     def write_event(self, kind: str, log_time_ns: int | None = None, **fields: Any) -> None:
         """An event; ``log_time_ns`` relative to the origin, or None: at its ``stream``'s ``start_index`` when
@@ -633,8 +744,9 @@ class LogWriter:
         """
         if not self._closed:
             self._closed = True
-            self._queue.put(_STOP)
+            self._queue.put_control(_STOP, bounded=False)
             self._thread.join()
+            self.stats.peak_backlog_bytes, self.stats.peak_backlog_s = self._queue.peak_bytes, self._queue.peak_s
             with self._acct_lock:
                 self.stats.lost_after_failure_ranges = _merge([(s, a, b) for s, rs in self._lost.items() for a, b in rs])
         if self._failure is not None and not self._failure_seen:
@@ -662,7 +774,7 @@ class LogWriter:
             raise LogWriterError(f"{self.path}: writer is closed")  # a programming error, not a run-time one
         if not self.failed.is_set():
             try:
-                self._queue.put(item, timeout=self._control_timeout)
+                self._queue.put_control(item, timeout=self._control_timeout)
                 return
             except queue.Full:
                 self._set_failure(
@@ -1024,12 +1136,24 @@ class LogWriter:
                 "start_index": start,
                 "end_index": end,
                 "count": end - start,
-                "message": "log writer queue full: these samples were not recorded",
+                "message": "log writer buffer full: these samples were not recorded",
             }
             t = self._json_time(layout.EVENTS_TOPIC, obj, None, None) if self._offset(stream) is not None else None
             t = t if t is not None else max(self._origin_ns or 0, self._data_end_ns or 0)
             self._message(self._json_channel(layout.EVENTS_TOPIC), t, json.dumps(obj).encode())
             self._note_event(obj)
+
+    def _note_backlog(self) -> None:
+        """A ``writer_backlog`` event when the writer fell more than BACKLOG_NOTE_S behind: how far, and so what a
+        crash at that moment would have lost (docs/log-format.md, "Writer guarantees")."""
+        q = self._queue
+        if self._note_backlog_s is None or q.peak_s <= self._note_backlog_s or self._origin_ns is None:
+            return
+        obj = {"kind": "writer_backlog", "peak_s": round(q.peak_s, 3), "peak_bytes": q.peak_bytes,
+               "buffer_bytes": q.max_bytes, "message": backlog_line(q.peak_s, q.peak_bytes, self._flush_interval)}  # fmt: skip
+        self._message(self._json_channel(layout.EVENTS_TOPIC), max(self._origin_ns, self._data_end_ns or 0),
+                      json.dumps(obj).encode())  # fmt: skip
+        self._note_event(obj)
 
     def _note_event(self, obj: Mapping[str, Any]) -> None:
         """Count an event written to this part (and keep it, up to MAX_EVENTS_RECORD) for ``gvtlink.events``."""
@@ -1080,6 +1204,8 @@ class LogWriter:
         if last and (self._held or self._origin_ns is None):
             self._release(force=True)  # the session did not say in time: stop waiting (module docstring)
         self._emit_overruns()
+        if last:
+            self._note_backlog()
         self._register_ready()
         self._add_meta(layout.META_STREAMS, self._streams_record())
         complete = len(self._part_events) <= MAX_EVENTS_RECORD
@@ -1263,6 +1389,12 @@ class LogWriter:
         }.get(f.outcome, "")  # fmt: skip
         moved = f" (it is now {f.moved_to})" if f.moved_to else ""
         return f"{f.file}: {f.what}{moved}; {holds_txt}; {lost_txt}; {outcome}"
+
+
+def backlog_line(peak_s: float, peak_bytes: int, flush_interval: float = 0.5) -> str:
+    """The one line for a writer that fell behind: how far, and what a crash then would have lost."""
+    return (f"the log writer fell up to {peak_s:.1f} s behind ({peak_bytes / 2**20:.0f} MiB queued); a crash then would "
+            f"have lost up to {peak_s + flush_interval:.1f} s")  # fmt: skip
 
 
 def _describe(exc: BaseException) -> str:

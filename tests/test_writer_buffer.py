@@ -16,7 +16,7 @@ import numpy as np
 
 from daq.log import writer as writer_mod
 from daq.log.reader import LogReader
-from daq.log.tools import recover
+from daq.log.tools import log_info, recover
 from daq.log.writer import ChannelInfo, LogWriter
 from drivers.blocks import SampleBlock
 
@@ -57,6 +57,7 @@ def test_a_stalled_disk_fills_the_memory_budget_then_overruns_exactly_and_result
     (note,) = [e for e in ev if e["kind"] == "writer_backlog"]
     assert note["peak_s"] == 10.0 and "a crash then would have lost up to 10.5 s" in note["message"]
     assert len(r.json_messages("/analysis/windows")) == 200
+    assert log_info(tmp_path / "s.mcap")["named_events"]["log writer"] == [note["message"]]  # gvt log info names it
 
 
 def test_sigkill_while_the_disk_stalls_loses_the_backlog_plus_one_flush_interval(tmp_path):

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 
 import numpy as np
+import psutil
 
 from daq.fanout import FanOut
 from daq.lanes.confirm import CONFIRM_TOPIC, FAILED_TWICE, RESTARTED, ConfirmLane, LaneSettings, _Ring
@@ -225,3 +227,50 @@ def test_the_drain_after_the_data_ends_is_bounded_and_says_what_it_abandoned():
     (rec,) = lane.results
     assert rec["status"] == "skipped" and "still running" in rec["reason"] and lane.abandoned == 1
     assert [o["count"] for o in out if o.get("kind") == "confirm_abandoned"] == [1]
+
+
+def _kill_first_pool_worker(killed: list, stop: threading.Event) -> None:
+    """SIGKILL the first confirmation worker that appears: a new leaf child process started by multiprocessing's spawn
+    (workers of earlier tests may still be on their way out: not those)."""
+    me = psutil.Process()
+    before = {c.pid for c in me.children(recursive=True)}
+    while not killed and not stop.is_set():
+        for c in me.children(recursive=True):
+            try:
+                if c.pid not in before and "spawn_main" in " ".join(c.cmdline()) and not c.children():
+                    os.kill(c.pid, signal.SIGKILL)
+                    killed.append(c.pid)
+                    break
+            except psutil.Error:
+                pass
+        time.sleep(0.02)
+
+
+def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms_the_rest_and_exits_on_time(tmp_path):
+    """Issue 30, "Must show": the worker killed mid-session (SIGKILL, as the OOM killer would). The recorder restarts
+    it, the event it held is `error` "worker restarted", the later ones are confirmed, and the session ends."""
+    from analysis.model.rigs import open_rig
+    from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
+    from daq.log.reader import LogReader
+    from daq.session import run_session
+
+    cfg = SessionConfig(name="killed-worker", rig="beam_ch4_exp", duration=1.6, trigger=TriggerSpec(level=20.0),
+                        device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 256, "forces": [1583.0],
+                                                                "physics_seconds": 1.8, "seed": 3}))  # fmt: skip
+    killed, stop = [], threading.Event()
+    threading.Thread(target=_kill_first_pool_worker, args=(killed, stop), daemon=True).start()
+    t0 = time.monotonic()
+    try:
+        res = run_session(cfg, open_rig("beam_ch4_exp"), tmp_path / "s.mcap")
+    finally:
+        stop.set()
+    wall = time.monotonic() - t0
+    # ~6 s on a quiet machine (set-up, 1.6 s of data, three confirmations); the bound leaves room for a loaded CI
+    # machine, and is far below the 120 s drain limit a wait on the dead worker would run into
+    assert wall < 40.0 and res.outcome.exit_code == 0 and len(killed) == 1
+    recs = res.confirmations
+    marked = [r for r in recs if r["status"] == "error"]
+    assert marked and all(r["reason"] == RESTARTED for r in marked)
+    assert len(res.analysis_events) == len(recs) and all(r["status"] not in ("error", "skipped") for r in recs if r not in marked)
+    ev = [e["kind"] for e in LogReader(tmp_path / "s.mcap").json_messages("/daq/events")]
+    assert ev.count("confirm_restarted") == 1 and "confirm_off" not in ev

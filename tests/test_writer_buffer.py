@@ -61,26 +61,25 @@ def test_a_stalled_disk_fills_the_memory_budget_then_overruns_exactly_and_result
 
 
 def test_sigkill_while_the_disk_stalls_loses_the_backlog_plus_one_flush_interval(tmp_path):
-    """The measured crash bound: the disk stops answering 0.5 s into the recording; the recorder is killed 2 s
-    later. Nothing is overrun (a 256 MiB budget holds hours of this stream) and the recovered log lacks the
-    backlog the writer reported at the kill plus at most the chunk it was writing (one flush interval)."""
+    """The measured crash bound: the disk stops answering 0.6 s into the recording; the recorder is killed once its
+    writer says it is 1 s behind. Nothing is overrun (a 256 MiB budget holds hours of this stream) and the recovered
+    log lacks the backlog the writer reported at the kill plus at most the chunk it was writing (one flush interval)."""
     out = tmp_path / "crash.mcap"
     fs, n_ch, block, flush_s = 8192.0, 8, 512, 0.25  # crash_recorder.py flushes every 0.25 s
     proc = subprocess.Popen([sys.executable, str(ROOT / "tests" / "crash_recorder.py"), str(out), str(fs), str(n_ch),
-                             str(block), "0.5", "60"], stdout=subprocess.PIPE, text=True,
+                             str(block), "0.6", "60"], stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})  # this checkout's writer  # fmt: skip
-    last, backlog_s, t_end = 0, 0.0, None
+    last, backlog_s, t_end = 0, 0.0, time.monotonic() + 30
     try:
         assert proc.stdout is not None
-        for line in proc.stdout:
+        for line in proc.stdout:  # by what the recorder says, not by this process's clock (it may lag on a busy host)
             last, backlog_s = int(line.split()[0]), float(line.split()[1])
-            t_end = t_end or time.monotonic() + 2.5
-            if time.monotonic() >= t_end:
+            if backlog_s >= 1.0 or time.monotonic() > t_end:
                 break
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
-    assert backlog_s >= 1.5  # the writer really was ~2 s behind at the kill
+    assert backlog_s >= 1.0  # the writer really was behind at the kill
     rec = tmp_path / "recovered.mcap"
     recover(out, rec)
     d = LogReader(rec).read_stream("dev0")

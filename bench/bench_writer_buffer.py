@@ -7,7 +7,8 @@ Two measurements, one run:
   load 20 in issue 30). Each case runs twice in the same run: ``before``, the writer's queue as it was
   (0.5 s of blocks by count, ``queue_seconds`` through the per-driver block guess) and ``now``, the memory
   budget (``writer_buffer_mib`` = 256 MiB) — with 0 and 8 CPU hogs on the machine (``--load``). Reported:
-  samples lost on the link, writer overruns (NOT RECORDED), the writer's peak backlog (s of data, MiB).
+  samples lost on the link, writer overruns (NOT RECORDED), the writer's peak backlog (s of data, MiB), and
+  the samples the hit gate skipped (``subscriber_overrun``: its own queue, which the burst also crosses).
 * **The crash bound.** ``tests/crash_recorder.py`` records 8 ch x 8192 Hz while its disk stops answering
   0.5 s in; it is SIGKILLed 1, 2 and 4 s later and the log is recovered. Reported: the backlog the writer
   said at the kill, what the recovered log lacks, and the bound (backlog + one flush interval, 0.25 s here).
@@ -93,9 +94,12 @@ if {sizing!r} == "before":
     B._old_queue(S)
 c = load_config(SessionConfig, {str(cfg)!r})
 t0 = time.monotonic()
-res = S.run_session(c, open_rig(c.rig), {str(tmp / f"{sizing}-{load}.mcap")!r})
+out = {str(tmp / f"{sizing}-{load}.mcap")!r}
+res = S.run_session(c, open_rig(c.rig), out)
+from daq.log.reader import LogReader
+gate = sum(e.get("count", 0) for e in LogReader(out).json_messages("/daq/events") if e["kind"] == "subscriber_overrun")
 print(json.dumps({{"wall_s": time.monotonic() - t0, "lost": res.lost_samples, "overrun": res.writer_overrun_samples,
-                  "samples": res.samples, "backlog": res.writer_backlog}}))
+                  "samples": res.samples, "backlog": res.writer_backlog, "hit_gate_dropped": gate}}))
 """
     hogs = [multiprocessing.Process(target=_burn, daemon=True) for _ in range(load)]
     for h in hogs:
@@ -156,13 +160,14 @@ def main() -> None:
             crashes.append(_crash(after, Path(d)))
     print(f"\nA 3 s CAN FD stall at {FS} Hz, 3 ch, {DURATION:g} s session: the writer's queue before D67 (0.5 s of blocks) "
           "and now (256 MiB)")  # fmt: skip
-    print(f"{'hogs':>5} {'sizing':>7} {'lost':>6} {'overrun':>8} {'peak backlog s':>15} {'MiB':>6} {'wall s':>7}")
+    print(f"{'hogs':>5} {'sizing':>7} {'lost':>6} {'overrun':>8} {'peak backlog s':>15} {'MiB':>6} {'gate drop':>10} "
+          f"{'wall s':>7}")  # fmt: skip
     for r in rows:
         if "error" in r:
             print(f"{r['load_hogs']:>5} {r['sizing']:>7}  failed: {r['error']}")
             continue
         print(f"{r['load_hogs']:>5} {r['sizing']:>7} {r['lost']:>6} {r['overrun']:>8} {r['peak_backlog_s']:>15.2f} "
-              f"{r['peak_backlog_mib']:>6.2f} {r['wall_s']:>7.1f}")  # fmt: skip
+              f"{r['peak_backlog_mib']:>6.2f} {r['hit_gate_dropped']:>10} {r['wall_s']:>7.1f}")  # fmt: skip
     print("\nSIGKILL during a stalled disk (8 ch x 8192 Hz, flush every 0.25 s): lost vs backlog + one flush interval")
     print(f"{'killed after s':>15} {'backlog s':>10} {'lost s':>8} {'bound s':>8} {'within':>7}")
     for c in crashes:

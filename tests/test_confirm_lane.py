@@ -217,8 +217,9 @@ def test_a_killed_worker_is_restarted_once_then_the_lane_is_switched_off_with_on
 
 
 def test_the_drain_after_the_data_ends_is_bounded_and_says_what_it_abandoned():
-    fan, out = FanOut(), []
-    lane = _lane(fan, lambda t, o, ns: out.append(o), sleepy_confirm, finish_timeout_s=1.0)
+    fan, out, said = FanOut(), [], []
+    lane = ConfirmLane(fan, "acc", CHANNELS, SENSORS, FS, lambda t, o, ns: out.append(o), Ctx(), confirm=sleepy_confirm,
+                       settings=LaneSettings(finish_timeout_s=1.0), say=said.append).start()  # fmt: skip
     lane.submit({"id": 0, "start_s": 0.5, "end_s": 0.6, "sleep_s": 60.0})
     _publish(fan, _data(2000))
     t0 = time.monotonic()
@@ -226,7 +227,7 @@ def test_the_drain_after_the_data_ends_is_bounded_and_says_what_it_abandoned():
     assert time.monotonic() - t0 < 1.0 + 2.0  # the 1 s limit, and stopping the worker
     (rec,) = lane.results
     assert rec["status"] == "skipped" and "still running" in rec["reason"] and lane.abandoned == 1
-    assert [o["count"] for o in out if o.get("kind") == "confirm_abandoned"] == [1]
+    assert [o["count"] for o in out if o.get("kind") == "confirm_abandoned"] == [1] and len(said) == 1
 
 
 def _kill_first_pool_worker(killed: list, stop: threading.Event) -> None:

@@ -180,11 +180,12 @@ class ConfirmLane:
         self._pool.shutdown(wait=False, cancel_futures=True)
         _stop_workers(self._pool)
         if self.abandoned:
-            self.sink(layout.EVENTS_TOPIC, {
-                "kind": "confirm_abandoned", "stream": self.stream, "count": self.abandoned,
-                "message": f"the confirmation drain gave up on {self.abandoned} confirmation(s) still running at its "
-                           "time limit (each recorded as skipped)",
-            }, None)  # fmt: skip
+            line = (f"confirmation: gave up on {self.abandoned} confirmation(s) still running at the drain's time limit "
+                    "(each recorded as skipped; 'gvt confirm LOG' confirms them afterwards)")  # fmt: skip
+            self.sink(layout.EVENTS_TOPIC, {"kind": "confirm_abandoned", "stream": self.stream, "count": self.abandoned,
+                                            "message": line}, None)  # fmt: skip
+            if self.say is not None:
+                self.say(line)
 
     def _drain(self, deadline: float, progress: Callable[[int, int], None] | None, wait: bool) -> None:
         total = len(self._running)

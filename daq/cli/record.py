@@ -127,7 +127,7 @@ def _print_results(cfg, res, target: Path) -> None:
               f"{res.writer_overrun_samples}{restarts}{rejected}; suspect channels: {suspects}", markup=False)  # fmt: skip
     backlog = res.writer_backlog
     if backlog.get("peak_seconds", 0.0) > BACKLOG_NOTE_S:  # how far behind the writer fell: what a crash then would lose
-        out.print(f"writer: {backlog_line(backlog['peak_seconds'], int(backlog['peak_bytes']))}", markup=False)
+        out.print(backlog_line(backlog["peak_seconds"], int(backlog["peak_bytes"])), markup=False)
     if cfg.analysis.enabled:
         from daq.studies.analyze.tables import events_table
 

@@ -11,7 +11,7 @@ import numpy as np
 import psutil
 
 from daq.fanout import FanOut
-from daq.lanes.confirm import CONFIRM_TOPIC, FAILED_TWICE, RESTARTED, ConfirmLane, LaneSettings, _Ring
+from daq.lanes.confirm import CONFIRM_TOPIC, DIED_OFF, FAILED_TWICE, RESTARTED, ConfirmLane, LaneSettings, _Ring
 from drivers.blocks import BlockStatus, SampleBlock
 
 FS = 1000.0
@@ -211,7 +211,7 @@ def test_a_killed_worker_is_restarted_once_then_the_lane_is_switched_off_with_on
     assert time.monotonic() - t0 < 5.0  # nothing in hand: stopping the worker is all that is left (seconds, not 58)
     recs = {r["event_id"]: r for r in lane.results}
     assert [recs[i]["status"] for i in range(4)] == ["error", "confirmed", "error", "skipped"]
-    assert recs[0]["reason"] == recs[2]["reason"] == RESTARTED and recs[3]["reason"] == FAILED_TWICE
+    assert recs[0]["reason"] == RESTARTED and recs[2]["reason"] == DIED_OFF and recs[3]["reason"] == FAILED_TWICE
     kinds = [o["kind"] for t, o in out if t != CONFIRM_TOPIC]
     assert kinds == ["confirm_restarted", "confirm_off"] and len(said) == 1 and "died 2 times" in said[0]
 

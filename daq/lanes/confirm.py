@@ -67,6 +67,7 @@ class LaneSettings:
 #: reasons of the records of events a dead worker took with it, and of those after the lane was switched off
 RESTARTED = "worker restarted: the confirmation worker died while this event was in hand"
 FAILED_TWICE = "confirmation worker failed twice"
+DIED_OFF = f"{FAILED_TWICE}: it died again while this event was in hand"
 
 
 def skipped(event: Mapping[str, Any], reason: str, status: str = "skipped") -> dict:
@@ -272,21 +273,22 @@ class ConfirmLane:
         """The pool is broken (its worker died): every confirmation in hand failed with it. Mark them, then start a
         new worker — or, after ``restarts`` restarts, switch the lane off with one line."""
         self.worker_deaths += 1
+        restart = self.worker_deaths <= self.s.restarts
         lost, self._running = self._running, []
         for ev, _fut in lost:
-            self._emit(skipped(ev, RESTARTED, status="error"))
+            self._emit(skipped(ev, RESTARTED if restart else DIED_OFF, status="error"))
         self._pool.shutdown(wait=False, cancel_futures=True)
         _stop_workers(self._pool)
-        why = f"{type(exc).__name__}: {exc}"[:200]
-        if self.worker_deaths <= self.s.restarts:
+        why = "killed or crashed" if isinstance(exc, BrokenProcessPool) else f"{type(exc).__name__}: {exc}"[:200]
+        if restart:
             self._pool = _new_pool()
             self.sink(layout.EVENTS_TOPIC, {
                 "kind": "confirm_restarted", "stream": self.stream, "count": len(lost),
                 "message": f"the confirmation worker died ({why}); restarted, {len(lost)} event(s) in hand marked error",
             }, None)  # fmt: skip
             return
-        self.off = (f"confirmation off: the worker died {self.worker_deaths} times ({why}); later IR events are "
-                    "skipped, 'gvt confirm LOG' confirms them afterwards")  # fmt: skip
+        self.off = (f"confirmation off: the worker died {self.worker_deaths} times ({why}); {len(lost)} event(s) in hand "
+                    "marked error, later IR events skipped; 'gvt confirm LOG' confirms them afterwards")  # fmt: skip
         self.sink(layout.EVENTS_TOPIC, {"kind": "confirm_off", "stream": self.stream, "count": len(lost),
                                         "message": self.off}, None)  # fmt: skip
         if self.say is not None:

@@ -173,6 +173,11 @@ class Session:
 
     def __init__(self, cfg: SessionConfig, rig: Rig, out: Path, harness: SimHarness, opts: SessionOptions) -> None:
         self.cfg, self.rig, self.out, self.harness, self.opts = cfg, rig, out, harness, opts
+        from daq.priority import base_nice, raise_priority
+
+        self.base_nice = base_nice()
+        priority_line = raise_priority()  # before any thread of the session starts: Linux sets nice per thread
+        self.host = None  # the lane-host worker (daq/lanes/host.py) when the analysis runs in one
         self.result = SessionResult(path=out, reference=cfg.reference_device())
         self.stop = opts.stop or threading.Event()
         self.drivers = self._make_drivers()
@@ -182,6 +187,10 @@ class Session:
         self.results = Results()
         self.log = self._log_lane()
         self.results.log = self.log.sink
+        if priority_line is not None:  # said once per session: in the log and on the console
+            self.results.emit(layout.EVENTS_TOPIC, {"kind": "priority_not_raised", "message": priority_line}, None)
+            if (say := self.opts.line or self.opts.frf_line) is not None:
+                say(priority_line)
         self.sources = self._sources()
         self.hits = self._hit_gate()
         self.frf = self._frf_lane()
@@ -377,8 +386,16 @@ class Session:
         frame = {} if self.opts.analysis_frame_s is None else {
             "frame_wait_s": self.opts.analysis_frame_s, "frame_samples": 1024 if self.opts.analysis_frame_s > 0 else 1}
         try:
-            lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
-                                       **frame)  # fmt: skip
+            if spec.process == "worker":
+                from daq.lanes.host import start_lane_host
+
+                self.host = start_lane_host(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
+                                            frame, confirm=spec.confirm, say=self.opts.line or self.opts.frf_line,
+                                            base_nice=self.base_nice)  # fmt: skip
+                lane = self.host.analysis_lane()
+            else:
+                lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
+                                           **frame)  # fmt: skip
             self.log.clocks[layout.ANALYSIS_PREFIX] = lane.stream  # its windows are timed on the analysed stream's clock
             return lane
         except LaneUnavailable as exc:
@@ -388,6 +405,8 @@ class Session:
     def _confirm_lane(self):
         if self.analysis is None or not self.cfg.analysis.confirm:
             return None
+        if self.host is not None:  # in the worker beside the analysis; here only its place in the stop order
+            return self.host.confirm_lane(self.opts.drain_progress, self.opts.wait_confirmations)
         from daq.lanes.confirm import DrainingConfirmLane, start_confirm_lane
 
         lane = start_confirm_lane(self.fan, self.analysis, self.results.emit, say=self.opts.line or self.opts.frf_line)
@@ -475,12 +494,19 @@ class Session:
         if self.hits.aligner is not None:
             res.timeline = self.hits.aligner.current()
             res.aligner_dropped = dict(self.hits.aligner.dropped_samples)
-        if self.analysis is not None:
+        if self.host is not None:  # the worker's results, as they reached the log (a restarted worker's included)
+            h = self.host
+            res.analysis_events = [{k: v for k, v in e.items() if k != "id"} for e in h.events]
+            res.analysis_dropped_samples = h.shed.samples + h.sub.dropped_samples
+            res.analysis_cpu_s = h.cpu_s
+            res.analysis_latencies_s = list(h.latencies_s)
+            res.confirmations = list(h.confirmations) if self.confirm is not None else []
+        elif self.analysis is not None:
             res.analysis_events = [e.as_dict() for e in self.analysis.op.events]
             res.analysis_dropped_samples = self.analysis.sub.dropped_samples
             res.analysis_cpu_s = self.analysis.thread_cpu_s
             res.analysis_latencies_s = list(self.analysis.op.stats.latencies_s)
-        if self.confirm is not None:
+        if self.confirm is not None and self.host is None:
             res.confirmations = list(self.confirm.lane.results)
         if self.frf is not None:
             res.frf = [r.to_json() for r in self.frf.records]

@@ -231,6 +231,9 @@ class AnalysisSpec(_Strict):
     seed_lane: bool = True  # POD/RQ curves and window-robust spikes (off: modal lane only)
     queue_seconds: QueueSeconds = 2.0  # the lane's own input queue; beyond it, it drops (and says so)
     confirm: bool = True  # confirm each IR event (WBEMD + slow flow) in a background worker (daq/lanes/confirm.py)
+    # "worker": analysis and confirmation in a lane-host process at a lower priority (daq/lanes/host.py); "thread": in
+    # the recorder's process, as before (gvt replay always runs them in-process: a replay is not real time)
+    process: Literal["worker", "thread"] = "worker"
 
 
 #: Hit points of a roving-hammer plan and averages per point: a plan is typed by a person (hundreds of points on an

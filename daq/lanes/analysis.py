@@ -101,6 +101,8 @@ class AnalysisLane:
         self.channels = channels
         self.sink = sink
         self.error: str | None = None
+        #: called with each frame once the operator has consumed it (the lane host gives its ring memory back)
+        self.after_feed: Callable[[SampleBlock], None] | None = None
         self.sub: Subscription = fan.subscribe(f"analysis:{stream}", maxsize=maxsize)
         self.op = AnalysisOperator(model, channels, sample_rate, settings, self._emit)
         warm_up(model, stream, channels, sample_rate, settings)
@@ -165,6 +167,8 @@ class AnalysisLane:
         try:
             for frame, t0 in self._frames():
                 self.op.feed(frame, t_arrival=t0)
+                if self.after_feed is not None:
+                    self.after_feed(frame)
             self.op.finish()
         except Exception as exc:  # reported and logged; the recording goes on without analysis
             self.error = f"{type(exc).__name__}: {exc}"

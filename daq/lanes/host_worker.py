@@ -1,0 +1,195 @@
+"""The lane-host worker process: the near-live analysis and the confirmation lane, away from the recorder.
+
+Started by :class:`daq.lanes.host.LaneHost` (forkserver: the recorder has threads, so no plain fork), at nice
++10 (:mod:`daq.priority`; the confirmation pool it spawns inherits that). Everything slow happens here *before*
+the device streams: imports (preloaded in the fork server), the rig model, the numba cache load and the
+operator's warm-up; then one ``ready`` message. The worker runs the same lanes as an in-process session
+(:class:`~daq.lanes.analysis.AnalysisLane`, :class:`~daq.lanes.confirm.ConfirmLane`) with its own
+:class:`~daq.lanes.Results`: the analysis' IR events go to the confirmation lane here, and every result record
+goes back to the recorder, whose one log writer owns the file.
+
+Protocol (tuples through two one-way pipes; the sample data through the ring, :mod:`daq.lanes.shm_ring`):
+
+* recorder → worker: ``("b", first_index, n, n_channels, start, end, t_host)`` a block in the ring;
+  ``("end",)`` the stream ended; ``("drain", seconds, wait)`` finish the confirmations;
+* worker → recorder: ``("ready", info)`` | ``("failed", line)`` at start-up; ``("r", topic, obj, log_time_ns)``
+  each result; ``("analysis_done",)``; ``("progress", done, total)``; ``("summary", dict)`` last.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import mmap
+import os
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+from analysis.operator import AnalysisSettings, RigModel
+from daq.fanout import END, FanOut
+from daq.lanes import Results
+from daq.lanes.analysis import AnalysisLane
+from daq.lanes.shm_ring import ByteRing
+from daq.log import layout
+from daq.priority import lower_priority
+from drivers.blocks import SampleBlock
+
+
+@dataclass(frozen=True)
+class HostSpec:
+    """What the worker needs to build its lanes (pickled once, at start)."""
+
+    model: RigModel
+    stream: str
+    channels: tuple[str, ...]
+    sample_rate: float
+    settings: AnalysisSettings | None
+    frame: dict
+    confirm: bool
+    shm_name: str
+    ring_bytes: int
+    recorder_pid: int
+    base_nice: int
+    event_offset: int = 0  # IR event ids already used by a worker that died (a restart numbers on)
+
+
+class RingFeed:
+    """The analysis lane's "subscription" in the worker: blocks rebuilt over the ring, from the recorder's
+    descriptors. Nothing is dropped here (the recorder sheds when the ring is full and counts it)."""
+
+    dropped_blocks = 0
+    dropped_samples = 0
+
+    def __init__(self, rx, ring: ByteRing, spec: HostSpec) -> None:
+        self.rx, self.ring, self.spec = rx, ring, spec
+        self.pending: deque[tuple[int, int]] = deque()  # (end sample index, ring end position) handed out
+        self.publish = None  # the confirmation lane's fan-out (it keeps its own copy of the sensor columns)
+
+    def subscribe(self, name: str, maxsize: int = 0) -> RingFeed:  # AnalysisLane subscribes to its "fan-out"
+        return self
+
+    def get(self, timeout: float | None = None) -> SampleBlock | object:
+        if timeout is not None and not self.rx.poll(timeout):
+            raise queue.Empty
+        try:
+            msg = self.rx.recv()
+        except (EOFError, OSError):  # the recorder is gone
+            return END
+        if msg[0] != "b":
+            return END
+        _, first, n, ncols, start, end, t_host = msg
+        s = self.spec
+        data = self.ring.view(start, (n, ncols))  # in place: the operator copies what it keeps
+        self.pending.append((first + n, end))
+        extra = {} if t_host is None else {"t_host": t_host}
+        if self.publish is not None:
+            self.publish(SampleBlock(s.stream, first, s.sample_rate, s.channels, data.copy(), extra=extra))
+        return SampleBlock(s.stream, first, s.sample_rate, s.channels, data, extra=extra)
+
+    def release_through(self, frame: SampleBlock) -> None:
+        """The operator has consumed everything up to ``frame``'s end: give those records back to the writer."""
+        last = None
+        while self.pending and self.pending[0][0] <= frame.end_index:
+            last = self.pending.popleft()[1]
+        if last is not None:
+            self.ring.release(last)
+
+    def __iter__(self):
+        while (item := self.get()) is not END:
+            self.release_through(item)
+            yield item
+
+
+def attach(name: str, size: int) -> mmap.mmap:
+    """The recorder's shared memory, mapped without registering it with a resource tracker (the recorder
+    created it and unlinks it; a second registration made Python 3.11 warn of a leak at exit)."""
+    fd = os.open(f"/dev/shm/{name.lstrip('/')}", os.O_RDWR)
+    try:
+        return mmap.mmap(fd, size)
+    finally:
+        os.close(fd)
+
+
+def _watch(pid: int, every_s: float = 0.5) -> None:
+    """Exit when the recorder is gone (SIGKILL included): the fork server, not the recorder, is our parent."""
+
+    def run() -> None:
+        while True:
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except PermissionError:
+                pass
+            time.sleep(every_s)
+
+    threading.Thread(target=run, name="watch-recorder", daemon=True).start()
+
+
+class _Host:
+    def __init__(self, spec: HostSpec, rx, send) -> None:
+        self.spec, self.rx, self.send = spec, rx, send
+        self.mem = attach(spec.shm_name, spec.ring_bytes)
+        self.feed = RingFeed(rx, ByteRing(self.mem), spec)
+        self.results = Results(log=self._to_recorder)
+        self.lane = AnalysisLane(self.feed, spec.model, spec.stream, spec.channels, spec.sample_rate, self._from_lane,
+                                 spec.settings, **spec.frame)  # fmt: skip (warm_up: kernels built or loaded now)
+        self.lane.after_feed = self.feed.release_through
+        self.confirm = None
+        if spec.confirm:
+            from daq.lanes.confirm import start_confirm_lane
+
+            cfan = FanOut()
+            self.confirm = start_confirm_lane(cfan, self.lane, self.results.emit)
+            self.results.route(self.confirm, [layout.IR_EVENTS_TOPIC])
+            self.feed.publish, self.cfan = cfan.publish, cfan
+
+    def _from_lane(self, topic: str, obj: Any, t: int | None) -> None:
+        if topic == layout.IR_EVENTS_TOPIC and self.spec.event_offset and dataclasses.is_dataclass(obj):
+            obj = dataclasses.replace(obj, id=obj.id + self.spec.event_offset)
+        self.results.emit(topic, obj, t)
+
+    def _to_recorder(self, topic: str, obj: Any, t: int | None) -> None:
+        self.send(("r", topic, obj, t))
+
+    def run(self) -> None:
+        self.lane.start()
+        self.lane.join()  # until the recorder's END (the operator's last windows and events are sent by then)
+        self.send(("analysis_done",))
+        try:
+            msg = self.rx.recv()
+        except (EOFError, OSError):
+            return
+        seconds, wait = (msg[1], msg[2]) if msg[0] == "drain" else (0.0, False)
+        if self.confirm is not None:
+            self.cfan.close()
+            self.confirm.finish(time.monotonic() + seconds, lambda d, n: self.send(("progress", d, n)), wait)
+        op = self.lane.op
+        self.send(("summary", {"cpu_s": time.process_time(), "latencies_s": list(op.stats.latencies_s),
+                               "error": self.lane.error, "events": len(op.events)}))  # fmt: skip
+
+
+def main(spec: HostSpec, rx, tx) -> None:
+    """The worker's entry point (``rx``: from the recorder, ``tx``: to it)."""
+    nice = lower_priority(spec.base_nice)
+    _watch(spec.recorder_pid)
+    lock = threading.Lock()
+
+    def send(msg: tuple) -> None:
+        with lock:
+            tx.send(msg)
+
+    t0 = time.perf_counter()
+    try:
+        host = _Host(spec, rx, send)
+    except Exception as exc:  # one line to the recorder, which records without the lanes
+        send(("failed", f"{type(exc).__name__}: {exc}"))
+        return
+    send(("ready", {"pid": os.getpid(), "nice": nice, "start_s": time.perf_counter() - t0, "cpu_s": time.process_time()}))
+    try:
+        host.run()
+    except (BrokenPipeError, EOFError, OSError):  # the recorder went away: nothing left to tell
+        pass

@@ -391,7 +391,7 @@ class Session:
 
                 self.host = start_lane_host(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
                                             frame, confirm=spec.confirm, say=self.opts.line or self.opts.frf_line,
-                                            base_nice=self.base_nice)  # fmt: skip
+                                            base_nice=self.base_nice, room=self._writer_room())  # fmt: skip
                 lane = self.host.analysis_lane()
             else:
                 lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
@@ -401,6 +401,16 @@ class Session:
         except LaneUnavailable as exc:
             self.results.emit(layout.EVENTS_TOPIC, {"kind": "analysis_error", "message": f"analysis off: {exc}"}, None)
             return None
+
+    def _writer_room(self) -> Callable[[], bool]:
+        """True while the log writer's queue is less than half full: the lane host's results wait otherwise."""
+        w = self.log.writer
+
+        def room() -> bool:
+            size = getattr(w, "queue_size", 0) or 0
+            return not size or w.queue_depth < size // 2
+
+        return room
 
     def _confirm_lane(self):
         if self.analysis is None or not self.cfg.analysis.confirm:

@@ -3,6 +3,7 @@ its death and restart, and the priority line."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -189,3 +190,30 @@ def test_the_recorder_says_once_when_it_cannot_raise_its_priority():
     n0 = int(n0)  # the test process's own value (a session before may have raised it)
     assert f"recording at normal priority (nice {n0})" in first and "refused" in first and f"nice {n0 + 10}" in first
     assert second == "True True"  # one verdict per process, and nothing changed
+
+
+def test_finish_never_waits_past_its_deadline_on_a_hung_worker():
+    from analysis.operator import RigModel
+    from daq.fanout import FanOut
+    from daq.lanes.host import LaneHost
+    from drivers.blocks import SampleBlock
+
+    rig = open_rig("beam_ch4_exp")
+    chans = tuple(p.name for p in [rig.hammer, *rig.sensors])
+    fan, got = FanOut(), []
+    host = LaneHost(fan, RigModel.from_rig(rig), "dev0", chans, rig.sample_rate, lambda *a: got.append(a), confirm=False)
+    pid = host.pids[0]
+    try:
+        os.kill(pid, signal.SIGSTOP)  # hung: alive, silent, reading nothing
+        for k in range(8):
+            fan.publish(SampleBlock("dev0", 1024 * k, rig.sample_rate, chans, np.zeros((1024, len(chans)), np.float32)))
+        fan.close()
+        t0 = time.monotonic()
+        host.analysis_lane().finish(t0 + 1.0)
+        assert time.monotonic() - t0 < 1.0 + 3.5  # its deadline, plus the kill and the join of a killed process
+    finally:
+        with contextlib.suppress(ProcessLookupError):  # killed by finish already: the normal case
+            os.kill(pid, signal.SIGKILL)
+    msgs = [obj["message"] for _t, obj, _n in got if obj.get("kind") == "lane_abandoned"]
+    assert msgs and "did not finish by its deadline" in msgs[0]
+    assert host.shm is None and not os.path.exists(f"/dev/shm/{host.spec.shm_name.lstrip('/')}")  # the ring is freed

@@ -28,6 +28,7 @@ import atexit
 import dataclasses
 import multiprocessing
 import os
+import select
 import threading
 import time
 import weakref
@@ -74,9 +75,10 @@ class LaneHost:
     def __init__(
         self, fan: FanOut, model, stream: str, channels: tuple[str, ...], fs: float, sink: Sink, settings=None,
         maxsize: int = 512, frame: dict | None = None, confirm: bool = True, ring_s: float = RING_S,
-        say: Callable[[str], None] | None = None, base_nice: int = 0,
+        say: Callable[[str], None] | None = None, base_nice: int = 0, room: Callable[[], bool] | None = None,
     ) -> None:  # fmt: skip
         self.stream, self.channels, self.fs, self.sink, self.say = stream, tuple(channels), fs, sink, say
+        self.room = room  # False while the log writer's queue is too full for a burst of results (see _receive)
         self.confirm = confirm
         frame_bytes = len(self.channels) * 4
         size = ByteRing.size_for(max(1 << 16, min(int(ring_s * fs) * frame_bytes, RING_MAX_BYTES)))
@@ -130,6 +132,7 @@ class LaneHost:
         proc.start()
         to_worker.close()
         from_worker.close()  # ours closed: the worker's death is EOF on rx
+        _grow(tx)
         self.proc = proc
         deadline = time.monotonic() + timeout_s
         while True:
@@ -177,7 +180,7 @@ class LaneHost:
                 continue
             self._seen_end = blk.end_index
             with self._lock:
-                slot = self.ring.put(blk.data) if self._alive else None
+                slot = self.ring.put(blk.data) if self._alive and _writable(self._tx) else None
                 if slot is not None:
                     self._prune()
                     self._inflight.append((slot.end, blk.first_index, blk.end_index))
@@ -216,6 +219,7 @@ class LaneHost:
             kind = msg[0]
             if kind == "r":
                 _, topic, obj, t = msg
+                self._wait_for_room()
                 if topic == layout.IR_EVENTS_TOPIC:
                     self.events.append(obj.to_json() if hasattr(obj, "to_json") else dict(obj))
                 elif topic == layout.CONFIRMATIONS_TOPIC:
@@ -231,6 +235,17 @@ class LaneHost:
                 self.latencies_s.extend(s["latencies_s"])
                 self._summary.set()
                 return
+
+    def _wait_for_room(self, limit_s: float = 1.0) -> None:
+        """Results share the log writer's queue with the blocks. A worker that was starved catches up in a burst
+        (hundreds of window records at once: 2048 samples overran the writer in a quiet 12 s session, 14 272 with 4
+        hogs); the records wait here instead, up to ``limit_s`` each, while the worker waits on its pipe and the ring
+        sheds if it must: the lane pays, not the recording."""
+        if self.room is None:
+            return
+        t_end = time.monotonic() + limit_s
+        while not self.room() and time.monotonic() < t_end:
+            time.sleep(0.005)
 
     def _died(self) -> bool:
         """The worker is gone (EOF): restart it once (True), or give up (False: finishing, or a second death)."""
@@ -301,7 +316,7 @@ class LaneHost:
         if blocks:
             self.sink(layout.EVENTS_TOPIC, {
                 "kind": "analysis_overrun", "stream": self.stream, "count": samples,
-                "ranges": [[a, b] for _s, a, b in self.shed.ranges + sub.dropped_ranges][:1000],
+                "ranges": _merge([(a, b) for _s, a, b in self.shed.ranges + sub.dropped_ranges])[:1000],
                 "message": f"the analysis fell behind and skipped {blocks} blocks ({samples} samples); it restarted after "
                            "each gap",
             }, None)  # fmt: skip
@@ -347,6 +362,36 @@ class LaneHost:
     def confirm_lane(self, progress: Callable[[int, int], None] | None = None, wait: bool = True) -> HostedConfirm:
         self.progress = progress
         return HostedConfirm(self, wait)
+
+
+def _merge(ranges: list[tuple[int, int]]) -> list[list[int]]:
+    out: list[list[int]] = []
+    for a, b in sorted(ranges):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return out
+
+
+def _grow(conn, size: int = 1 << 20) -> None:
+    """Room in the descriptor pipe for every record the ring can hold (64 KiB held ~900 descriptors, fewer than 8 s
+    of 64-sample serial blocks); best effort (Linux ``F_SETPIPE_SZ``, capped by /proc/sys/fs/pipe-max-size)."""
+    try:
+        import fcntl
+
+        fcntl.fcntl(conn.fileno(), fcntl.F_SETPIPE_SZ, size)
+    except (ImportError, AttributeError, OSError):
+        pass
+
+
+def _writable(conn) -> bool:
+    """The descriptor can be sent without waiting (a pipe is writable with at least PIPE_BUF bytes free, and a
+    descriptor is ~60): a forwarder never blocks on a starved worker, it sheds and counts."""
+    try:
+        return bool(select.select([], [conn.fileno()], [], 0)[1])
+    except (OSError, ValueError):
+        return False
 
 
 def _cpu_of(pid: int | None) -> float:
@@ -396,6 +441,7 @@ class HostedConfirm:
 def start_lane_host(
     fan: FanOut, rig, streams: dict[str, tuple[str, ...]], fs: float, sink: Sink, settings=None, maxsize: int = 512,
     frame: dict | None = None, confirm: bool = True, say: Callable[[str], None] | None = None, base_nice: int = 0,
+    room: Callable[[], bool] | None = None,
 ) -> LaneHost:  # fmt: skip
     """The analysis (and confirmation) lanes of ``rig`` in a worker; :class:`~daq.lanes.analysis.LaneUnavailable`
     (one line) when the rig does not fit the streams or the worker does not start."""
@@ -411,6 +457,6 @@ def start_lane_host(
         raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
     try:
         return LaneHost(fan, model, name, streams[name], fs, sink, settings, maxsize, frame, confirm, say=say,
-                        base_nice=base_nice)  # fmt: skip
+                        base_nice=base_nice, room=room)  # fmt: skip
     except HostFailed as exc:
         raise LaneUnavailable(f"rig {rig.name}: {exc}") from None

@@ -95,7 +95,7 @@ def test_any_block_sizes_never_overwrite_an_unreleased_record(ops, capacity):
 
 
 # --- a session with the lanes in the worker ----------------------------------------------------------------
-def _cfg(process: str, duration: float = 2.0, confirm: bool = False) -> SessionConfig:
+def _cfg(process: str, duration: float = 1.4, confirm: bool = False) -> SessionConfig:
     return SessionConfig(
         name=f"host-{process}", rig="beam_ch4_exp", duration=duration,
         device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 256, "forces": [1583.0], "period": 0.6,
@@ -146,7 +146,7 @@ def test_the_analysis_runs_in_the_worker_and_logs_what_the_thread_mode_logs(both
 
 def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(tmp_path):
     lines: list[str] = []
-    session = _session(_cfg("worker", duration=3.0), tmp_path / "k.mcap", line=lines.append)
+    session = _session(_cfg("worker", duration=2.6), tmp_path / "k.mcap", line=lines.append)
     host = session.host
 
     def killer() -> None:
@@ -164,7 +164,7 @@ def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(t
     res = _run(session)
     th.join()
     wall = time.monotonic() - t0
-    assert res.outcome.exit_code == 0 and res.lost_samples == 0 and wall < 3.0 + 15.0  # the recording is whole, on time
+    assert res.outcome.exit_code == 0 and res.lost_samples == 0 and wall < 2.6 + 15.0  # the recording is whole, on time
     assert host.deaths == 2 and len(host.pids) == 2 and host.alive_after_restart
     events = LogReader(tmp_path / "k.mcap").json_messages("/daq/events")
     restarted = [e for e in events if e["kind"] == "lane_restarted"]

@@ -391,7 +391,8 @@ class Session:
 
                 self.host = start_lane_host(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
                                             frame, confirm=spec.confirm, say=self.opts.line or self.opts.frf_line,
-                                            base_nice=self.base_nice, room=self._writer_room())  # fmt: skip
+                                            base_nice=self.base_nice, room=self._writer_room(),
+                                            nice_step=spec.worker_nice)  # fmt: skip
                 lane = self.host.analysis_lane()
             else:
                 lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
@@ -403,12 +404,13 @@ class Session:
             return None
 
     def _writer_room(self) -> Callable[[], bool]:
-        """True while the log writer's queue is less than half full: the lane host's results wait otherwise."""
+        """True while the log writer's queue is nearly empty (under 1/8): the lane host's results wait otherwise, so a
+        starved worker's backlog of records never takes the room the blocks need when the writer is starved too."""
         w = self.log.writer
 
         def room() -> bool:
             size = getattr(w, "queue_size", 0) or 0
-            return not size or w.queue_depth < size // 2
+            return not size or w.queue_depth < max(2, size // 8)
 
         return room
 

@@ -234,6 +234,7 @@ class AnalysisSpec(_Strict):
     # "worker": analysis and confirmation in a lane-host process at a lower priority (daq/lanes/host.py); "thread": in
     # the recorder's process, as before (gvt replay always runs them in-process: a replay is not real time)
     process: Literal["worker", "thread"] = "worker"
+    worker_nice: Annotated[int, Field(ge=0, le=19)] = 10  # the worker's nice above the recorder's start (docs/decisions.md D64)
 
 
 #: Hit points of a roving-hammer plan and averages per point: a plan is typed by a person (hundreds of points on an

@@ -76,6 +76,7 @@ class LaneHost:
         self, fan: FanOut, model, stream: str, channels: tuple[str, ...], fs: float, sink: Sink, settings=None,
         maxsize: int = 512, frame: dict | None = None, confirm: bool = True, ring_s: float = RING_S,
         say: Callable[[str], None] | None = None, base_nice: int = 0, room: Callable[[], bool] | None = None,
+        nice_step: int = 10,
     ) -> None:  # fmt: skip
         self.stream, self.channels, self.fs, self.sink, self.say = stream, tuple(channels), fs, sink, say
         self.room = room  # False while the log writer's queue is too full for a burst of results (see _receive)
@@ -87,7 +88,7 @@ class LaneHost:
         from daq.lanes.host_worker import HostSpec
 
         self.spec = HostSpec(model, stream, self.channels, fs, settings, dict(frame or {}), confirm, self.shm.name, size,
-                             os.getpid(), base_nice)  # fmt: skip
+                             os.getpid(), base_nice, nice_step=nice_step)  # fmt: skip
         self.sub = fan.subscribe(f"analysis:{stream}", maxsize=maxsize)
         self.shed = ShedLog()
         self.events: list[dict] = []  # IR events received (as logged, with their ids)
@@ -441,7 +442,7 @@ class HostedConfirm:
 def start_lane_host(
     fan: FanOut, rig, streams: dict[str, tuple[str, ...]], fs: float, sink: Sink, settings=None, maxsize: int = 512,
     frame: dict | None = None, confirm: bool = True, say: Callable[[str], None] | None = None, base_nice: int = 0,
-    room: Callable[[], bool] | None = None,
+    room: Callable[[], bool] | None = None, nice_step: int = 10,
 ) -> LaneHost:  # fmt: skip
     """The analysis (and confirmation) lanes of ``rig`` in a worker; :class:`~daq.lanes.analysis.LaneUnavailable`
     (one line) when the rig does not fit the streams or the worker does not start."""
@@ -457,6 +458,6 @@ def start_lane_host(
         raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
     try:
         return LaneHost(fan, model, name, streams[name], fs, sink, settings, maxsize, frame, confirm, say=say,
-                        base_nice=base_nice, room=room)  # fmt: skip
+                        base_nice=base_nice, room=room, nice_step=nice_step)  # fmt: skip
     except HostFailed as exc:
         raise LaneUnavailable(f"rig {rig.name}: {exc}") from None

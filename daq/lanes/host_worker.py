@@ -54,6 +54,7 @@ class HostSpec:
     recorder_pid: int
     base_nice: int
     event_offset: int = 0  # IR event ids already used by a worker that died (a restart numbers on)
+    nice_step: int = 10  # the worker's nice: the recorder's starting value + this
 
 
 class RingFeed:
@@ -174,7 +175,7 @@ class _Host:
 
 def main(spec: HostSpec, rx, tx) -> None:
     """The worker's entry point (``rx``: from the recorder, ``tx``: to it)."""
-    nice = lower_priority(spec.base_nice)
+    nice = lower_priority(spec.base_nice, spec.nice_step)
     _watch(spec.recorder_pid)
     lock = threading.Lock()
 

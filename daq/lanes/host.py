@@ -148,6 +148,7 @@ class LaneHost:
                 proc.join(5.0)
                 raise HostFailed(msg[1])
             if time.monotonic() >= deadline:
+                proc.kill()
                 raise HostFailed(f"the lane worker was not ready within {timeout_s:g} s")
         self.pids.append(msg[1]["pid"])
         self.ready_info = msg[1]

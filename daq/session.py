@@ -404,13 +404,13 @@ class Session:
             return None
 
     def _writer_room(self) -> Callable[[], bool]:
-        """True while the log writer's queue is nearly empty (under 1/8): the lane host's results wait otherwise, so a
-        starved worker's backlog of records never takes the room the blocks need when the writer is starved too."""
+        """True while the log writer keeps up (less than half a second of data queued): the lane host's results wait
+        otherwise, so a starved worker's burst of records never takes the writer's time while the blocks are behind
+        (records have their own bound in the writer, D67, so they cannot take the blocks' memory)."""
         w = self.log.writer
 
         def room() -> bool:
-            size = getattr(w, "queue_size", 0) or 0
-            return not size or w.queue_depth < max(2, size // 8)
+            return w.backlog()["seconds"] < 0.5
 
         return room
 

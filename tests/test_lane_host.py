@@ -179,8 +179,8 @@ def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(t
 
 def test_the_recorder_says_once_when_it_cannot_raise_its_priority():
     code = ("import os\n"
+            "from daq.priority import raise_priority  # imported first: the interpreter may live where nobody reads\n"
             "if os.getuid() == 0: os.setresuid(65534, 65534, 65534)  # root may always: drop it\n"
-            "from daq.priority import raise_priority\n"
             "n0 = os.getpriority(os.PRIO_PROCESS, 0); print(n0)\n"
             "a = raise_priority(); b = raise_priority()\n"
             "print(a); print(a is b, os.getpriority(os.PRIO_PROCESS, 0) == n0)\n")  # fmt: skip

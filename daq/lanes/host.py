@@ -227,6 +227,9 @@ class LaneHost:
                 elif topic == layout.CONFIRMATIONS_TOPIC:
                     self.confirmations.append(obj)
                 self.sink(topic, obj, t)
+            elif kind == "say":  # a lane's one console line (the confirmation lane switched off)
+                if self.say is not None:
+                    self.say(msg[1])
             elif kind == "analysis_done":
                 self._analysis_done.set()
             elif kind == "progress" and self.progress is not None:

@@ -144,7 +144,8 @@ class _Host:
             from daq.lanes.confirm import start_confirm_lane
 
             cfan = FanOut()
-            self.confirm = start_confirm_lane(cfan, self.lane, self.results.emit)
+            self.confirm = start_confirm_lane(cfan, self.lane, self.results.emit,
+                                              say=lambda line: self.send(("say", line)))  # the recorder's console
             self.results.route(self.confirm, [layout.IR_EVENTS_TOPIC])
             self.feed.publish, self.cfan = cfan.publish, cfan
 

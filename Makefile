@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 # numba's cache is this checkout's .numba_cache for make, pytest and gvt alike: the package chooses it when
 # NUMBA_CACHE_DIR is not set (analysis/jit_cache.py, docs/decisions.md D70)
 
-.PHONY: run test bench lint fuzz clean
+.PHONY: run test test-loaded bench lint fuzz clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,11 +24,15 @@ run: $(VENV)/.installed
 
 # numba's cache built first, one group a core (tests/warm_numba.py says why); then two phases: everything else on
 # every core, then the host_timing tests alone (pyproject.toml's markers say why).
-HOST_TIMING_FILES := tests/test_two_devices.py tests/test_record_matrix.py tests/test_frf_lab.py
+HOST_TIMING_FILES := tests/test_two_devices.py tests/test_record_matrix.py tests/test_frf_lab.py tests/test_load_matrix.py
 test: $(VENV)/.installed-dev
 	$(BIN)/python tests/warm_numba.py sweep & p=$$!; $(BIN)/python tests/warm_numba.py analysis && wait $$p
 	$(BIN)/python -m pytest -n auto --dist loadfile -m "not host_timing"
 	$(BIN)/python -m pytest -m host_timing $(HOST_TIMING_FILES)
+
+# make test with 4 CPU hogs running beside it (issue 30); GVT_HOGS=n for another count
+test-loaded: $(VENV)/.installed-dev
+	PYTHON=$(BIN)/python MAKE="$(MAKE)" sh bench/test_under_load.sh
 
 lint: $(VENV)/.installed-dev
 	$(BIN)/ruff check .
@@ -43,6 +47,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_can.py
 	$(BIN)/python bench/bench_modbus.py
 	$(BIN)/python bench/bench_session.py
+	$(BIN)/python bench/bench_load.py  # the load matrix at 60 s a cell, 16 hogs, 10 minutes at 8 hogs (issue 30)
 	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_sweep.py
 	$(BIN)/python bench/bench_analysis.py

@@ -149,6 +149,18 @@ class Cell:
                 fail.append(f"{name}: log holds {len(d.index)} of {want} samples, gaps {d.gaps[:3]}")
         if res.lost_samples or res.writer_overrun_samples:
             fail.append(f"lost {res.lost_samples}, writer overruns {res.writer_overrun_samples} samples")
+        first = 0.8 if len(res.streams) > 1 else 0.5
+        due = [first + k for k in range(2) if first + k < self.seconds - 0.3]  # hits whose 0.3 s record fits the session
+        hits = [(round(h.t_s, 3), h.verdict) for h in res.hits]
+        # the hit gate must see every sample: each scheduled hit found where it was (its trigger edge is within the 1 ms
+        # half-sine's rise of the scheduled start), and accepted
+        if [t for t, _ in hits] and len(hits) == len(due) and all(abs(t - d) < 2e-3 for (t, _), d in zip(hits, due, strict=True)):
+            if any(v != "accepted" for _, v in hits):
+                fail.append(f"hits {hits}: not all accepted")
+        else:
+            fail.append(f"hits {hits}, scheduled at {due} s")
+        if any(res.aligner_dropped.values()):
+            fail.append(f"the hit gate missed samples: {res.aligner_dropped}")
         if res.outcome is None or res.outcome.exit_code != 0:
             fail.append(f"outcome {res.outcome}")
         events = r.json_messages("/daq/events")
@@ -173,7 +185,8 @@ class Cell:
             "coverage": cover, "offset": offset, "wall_s": res.seconds,
             "latency_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
             "latency_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,
-            "confirmations": len(res.confirmations), "exit_code": None if res.outcome is None else res.outcome.exit_code,
+            "hits": hits, "confirmations": len(res.confirmations),
+            "exit_code": None if res.outcome is None else res.outcome.exit_code,
             "failures": fail,
         }  # fmt: skip
 

@@ -186,6 +186,7 @@ class Cell:
             "latency_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
             "latency_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,
             "hits": hits, "confirmations": len(res.confirmations),
+            "events": {k: sum(e["kind"] == k for e in events) for k in sorted({e["kind"] for e in events})},
             "exit_code": None if res.outcome is None else res.outcome.exit_code,
             "failures": fail,
         }  # fmt: skip

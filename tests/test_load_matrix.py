@@ -290,3 +290,23 @@ def test_a_loaded_host_loses_nothing_and_counts_what_the_analysis_shed(tmp_path,
     # every figure is exact (sample counts from the log against duration × fs; the shed count against the log's own
     # events) except the offset, whose bound is the issue's: one sample period (61 µs) of the simulated truth
     assert m["failures"] == [], (f"{cell} at {hogs.n} hogs (load {c.load.as_dict()}): " + "; ".join(m["failures"]))
+
+
+def test_hogs_end_at_their_own_deadline_and_stop_kills_them():
+    """The bound that keeps a crashed test from leaving hogs behind: each ends itself at ``limit_s`` (wall clock),
+    and ``stop`` kills the rest by pid."""
+    import time
+
+    t0 = time.monotonic()
+    h = Hogs(2, limit_s=0.5).start()
+    assert h.alive() == 2
+    while h.alive() and time.monotonic() - t0 < 10:
+        time.sleep(0.05)
+    assert h.alive() == 0 and 0.5 <= time.monotonic() - t0 < 10  # 10 s: a python start-up on a loaded 2-core host
+    h.stop()
+    long = Hogs(1, limit_s=600).start()
+    pid = long.procs[0].pid
+    seen = long.stop()
+    assert long.procs == [] and seen.samples >= 1
+    with pytest.raises(ProcessLookupError):  # reaped: the pid is gone
+        os.kill(pid, 0)

@@ -168,9 +168,10 @@ class Cell:
         counted = sum(int(e["count"]) for e in overrun)
         if counted != res.analysis_dropped_samples:
             fail.append(f"analysis shed {res.analysis_dropped_samples} samples, the log's analysis_overrun events say {counted}")
-        late = [e for e in events if e["kind"] == "overrun" and int(e.get("start_index", 0)) >= want]
+        late = [e for e in events if e["kind"] == "overrun" and (e.get("start_index") or 0) >= want]
         if late:  # issue 30 item 6: blocks after the session's end are not lost, and must not be reported so
-            fail.append(f"{len(late)} overrun events ({sum(int(e['count']) for e in late)} samples) after the session's end, "
+            n_late = sum(int(e.get("count") or 0) for e in late)
+            fail.append(f"{len(late)} overrun events ({n_late} samples) after the session's end, "
                         f"e.g. {late[0]['stream']} {late[0]['start_index']}..{late[0]['end_index']}: {late[0]['message']}")
         errors = [e["message"] for e in events if e["kind"] == "analysis_error"]
         if errors:

@@ -87,6 +87,7 @@ class Hogs:
     _stop: threading.Event = field(default_factory=threading.Event)
     _sampler: threading.Thread | None = None
     _runnable: list[int] = field(default_factory=list)
+    started: int = 0  # how many hogs were ever started (a caller can check its load really ran)
 
     def start(self) -> Hogs:
         if self.kind not in ("spin", "matmul"):
@@ -98,6 +99,7 @@ class Hogs:
                 [sys.executable, "-c", code], env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL, preexec_fn=_bound_child(int(self.limit_s) + 10),
             ))  # fmt: skip
+        self.started += self.n
         self._stop.clear()
         self._sampler = threading.Thread(target=self._sample, name="hogs-load", daemon=True)
         self._sampler.start()

@@ -244,6 +244,8 @@ def run_cell(directory: Path, cell: str, hogs: Hogs, seconds: float, rig_small: 
             res = run_session(cfg, open_rig(cfg.rig), out)
     finally:
         seen = hogs.stop()
+    if hogs.started < hogs.n:  # the session no longer builds its devices through daq.session.start_simulation
+        raise RuntimeError(f"{cell}: the {hogs.n} hogs never started (load_from_device_start found no hook)")
     return Cell(cell, hogs.n, seconds, res, out, seen)
 
 

@@ -15,6 +15,7 @@ built (tests/test_load_matrix.py ``load_from_device_start`` says why).
 
     python bench/bench_load.py [--seconds 60] [--hogs 0,4,8,16] [--cells serial,can-fd,modbus-tcp,two-devices]
                                [--minutes 10] [--no-matrix] [--no-long]
+    GVT_LOAD_JSON=cells.jsonl pytest tests/test_load_matrix.py; python bench/bench_load.py --table cells.jsonl
 
 Prints a table per part; writes bench/results/bench_load.json.
 """
@@ -154,7 +155,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rss-every", type=float, default=5.0)
     ap.add_argument("--no-matrix", action="store_true")
     ap.add_argument("--no-long", action="store_true")
+    ap.add_argument("--table", type=Path, help="print the table of a make-test run's cells (GVT_LOAD_JSON=FILE) and exit")
     a = ap.parse_args(argv)
+    if a.table is not None:
+        print(HEADER)
+        for line in a.table.read_text().splitlines():
+            m = json.loads(line)
+            print(row(m))
+            for f in m["failures"]:
+                print(f"    {f}")
+        return 0
     cells = [c for c in a.cells.split(",") if c]
     unknown = [c for c in cells if c not in CELLS]
     if unknown:

@@ -31,6 +31,7 @@ not add to it (make test runs these alone, after the parallel phase).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from contextlib import contextmanager
@@ -294,6 +295,9 @@ def hogs(request):
 def test_a_loaded_host_loses_nothing_and_counts_what_the_analysis_shed(tmp_path, rig_small, cell, hogs):
     c = run_cell(tmp_path, cell, hogs, SECONDS, rig_small)
     m = c.check()
+    if os.environ.get("GVT_LOAD_JSON"):  # a file to append each cell's figures to (bench/bench_load.py --table prints it)
+        with open(os.environ["GVT_LOAD_JSON"], "a") as f:
+            f.write(json.dumps(m, default=str) + "\n")
     # every figure is exact (sample counts from the log against duration × fs; the shed count against the log's own
     # events) except the offset, whose bound is the issue's: one sample period (61 µs) of the simulated truth
     assert m["failures"] == [], (f"{cell} at {hogs.n} hogs (load {c.load.as_dict()}): " + "; ".join(m["failures"]))

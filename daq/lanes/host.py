@@ -48,6 +48,10 @@ READY_TIMEOUT_S = 120.0  # a cold numba cache compiles ~5 s of kernels on a quie
 #: worker is starved for seconds at a time (a 3.2 s session at load 9 shed 1536 samples with a 2 s ring) and catches up
 #: after; 8 s of 15 ch x 16384 Hz is 7.9 MB
 RING_S = 8.0
+#: after the data ends, the worker has this long to analyse what it still holds; then it skips the rest (counted as
+#: shed, one line): at nice +10 beside 8 busy loops it worked through a 4 s session's backlog for 44 s, and a
+#: recording that has ended is not worth making the engineer wait for a lane that can only shed
+END_CATCH_UP_S = 5.0
 RING_MAX_BYTES = 64 << 20
 _LIVE: weakref.WeakSet[LaneHost] = weakref.WeakSet()
 
@@ -107,7 +111,9 @@ class LaneHost:
         self._restart_note: tuple[int, list, int | None] | None = None
         self._analysis_done = threading.Event()
         self._summary = threading.Event()
+        self.late: list[tuple[int, int]] = []  # ranges the worker skipped after the end (END_CATCH_UP_S)
         self.proc = None
+        self._hurry = _context().Event()  # set: the worker skips what it still holds (the end's catch-up is over)
         _LIVE.add(self)
         try:
             self._spawn()
@@ -129,7 +135,7 @@ class LaneHost:
         to_worker, tx = ctx.Pipe(duplex=False)
         rx, from_worker = ctx.Pipe(duplex=False)
         spec = dataclasses.replace(self.spec, event_offset=event_offset)
-        proc = ctx.Process(target=main, args=(spec, to_worker, from_worker), name=f"gvt-lanes:{self.stream}")
+        proc = ctx.Process(target=main, args=(spec, to_worker, from_worker, self._hurry), name=f"gvt-lanes:{self.stream}")
         proc.start()
         to_worker.close()
         from_worker.close()  # ours closed: the worker's death is EOF on rx
@@ -230,6 +236,10 @@ class LaneHost:
             elif kind == "say":  # a lane's one console line (the confirmation lane switched off)
                 if self.say is not None:
                     self.say(msg[1])
+            elif kind == "late":  # what the worker skipped at the end, before its "analysis_done"
+                self.late.extend((int(a), int(b)) for a, b in msg[1])
+                for a, b in msg[1]:
+                    self.shed.add(self.stream, int(a), int(b))
             elif kind == "analysis_done":
                 self._analysis_done.set()
             elif kind == "progress" and self.progress is not None:
@@ -310,8 +320,16 @@ class LaneHost:
     def finish_analysis(self, deadline: float) -> None:
         """After the fan-out closed: the forwarder sends the end, the worker's last windows and events come back."""
         self._fwd.join(max(0.0, deadline - time.monotonic()))
-        if not self._analysis_done.wait(max(0.0, deadline - time.monotonic())):
-            self._abandon("the analysis of the stream's last blocks")
+        if not self._analysis_done.wait(max(0.0, min(END_CATCH_UP_S, deadline - time.monotonic()))):
+            self._hurry.set()  # the worker skips the rest and says which ranges
+            if not self._analysis_done.wait(max(0.0, deadline - time.monotonic())):
+                self._abandon("the analysis of the stream's last blocks")
+        if self.late:
+            n = sum(b - a for a, b in self.late)
+            line = (f"analysis: the last {n / self.fs:.1f} s of {self.stream} were not analysed: the lane was that far behind "
+                    f"when the data ended and had {END_CATCH_UP_S:g} s to catch up (it runs below the recorder's priority)")
+            if self.say is not None:
+                self.say(line)
         with self._lock:
             note, self._restart_note = self._restart_note, None
         if note is not None:

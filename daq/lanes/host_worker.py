@@ -64,8 +64,9 @@ class RingFeed:
     dropped_blocks = 0
     dropped_samples = 0
 
-    def __init__(self, rx, ring: ByteRing, spec: HostSpec) -> None:
-        self.rx, self.ring, self.spec = rx, ring, spec
+    def __init__(self, rx, ring: ByteRing, spec: HostSpec, hurry=None) -> None:
+        self.rx, self.ring, self.spec, self.hurry = rx, ring, spec, hurry
+        self.late: list[tuple[int, int]] = []  # blocks skipped once the recorder's catch-up time was over
         self.pending: deque[tuple[int, int]] = deque()  # (end sample index, ring end position) handed out
         self.publish = None  # the confirmation lane's fan-out (it keeps its own copy of the sensor columns)
 
@@ -79,6 +80,16 @@ class RingFeed:
             msg = self.rx.recv()
         except (EOFError, OSError):  # the recorder is gone
             return END
+        while msg[0] == "b" and self.hurry is not None and self.hurry.is_set():  # the end's catch-up is over: skip
+            late = self.late
+            if late and late[-1][1] == msg[1]:
+                late[-1] = (late[-1][0], msg[1] + msg[2])
+            else:
+                late.append((msg[1], msg[1] + msg[2]))
+            try:
+                msg = self.rx.recv()
+            except (EOFError, OSError):
+                return END
         if msg[0] != "b":
             return END
         _, first, n, ncols, start, end, t_host = msg
@@ -131,10 +142,10 @@ def _watch(pid: int, every_s: float = 0.5) -> None:
 
 
 class _Host:
-    def __init__(self, spec: HostSpec, rx, send) -> None:
+    def __init__(self, spec: HostSpec, rx, send, hurry=None) -> None:
         self.spec, self.rx, self.send = spec, rx, send
         self.mem = attach(spec.shm_name, spec.ring_bytes)
-        self.feed = RingFeed(rx, ByteRing(self.mem), spec)
+        self.feed = RingFeed(rx, ByteRing(self.mem), spec, hurry)
         self.results = Results(log=self._to_recorder)
         self.lane = AnalysisLane(self.feed, spec.model, spec.stream, spec.channels, spec.sample_rate, self._from_lane,
                                  spec.settings, **spec.frame)  # fmt: skip (warm_up: kernels built or loaded now)
@@ -160,6 +171,8 @@ class _Host:
     def run(self) -> None:
         self.lane.start()
         self.lane.join()  # until the recorder's END (the operator's last windows and events are sent by then)
+        if self.feed.late:
+            self.send(("late", list(self.feed.late)))
         self.send(("analysis_done",))
         try:
             msg = self.rx.recv()
@@ -174,7 +187,7 @@ class _Host:
                                "error": self.lane.error, "events": len(op.events)}))  # fmt: skip
 
 
-def main(spec: HostSpec, rx, tx) -> None:
+def main(spec: HostSpec, rx, tx, hurry=None) -> None:
     """The worker's entry point (``rx``: from the recorder, ``tx``: to it)."""
     nice = lower_priority(spec.base_nice, spec.nice_step)
     _watch(spec.recorder_pid)
@@ -186,7 +199,7 @@ def main(spec: HostSpec, rx, tx) -> None:
 
     t0 = time.perf_counter()
     try:
-        host = _Host(spec, rx, send)
+        host = _Host(spec, rx, send, hurry)
     except Exception as exc:  # one line to the recorder, which records without the lanes
         send(("failed", f"{type(exc).__name__}: {exc}"))
         return

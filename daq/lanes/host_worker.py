@@ -189,7 +189,6 @@ class _Host:
 
 def main(spec: HostSpec, rx, tx, hurry=None) -> None:
     """The worker's entry point (``rx``: from the recorder, ``tx``: to it)."""
-    nice = lower_priority(spec.base_nice, spec.nice_step)
     _watch(spec.recorder_pid)
     lock = threading.Lock()
 
@@ -203,6 +202,9 @@ def main(spec: HostSpec, rx, tx, hurry=None) -> None:
     except Exception as exc:  # one line to the recorder, which records without the lanes
         send(("failed", f"{type(exc).__name__}: {exc}"))
         return
+    # the start-up (imports, model, warm-up) runs at the recorder's priority, before the device streams: at +10 beside
+    # 8 busy loops it took ~40 s of a session's start; the lanes run below the recorder from here on
+    nice = lower_priority(spec.base_nice, spec.nice_step)
     send(("ready", {"pid": os.getpid(), "nice": nice, "start_s": time.perf_counter() - t0, "cpu_s": time.process_time()}))
     try:
         host.run()

@@ -339,3 +339,21 @@ def test_hogs_end_at_their_own_deadline_and_stop_kills_them():
     assert long.procs == [] and seen.samples >= 1
     with pytest.raises(ProcessLookupError):  # reaped: the pid is gone
         os.kill(pid, 0)
+
+
+def test_hogs_run_at_the_priority_the_process_started_at_not_the_recorders():
+    """A session raises its process to nice -5 (daq/priority.py); hogs started later from the same process must not
+    inherit it (a lab's other programs run at normal priority). Run in a child so this worker's priority is untouched."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, time\nsys.path.insert(0, 'tests')\nfrom daq.priority import base_nice, raise_priority\n"
+        "from hogs import Hogs\nraise_priority()\nimport os\nh = Hogs(1, limit_s=5).start()\n"
+        "time.sleep(0.2)\nnice = int(open(f'/proc/{h.procs[0].pid}/stat').read().rsplit(')', 1)[1].split()[16])\n"
+        "print(base_nice(), os.getpriority(os.PRIO_PROCESS, 0), nice)\nh.stop()\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+    base, raised, hog = map(int, out.stdout.split())
+    assert hog == base, f"hog at nice {hog}, the process started at {base} and records at {raised}"

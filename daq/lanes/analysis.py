@@ -38,12 +38,9 @@ class LaneUnavailable(Exception):
     """Why a log or session cannot be analysed (one line: the rig does not fit its streams)."""
 
 
-def start_analysis_lane(
-    fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, sink: Sink,
-    settings: AnalysisSettings | None = None, maxsize: int = 512, **frame: float,
-) -> AnalysisLane:  # fmt: skip
-    """Start the lane on the stream that carries every sensor of ``rig``; :class:`LaneUnavailable` if none.
-    ``frame``: ``frame_samples`` / ``frame_wait_s`` of :class:`AnalysisLane`."""
+def rig_stream(rig, streams: dict[str, tuple[str, ...]]) -> tuple[RigModel, str]:
+    """The rig's model and the stream the analysis reads (in a thread or a lane host); :class:`LaneUnavailable`
+    (one line) when the rig has no model or no stream records all its sensors."""
     try:
         model = RigModel.from_rig(rig)
     except ValueError as exc:
@@ -51,6 +48,16 @@ def start_analysis_lane(
     name = analysis_stream(streams, model)
     if name is None:
         raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
+    return model, name
+
+
+def start_analysis_lane(
+    fan: FanOut, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, sink: Sink,
+    settings: AnalysisSettings | None = None, maxsize: int = 512, **frame: float,
+) -> AnalysisLane:  # fmt: skip
+    """Start the lane on the stream that carries every sensor of ``rig``; :class:`LaneUnavailable` if none.
+    ``frame``: ``frame_samples`` / ``frame_wait_s`` of :class:`AnalysisLane`."""
+    model, name = rig_stream(rig, streams)
     try:
         lane = AnalysisLane(fan, model, name, streams[name], sample_rate, sink, settings, maxsize=maxsize, **frame)
     except ValueError as exc:  # the rig's modes and the sample rate do not fit (analysis/operator.py resolvable_basis)

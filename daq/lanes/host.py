@@ -468,16 +468,9 @@ def start_lane_host(
 ) -> LaneHost:  # fmt: skip
     """The analysis (and confirmation) lanes of ``rig`` in a worker; :class:`~daq.lanes.analysis.LaneUnavailable`
     (one line) when the rig does not fit the streams or the worker does not start."""
-    from analysis.operator import RigModel
-    from daq.lanes.analysis import LaneUnavailable, analysis_stream
+    from daq.lanes.analysis import LaneUnavailable, rig_stream
 
-    try:
-        model = RigModel.from_rig(rig)
-    except ValueError as exc:
-        raise LaneUnavailable(f"rig {rig.name}: {exc}") from None
-    name = analysis_stream(streams, model)
-    if name is None:
-        raise LaneUnavailable(f"no stream records all the rig's sensors {list(model.sensors)}")
+    model, name = rig_stream(rig, streams)
     try:
         return LaneHost(fan, model, name, streams[name], fs, sink, settings, maxsize, frame, confirm, say=say,
                         base_nice=base_nice, room=room, nice_step=nice_step)  # fmt: skip

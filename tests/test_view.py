@@ -33,7 +33,9 @@ def session_config(duration: float = 2.2, paced: bool = False) -> SessionConfig:
                                                 "physics_seconds": duration + 0.2, "seed": 3}),
         trigger=TriggerSpec(level=20.0, record_length=0.3, driving_point="a13"),
         # unpaced, the device outruns the analysis: a queue for all of it; no background confirmation (tests/test_confirm.py)
-        analysis=AnalysisSpec(queue_seconds=30.0, confirm=False),
+        # in the recorder's process: a lane host's worker at nice +10 sheds under load by design (D64), and these
+        # tests are about what the view shows of a complete analysis (make test with 4 hogs failed them)
+        analysis=AnalysisSpec(queue_seconds=30.0, confirm=False, process="thread"),
     )  # fmt: skip
 
 

@@ -289,7 +289,10 @@ def test_device_restart_is_a_new_segment_never_stitched(device, fmt):
     # the new segment starts after the old one, where the host clock puts the new run's first sample
     seg = drv.stats.segments[-1]
     assert (seg.number, seg.device_first, seg.stream_first) == (1, 0, new[0].first_index)
-    assert abs(seg.stream_first - rec.stream_index(0, fs)) <= 0.05 * fs  # an estimate: within 50 ms
+    # an estimate from the host clock (when the new run's first block arrived): within 200 ms. A quiet host puts it
+    # within a few ms; make test with 4 CPU hogs measured 67 ms (the reading thread scheduled late). The exact
+    # gap is not knowable from a restarted device, which is why it is a new segment, never stitched (below)
+    assert abs(seg.stream_first - rec.stream_index(0, fs)) <= 0.2 * fs
     assert new[0].first_index > old[-1].end_index + 0.4 * fs  # 0.5 s down: never stitched on
     assert all(b.first_index == a.end_index for a, b in itertools.pairwise(new))
     (ev,) = [e for e in drv.drain_events() if e.kind == "restart"]

@@ -467,3 +467,30 @@ def test_an_export_carries_a_damaged_first_chunk_as_a_gap(tmp_path, capsys, fmt)
     else:
         rows = out.read_text().splitlines()
         assert len(rows) == 1 + 2048 - 256 and rows[1].split(",")[1] == "256"
+
+
+def test_blocks_past_the_session_end_that_a_full_driver_queue_drops_are_not_reported_lost():
+    """Issue 30 item 6: a source stops reading at the session's end while its driver runs on until the session
+    closes it; the blocks the driver's full queue then drops were never part of the recording. A loaded host wrote
+    371 "overrun ... owner is not reading" events for them (tests/test_load_matrix.py caught it)."""
+    import time
+
+    from daq.fanout import FanOut
+    from daq.sources import DeviceSource
+    from drivers.sim.driver import SimConfig, SimDriver
+
+    drv = SimDriver(SimConfig(stream="dev0", queue_blocks=2, block_size=256, duration=3.0, physics_seconds=0.5, paced=True))
+    got: list[dict] = []
+    src = DeviceSource("dev0", drv, None, FanOut(), lambda topic, d, t: got.append(d), need_samples=1024, silence_s=5.0)
+    src.open()
+    src.start()
+    assert src.done.wait(60)
+    deadline = time.monotonic() + 20
+    while drv.stats.overruns == 0 and time.monotonic() < deadline:  # paced, it drops what its 2-block queue cannot hold
+        time.sleep(0.05)
+    src.drain_events()
+    src.stop()
+    assert drv.stats.overruns > 0, "the driver never dropped a block past the end: the case did not happen"
+    assert src.report.samples == 1024 and src.report.reached_end
+    assert [d for d in got if d.get("kind") == "overrun"] == []
+    assert src.events.get("overrun_after_end", 0) > 0

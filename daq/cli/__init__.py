@@ -19,6 +19,7 @@ from analysis.errors import GvtError
 from daq.cli import analyze, confirm, demo, export, frf, identify, modal, record, replay, report, simulate, sweep
 from daq.cli.common import err
 from daq.cli.device import device_app
+from daq.cli.importing import import_
 from daq.cli.log import log_app
 from daq.cli.model import model_app
 from daq.cli.model_export import model_export
@@ -35,6 +36,7 @@ model_app.command("export")(model_export)
 app.add_typer(model_app, name="model")
 app.add_typer(log_app, name="log")
 app.add_typer(device_app, name="device")
+app.command("import")(import_)
 for verb in (simulate.simulate, sweep.sweep, demo.demo, replay.replay, analyze.analyze, confirm.confirm, record.record,
              report.report, export.export, frf.frf, modal.modal, identify.identify):  # fmt: skip
     app.command()(verb)

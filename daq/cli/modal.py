@@ -11,7 +11,9 @@ from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open
 
 
 def modal(
-    source: Annotated[Path, typer.Argument(help="Session log (.mcap), or FRFs written by `gvt frf --out` (.npz).")],
+    source: Annotated[
+        Path, typer.Argument(help="Session log (.mcap), FRFs of `gvt frf --out` (.npz), a UFF 58 FRF file or its import.")
+    ],
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
     band: Annotated[
         tuple[float, float] | None, typer.Option(help="Band to identify in, Hz: LOW HIGH (default 2 Hz to the FRFs' band).")
@@ -36,6 +38,7 @@ def modal(
 
     from analysis.modal_id import load_targets
     from daq.outputs import atomic_output
+    from daq.studies.importing.frfs import frf_file
     from daq.studies.modal import load_frf_source, modal_from_frf, rejected_note, rows_summary, table_text, write_modes
 
     for p, what in ((png, "--png"), (modes_out, "--modes-out"), (rrd, "--rrd")):
@@ -43,10 +46,13 @@ def modal(
             check_output(p, overwrite, what, inputs=[source])
     targets = load_targets(poles) if poles is not None else None
     r = open_rig(rig) if rig is not None else None
-    if source.suffix == ".npz":
+    given = None if source.suffix == ".npz" else frf_file(source)  # a UFF 58 FRF file, or a log gvt import made of one
+    if source.suffix == ".npz" or given is not None:
         if rrd is not None and r is None:
             fail("--rrd draws the modes on the rig's test geometry: give --rig (an FRF file carries none)")
-        frf, driving, refused = load_frf_source(source), None, []
+        frf, driving, refused = given[0] if given else load_frf_source(source), None, []
+        for note in given[1] if given else []:
+            (err if json_out else out).print(f"assumed: {note}", markup=False)
     else:
         r, frf, driving, refused = _frfs_of_log(source, r, None if band is None else band[1], json_out)
     band = band or (2.0, min(1000.0, float(frf.freq[-1])))

@@ -11,7 +11,7 @@ from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open
 
 
 def frf(
-    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    log: Annotated[Path, typer.Argument(help="Session log (.mcap), a UFF 58 FRF file, or a log of `gvt import` of one.")],
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     plot_path: Annotated[Path | None, typer.Option("--plot", help="Write FRF, coherence and hammer spectra to this PNG.")] = None,
     out_path: Annotated[Path | None, typer.Option("--out", help="Write the FRFs (FRFSet) to this .npz.")] = None,
@@ -39,10 +39,15 @@ def frf(
     from daq.log.rig import rig_from_log
     from daq.outputs import atomic_output
     from daq.studies.frf import frf_from_log, plot, summary
+    from daq.studies.importing.frfs import frf_file
 
     for p, what in ((plot_path, "--plot"), (out_path, "--out")):
         if p is not None:
             check_output(p, overwrite, what, inputs=[log])
+    given = frf_file(log)  # a UFF 58 FRF file, or a log gvt import made of one: the set as it is, judged
+    if given is not None:
+        _given_set(log, given, json_out, out_path, plot_path, peaks)
+        return
     r = open_rig(rig) if rig is not None else rig_from_log(LogReader(log))
     chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
     if level is not None and level != "all" and not level.isdigit():
@@ -67,6 +72,33 @@ def frf(
         console.print(f"wrote {plot_path}", markup=False)
     if run.frf is None:
         fail(f"{log}: no accepted hit, no FRF ({len(run.hits)} hit(s) refused: the lines above say why)")
+
+
+def _given_set(log: Path, given: tuple, json_out: bool, out_path: Path | None, plot_path: Path | None, peaks: int) -> None:
+    """``gvt frf`` of an FRF set given whole (UFF 58 or its import): the set, its peaks and their coherence judged."""
+    import json
+
+    from daq.outputs import atomic_output
+    from daq.studies.frf import plot, summary
+    from daq.studies.importing.frfs import frf_run
+
+    run = frf_run(log, given[0], given[1], peaks)
+    s = summary(run, peaks)
+    console = err if json_out else out
+    for note in given[1]:
+        console.print(f"assumed: {note}", markup=False)
+    if json_out:
+        out.print_json(json.dumps(s, default=float))
+    else:
+        _print(s)
+    if out_path is not None:
+        with atomic_output(out_path) as tmp:
+            run.frf.to_npz(tmp)
+        console.print(f"wrote {out_path}", markup=False)
+    if plot_path is not None:
+        with atomic_output(plot_path) as tmp:
+            plot(run, tmp)
+        console.print(f"wrote {plot_path}", markup=False)
 
 
 def _print(s: dict) -> None:

@@ -60,7 +60,11 @@ def run_update(rig: Rig, rig_path: Path, source: Path, *, params: list[str] | No
     if source.suffix.lower() == ".json":
         measured = modes_from_file(source)
     else:
-        log = modes_from_log(source, rig, band, level, progress)
+        from daq.studies.importing.frfs import frf_file  # a UFF 58 FRF file, or a log gvt import made of one
+        from daq.studies.update_log import modes_from_set
+
+        given = frf_file(source) if source.exists() else None
+        log = modes_from_set(source, *given, rig, band) if given else modes_from_log(source, rig, band, level, progress)
         measured = log.measured
     result = update(rig.config, measured, chosen, objective=objective, n_modes=n_modes, optimiser=optimiser, progress=progress,
                     path=rig_path)  # fmt: skip
@@ -111,6 +115,7 @@ def table_text(run: UpdateRun) -> str:
     elif r.freq_std_hz is not None:
         lines.append("fit: as many modes as parameters: the fit cannot be judged against the measurement uncertainty")
     if run.log is not None:
-        lines.append(f"data: hit(s) {', '.join(map(str, run.log.hits_used))} in {run.log.band[0]:g}-{run.log.band[1]:g} Hz"
+        used = f"hit(s) {', '.join(map(str, run.log.hits_used))}" if run.log.hits_used else "the FRF file's set"
+        lines.append(f"data: {used} in {run.log.band[0]:g}-{run.log.band[1]:g} Hz"
                      + "".join(f"; {c} left out ({why})" for c, why in run.log.channels_left_out.items()))  # fmt: skip
     return "\n".join(lines)

@@ -134,6 +134,28 @@ def modes_from_log(source: Path, rig: Rig, band: tuple[float, float] | None = No
                     used, bad, notes, warnings)  # fmt: skip
 
 
+def modes_from_set(source: Path, frf, assumed: list[str], rig: Rig, band: tuple[float, float] | None = None) -> LogModes:
+    """The modes of an FRF set given whole (a UFF 58 FRF file, or its ``gvt import``): identified as ``gvt modal``
+    does, no hits to choose; a set without averages counts one (the identification's floor as uncertainty)."""
+    from dataclasses import replace
+
+    from daq.studies.modal import modal_from_frf, modes_json
+
+    if np.size(frf.n_averages) != len(frf.references):
+        frf = replace(frf, n_averages=np.ones(len(frf.references), dtype=int))
+        assumed = [*assumed, "averages not stated in the FRF file: taken as 1"]
+    notes = list(assumed)
+    lo, hi = _band(band, float(frf.freq[-1]), frf.freq, notes)
+    run = modal_from_frf(frf, rig, lo, hi, source=str(source))
+    if not run.rows:
+        raise BadInput(f"{source}: no mode identified in {lo:g}-{hi:g} Hz; see `gvt modal {source}`")
+    measured = MeasuredModes.from_json(modes_json(run), str(source))
+    std, _n = _frequency_std(run)
+    warnings = [f"FRF: {w}" for w in (frf.quality or {}).get("warnings", [])]
+    return LogModes(MeasuredModes(measured.freq_hz, measured.shapes, measured.outputs, measured.source, std), (lo, hi),
+                    [], {}, notes, warnings)  # fmt: skip
+
+
 def _band(band: tuple[float, float] | None, band_hz: float, freq: np.ndarray, notes: list[str]) -> tuple[float, float]:
     """The band modes are identified in: default 2 Hz to the FRFs' last line; an asked top within one line above the
     last line is taken to it (the FRF grid's lines fall where the record length puts them), and said."""

@@ -47,4 +47,30 @@ def frf_file(path: Path) -> tuple[FRFSet, list[str]] | None:
     return FRFSet.from_npz(io.BytesIO(blob[1])), []
 
 
-__all__ = ["frf_file"]
+
+
+#: Coherence below this at a peak of the mode indicator is worth a warning (docs/frf.md's judgement of a session).
+LOW_COHERENCE = 0.8
+
+
+def frf_run(path: Path, frf: FRFSet, assumptions: list[str], n_peaks: int = 6):
+    """``gvt frf`` of a given FRF set: nothing to average, so the set as it is, with the coherence at its peaks judged
+    (a warning per peak where some pair is below :data:`LOW_COHERENCE`) and the reader's assumptions as notes."""
+    from dataclasses import replace
+
+    from daq.studies.frf import FRFRun
+
+    df = float(frf.freq[1] - frf.freq[0]) if frf.freq.size > 1 else 1.0
+    warnings = list(frf.quality.get("warnings", []))
+    if "coherence not in the file" not in " ".join(warnings):
+        for k in frf.peaks(n_peaks):
+            low = float(frf.coherence[:, :, k].min())
+            if low < LOW_COHERENCE:
+                warnings.append(f"coherence {low:.2f} at the peak at {frf.freq[k]:.2f} Hz: noise or nonlinearity "
+                                "there; re-measure or leave the mode's figures in doubt")  # fmt: skip
+    w = frf.window or {}
+    frf = replace(frf, quality={**frf.quality, "warnings": warnings, "notes": assumptions})
+    return FRFRun(str(path), "FRF file", "", frf, 1.0 / df, 0.0, w.get("tau_s"), float(frf.freq[-1]))
+
+
+__all__ = ["LOW_COHERENCE", "frf_file", "frf_run"]

@@ -47,8 +47,6 @@ def frf_file(path: Path) -> tuple[FRFSet, list[str]] | None:
     return FRFSet.from_npz(io.BytesIO(blob[1])), []
 
 
-
-
 #: Coherence below this at a peak of the mode indicator is worth a warning (docs/frf.md's judgement of a session).
 LOW_COHERENCE = 0.8
 

@@ -123,9 +123,13 @@ def _axis_factor(d: dict, prefix: str, units: dict | None, where: str, notes: li
     164's factors (SI = value / length^le / force^fe), else refused."""
     label = d[f"{prefix}_axis_units_lab"]
     at = f"{where}: {_name(d)} {prefix} unit"
-    if label and label.upper() != "NONE":
-        return si_factor(label, at)
     quantity = SPEC_QUANTITY.get(d[f"{prefix}_spec_data_type"])
+    if label and label.upper() != "NONE":
+        factor, of_unit = si_factor(label, at)
+        if quantity is not None and of_unit != quantity and {of_unit, quantity} != {"force", "pressure"}:
+            raise ImportError_(f"{at} {label!r} is a {of_unit} unit, but the record's data type says {quantity}; "
+                               "correct one of them")  # fmt: skip
+        return factor, of_unit
     if units is None or quantity is None:
         return si_factor("", at)  # refused: no unit, and nothing in the file to take one from
     le, fe = d[f"{prefix}_len_unit_exp"], d[f"{prefix}_force_unit_exp"]

@@ -53,6 +53,8 @@ def split_blocks(raw: bytes, where: str) -> list[Block]:
         if pos >= n:
             raise ImportError_(f"{where}: truncated: a '-1' line without a dataset at the end (after dataset {len(blocks)})")
         head, pos = _line(raw, pos)
+        if pos > n:
+            raise ImportError_(f"{where}: truncated: dataset {len(blocks) + 1} ends in its type line")
         try:
             kind = int(head[:6])
         except ValueError:

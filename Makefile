@@ -79,6 +79,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/eval_nsi.py --speed 1000
 	$(BIN)/python bench/bench_identify_log.py
 	$(BIN)/python bench/bench_rfs.py
+	$(BIN)/python bench/bench_import.py
 
 fuzz: $(VENV)/.installed-dev
 	HYPOTHESIS_PROFILE=fuzz GVT_FUZZ_EXAMPLES=200000 $(BIN)/python -m pytest tests -k "fuzz or property"

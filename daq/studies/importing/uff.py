@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -58,8 +59,9 @@ def is_uff(path: Path) -> bool:
 def read(path: Path, channels: Path | None = None) -> TimeImport | FrfImport:
     """The UFF file at ``path`` as an import record (``channels``, a channel table CSV, is not used: a UFF file
     names each function's node and direction itself)."""
-    raw = Path(path).read_bytes()
     where = str(path)
+    raw = _mapped(Path(path))
+    digest = _Digest(raw)  # the provenance's sha256, on the other core while the datasets are parsed
     blocks = split_blocks(raw, where)
     if not blocks:
         raise ImportError_(f"{where}: no UFF dataset in the file")
@@ -85,7 +87,7 @@ def read(path: Path, channels: Path | None = None) -> TimeImport | FrfImport:
     n_55 = sum(d.get("type") == 55 for d in others)
     if n_55:
         notes.append(f"{n_55} mode shape(s) (dataset 55) not imported: gvt modal identifies the modes from the data")
-    prov = dict(path=where, sha256=hashlib.sha256(raw).hexdigest(), format=fmt, writer=writer.split(":")[0][:80])
+    prov = dict(path=where, sha256=digest.hexdigest(), format=fmt, writer=writer.split(":")[0][:80])
     frfs = [d for d in funcs if d["func_type"] == 4]
     if frfs:
         times = sum(d["func_type"] == 1 for d in funcs)
@@ -97,6 +99,31 @@ def read(path: Path, channels: Path | None = None) -> TimeImport | FrfImport:
     if not times:
         raise ImportError_(f"{where}: no time history or FRF (dataset 58, function type 1 or 4) in the file")
     return _time_import(times, units, geometry, prov, notes)
+
+
+def _mapped(path: Path) -> bytes:
+    """The file's bytes (read whole, not memory-mapped: a file cut short while mapped kills the process with SIGBUS;
+    a file being written by another program is a lab's everyday case)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ImportError_(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if not raw:
+        raise ImportError_(f"{path}: empty file")
+    return raw
+
+
+class _Digest:
+    """sha256 of ``data`` in a thread (hashlib lets go of the GIL on large buffers)."""
+
+    def __init__(self, data) -> None:
+        self._h = hashlib.sha256()
+        self._t = threading.Thread(target=self._h.update, args=(data,), daemon=True)
+        self._t.start()
+
+    def hexdigest(self) -> str:
+        self._t.join()
+        return self._h.hexdigest()
 
 
 def _name(d: dict) -> str:
@@ -253,10 +280,10 @@ def _time_import(times: list[dict], units: dict | None, geometry, prov: dict, no
         raise ImportError_(f"{where}: {_name(times[0])}: time histories need an even abscissa with a positive step")
     t0 = min(float(d["abscissa_min"]) for d in times)
     end = max(round((float(d["abscissa_min"]) - t0) / dt) + d["num_pts"] for d in times)
-    data = np.zeros((end, len(dofs)))
-    filled = np.zeros((end, len(dofs)), dtype=bool)
+    spans: dict[int, list[tuple[int, int]]] = {}
     quantity: dict[int, str] = {}
     src_units: dict[int, str] = {}
+    parts = []
     for d in times:
         if abs(float(d["abscissa_inc"]) / dt - 1) > 1e-5:
             raise ImportError_(f"{where}: {_name(d)} is sampled at {1 / float(d['abscissa_inc']):g} Hz, the first "
@@ -267,12 +294,19 @@ def _time_import(times: list[dict], units: dict | None, geometry, prov: dict, no
             raise ImportError_(f"{where}: {_name(d)} is {q}, an earlier record of the same DOF {quantity[k]}")
         src_units[k] = d["ordinate_axis_units_lab"]
         a = round((float(d["abscissa_min"]) - t0) / dt)
-        if filled[a : a + d["num_pts"], k].any():
+        b = a + d["num_pts"]
+        if any(a < y and x < b for x, y in spans.get(k, [])):
             raise ImportError_(f"{where}: {_name(d)} overlaps an earlier record of the same DOF in time")
-        data[a : a + d["num_pts"], k] = np.real(d["data"]) * factor
-        filled[a : a + d["num_pts"], k] = True
-    if not filled.all():
-        notes.append(f"{int((~filled).sum(axis=0).max())} samples between records (no data in the file) set to 0")
+        spans.setdefault(k, []).append((a, b))
+        parts.append((k, a, b, d["data"], factor))
+    covered = all(sum(b - a for a, b in spans.get(k, [])) == end for k in range(len(dofs)))
+    data = (np.empty if covered else np.zeros)((end, len(dofs)), order="F")  # by column: a record is one copy
+    for k, a, b, y, factor in parts:
+        y = np.real(y)
+        data[a:b, k] = y if factor == 1.0 else y * factor
+    empty = max(end - sum(b - a for a, b in spans.get(k, [])) for k in range(len(dofs)))
+    if empty:
+        notes.append(f"{empty} samples between records (no data in the file) set to 0")
     if "force" not in quantity.values():
         raise ImportError_(f"{where}: no force channel (an ordinate in N or lbf): a hammer test needs the hammer's force")
     names = _names(dofs)

@@ -29,8 +29,14 @@ class Block:
     type: int
     binary: bool
     head: bytes  # the type line itself (58b: byte order, format, ASCII lines, bytes)
-    body: bytes
+    raw: bytes  # the whole file: a block is a range of it, so a 58b data block is read in place, never copied
+    start: int
+    end: int
     number: int
+
+    @property
+    def body(self) -> bytes:
+        return self.raw[self.start : self.end]
 
 
 def _is_delim(line: bytes) -> bool:
@@ -42,7 +48,7 @@ def split_blocks(raw: bytes, where: str) -> list[Block]:
     blocks: list[Block] = []
     pos, n = 0, len(raw)
     while True:
-        while pos < n and raw[pos : pos + 1] in (b"\n", b"\r", b" ") and not raw.startswith(DELIM, pos):
+        while pos < n and raw[pos : pos + 1] in (b"\n", b"\r", b" ") and raw[pos : pos + 6] != DELIM:
             pos += 1  # blank lines between datasets
         if pos >= n:
             return blocks
@@ -62,18 +68,17 @@ def split_blocks(raw: bytes, where: str) -> list[Block]:
         binary = head[6:7].lower() == b"b"
         start = pos
         if binary:
-            pos = _skip_binary(raw, head, pos, where, len(blocks) + 1)
-            body = raw[start:pos]
+            pos = end = _skip_binary(raw, head, pos, where, len(blocks) + 1)
             line, pos = _line(raw, pos)
             if not _is_delim(line):
-                raise ImportError_(f"{where}: dataset {len(blocks) + 1} (58b): no '-1' after its {len(body)} bytes; "
+                raise ImportError_(f"{where}: dataset {len(blocks) + 1} (58b): no '-1' after its {end - start} bytes; "
                                    "the byte count in its header is wrong or the file is damaged")  # fmt: skip
         else:
             end = _find_delim(raw, pos)
             if end < 0:
                 raise ImportError_(f"{where}: truncated: dataset {len(blocks) + 1} (type {kind}) has no closing '-1'")
-            body, pos = raw[start:end], _line(raw, end)[1]
-        blocks.append(Block(kind, binary, head, body, len(blocks) + 1))
+            pos = _line(raw, end)[1]
+        blocks.append(Block(kind, binary, head, raw, start, end, len(blocks) + 1))
 
 
 def _line(raw: bytes, pos: int) -> tuple[bytes, int]:
@@ -152,8 +157,8 @@ def _axis(line: str, prefix: str, where: str) -> dict:
 def parse_58(block: Block, where: str) -> dict:
     """Dataset 58 as pyuff names its fields (``x``, ``data`` and the header's), data as float64 / complex128."""
     at = f"{where}: dataset {block.number} (58{'b' if block.binary else ''})"
-    text_end = _nth_line_end(block.body, 11)
-    lines = block.body[:text_end].decode("latin-1").splitlines()
+    text_end = _nth_line_end(block.raw, block.start, block.end, 11)
+    lines = block.raw[block.start : text_end].decode("latin-1").splitlines()
     if len(lines) < 11:
         raise ImportError_(f"{at}: truncated: {len(lines)} of its 11 header records")
     d = {"type": 58, "binary": int(block.binary), **{f"id{k + 1}": lines[k].strip() for k in range(5)}}
@@ -166,17 +171,17 @@ def parse_58(block: Block, where: str) -> dict:
              abscissa_inc=float(rec7[4]))  # fmt: skip
     for prefix, line in zip(_AXES, lines[7:11], strict=True):
         d.update(_axis(line.ljust(67), prefix, at))
-    values = _values(block, d, block.body[text_end:], at)
+    values = _values(block, d, text_end, at)
     _unpack(d, values)
     return d
 
 
-def _nth_line_end(body: bytes, n: int) -> int:
-    pos = 0
+def _nth_line_end(raw: bytes, start: int, end: int, n: int) -> int:
+    pos = start
     for _ in range(n):
-        k = body.find(b"\n", pos)
+        k = raw.find(b"\n", pos, end)
         if k < 0:
-            return len(body)
+            return end
         pos = k + 1
     return pos
 
@@ -190,17 +195,18 @@ def _expected(d: dict) -> tuple[int, int]:
     return per * d["num_pts"], (4 if t in (2, 5) else 8)
 
 
-def _values(block: Block, d: dict, data: bytes, at: str) -> np.ndarray:
+def _values(block: Block, d: dict, first: int, at: str) -> np.ndarray:
     try:
         n, size = _expected(d)
     except ValueError as exc:
         raise ImportError_(f"{at}: {exc}") from None
     if block.binary:
         order, _lines, _nbytes = binary_header(block.head, at)
-        if len(data) < n * size:
-            raise ImportError_(f"{at}: truncated: {len(data) // size} of {n} values")
-        return np.frombuffer(data, dtype=f"{order}f{size}", count=n).astype(float)
-    return _ascii_values(data, n, size, at)
+        if block.end - first < n * size:
+            raise ImportError_(f"{at}: truncated: {(block.end - first) // size} of {n} values")
+        values = np.frombuffer(block.raw, dtype=f"{order}f{size}", count=n, offset=first)
+        return values.astype(float, copy=False)  # float64 in the machine's order: the file's bytes, not a copy
+    return _ascii_values(block.raw[first : block.end], n, size, at)
 
 
 def _ascii_values(data: bytes, n: int, size: int, at: str) -> np.ndarray:
@@ -227,8 +233,8 @@ def _ascii_values(data: bytes, n: int, size: int, at: str) -> np.ndarray:
 
 def _unpack(d: dict, v: np.ndarray) -> None:
     cplx, even, n = d["ord_data_type"] in (5, 6), d["abscissa_spacing"] == 1, d["num_pts"]
-    if even:
-        d["x"] = d["abscissa_min"] + np.arange(n) * d["abscissa_inc"]
+    if even:  # a time history's axis is its start and step (the import needs no array of it)
+        d["x"] = None if d["func_type"] == 1 else d["abscissa_min"] + np.arange(n) * d["abscissa_inc"]
         d["data"] = v[0::2] + 1j * v[1::2] if cplx else v
     elif cplx:
         d["x"], d["data"] = v[0::3], v[1::3] + 1j * v[2::3]

@@ -11,10 +11,13 @@ samples go through the log as float32 (6e-8 relative); 58 ASCII ordinates are E2
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from analysis.model.channels import Channel
 from daq.cli import run
@@ -62,6 +65,14 @@ def test_gvtlink_uff_export_imports_to_the_same_modes(exported, tmp_path, capsys
         for a, b in zip(got, want, strict=True):
             assert abs(a["freq_hz"] / b["freq_hz"] - 1) < 1e-4  # the issue's 0.01 %
             assert abs(a["zeta"] / b["zeta"] - 1) < 1e-2  # the window's damping taken out again (else +200 %)
+    capsys.readouterr()
+    assert run(["frf", str(exported["frf_uff"]), "--json"]) == 0  # gvt frf of the file: the set as it is, judged
+    got = json.loads(capsys.readouterr().out)
+    assert run(["frf", str(exported["log"]), "--json"]) == 0
+    orig = json.loads(capsys.readouterr().out)
+    assert got["references"] == orig["references"] and got["window"]["sigma_added"] == pytest.approx(
+        orig["window"]["sigma_added"], rel=1e-5)  # fmt: skip
+    assert [p["freq_hz"] for p in got["peaks"]] == pytest.approx([p["freq_hz"] for p in orig["peaks"]], rel=5e-6)
 
 
 def test_gvtlink_time_histories_import_with_their_hits(exported, tmp_path, capsys):
@@ -259,3 +270,34 @@ def test_time_histories_without_a_force_are_refused(tmp_path):
     p.write_bytes(_ascii_58(np.ones(10), [4], node=2, unit="g", spec=12, name="acc", id1="r", dt=1e-3, func_type=1))
     with pytest.raises(ImportError_, match="no force channel"):
         uff_import.read(p)
+
+
+FUZZ_EXAMPLES = int(os.environ.get("GVT_FUZZ_EXAMPLES", 60))
+
+
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_a_damaged_uff_is_read_or_refused_in_one_line(tmp_path, signals, data):
+    """Any bytes changed, cut or inserted in a valid file (ASCII and 58b): the reader returns a record or raises
+    ImportError_ (one line, exit 2), never another exception (a traceback) or a hang."""
+    force, acc = signals
+    binary = data.draw(st.booleans())
+    make = (lambda v, **k: _binary_58(v, 8, **k)) if binary else (lambda v, **k: _ascii_58(v, [4], **k))
+    raw = bytearray(_two_channels(force[:40], acc[:40], make))
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(raw) - 1))
+        op = data.draw(st.sampled_from(["flip", "cut", "insert"]))
+        if op == "flip":
+            raw[at] = data.draw(st.integers(0, 255))
+        elif op == "cut":
+            del raw[at : at + data.draw(st.integers(1, 40))]
+        else:
+            raw[at:at] = data.draw(st.sampled_from([b"\n", b"    -1\n", b" ", b"D", b"-", b"9" * 30, b"\x00" * 8]))
+    path = tmp_path / "fuzz.uff"
+    path.write_bytes(bytes(raw))
+    try:
+        got = uff_import.read(path)
+    except ImportError_ as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert isinstance(got, TimeImport | FrfImport) and np.isfinite(got.samples).all()

@@ -58,7 +58,19 @@ def is_uff(path: Path) -> bool:
 
 def read(path: Path, channels: Path | None = None) -> TimeImport | FrfImport:
     """The UFF file at ``path`` as an import record (``channels``, a channel table CSV, is not used: a UFF file
-    names each function's node and direction itself)."""
+    names each function's node and direction itself). A field that is not what its record says (pyuff's
+    extractors and number parsing raise many kinds) is one line, never a traceback."""
+    try:
+        return _read(Path(path), channels)
+    except (ValueError, IndexError, KeyError, TypeError, OverflowError, UnicodeError) as exc:
+        raise ImportError_(f"{path}: not a readable UFF file ({type(exc).__name__}: {str(exc)[:120]})") from None
+    except Exception as exc:  # pyuff raises bare Exception("Error reading data-set #58b") and the like
+        if isinstance(exc, ImportError_):
+            raise
+        raise ImportError_(f"{path}: not a readable UFF file ({str(exc)[:120] or type(exc).__name__})") from None
+
+
+def _read(path: Path, channels: Path | None) -> TimeImport | FrfImport:
     where = str(path)
     raw = _mapped(Path(path))
     digest = _Digest(raw)  # the provenance's sha256, on the other core while the datasets are parsed
@@ -217,6 +229,8 @@ def _frf_import(frfs: list[dict], cohs: list[dict], others: list[dict], units: d
         o, r = missing[0]
         raise ImportError_(f"{where}: the FRF matrix lacks {len(missing)} pair(s), e.g. node {outs[o][0]} over node "
                            f"{refs[r][0]}; every response needs an FRF for every reference")  # fmt: skip
+    if not np.isfinite(H).all():
+        raise ImportError_(f"{where}: the FRFs hold NaN or inf values")
     coherence, known = _coherence(cohs, outs, refs, H.shape), True
     if coherence is None:
         coherence, known = np.ones(H.shape), False
@@ -304,6 +318,8 @@ def _time_import(times: list[dict], units: dict | None, geometry, prov: dict, no
     for k, a, b, y, factor in parts:
         y = np.real(y)
         data[a:b, k] = y if factor == 1.0 else y * factor
+    if not np.isfinite(data).all():
+        raise ImportError_(f"{where}: the time histories hold NaN or inf values; a measurement has numbers")
     empty = max(end - sum(b - a for a, b in spans.get(k, [])) for k in range(len(dofs)))
     if empty:
         notes.append(f"{empty} samples between records (no data in the file) set to 0")

@@ -301,3 +301,17 @@ def test_fuzz_a_damaged_uff_is_read_or_refused_in_one_line(tmp_path, signals, da
         assert "\n" not in str(exc)
     else:
         assert isinstance(got, TimeImport | FrfImport) and np.isfinite(got.samples).all()
+
+
+def test_model_update_takes_the_modes_of_a_uff_frf_file(exported, rigs, capsys):
+    """What ``gvt model update --from FILE.uff`` feeds the updater (the optimiser itself is tested in
+    test_model_update.py): the modes gvt modal identifies from the file, with a frequency uncertainty each."""
+    from daq.studies.importing.frfs import frf_file
+    from daq.studies.update_log import modes_from_set
+
+    frf, assumed = frf_file(exported["frf_uff"])
+    log = modes_from_set(exported["frf_uff"], frf, assumed, rigs("beam_ch4_exp"))
+    want = [m["freq_hz"] for m in _modes(capsys, exported["frf_uff"])]
+    np.testing.assert_allclose(log.measured.freq_hz, want, rtol=1e-9)
+    assert np.all(np.asarray(log.measured.freq_std_hz) > 0) and log.hits_used == []
+    assert any("exponential window" in n for n in log.notes)

@@ -32,14 +32,16 @@ G, LBF = 9.80665, 4.4482216152605  # standard gravity (ISO 80000-3) and the poun
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory) -> dict[str, Path]:
-    """Two hits on beam_ch4_exp through the simulator, gvt frf's FRFs, and gvtlink's UFF export of both (ASCII, with
-    the FRFs) and of the time histories alone (binary 58b)."""
+    """Two hits on beam_ch4_exp through the simulator, gvt frf's FRFs, gvt modal's modes, and gvtlink's UFF export of
+    them all (ASCII: FRFs, mode shapes, time histories) and of the time histories alone (binary 58b)."""
     d = tmp_path_factory.mktemp("imp")
     p = {k: d / n for k, n in (("log", "s.mcap"), ("npz", "f.npz"), ("frf_uff", "f.uff"), ("time_uff", "t.uff"))}
     assert run(["simulate", "beam_ch4_exp", "--forces", "30,60", "--spacing", "0.6", "--duration", "0.4",
                 "--seed", "5", "--out", str(p["log"])]) == 0  # fmt: skip
     assert run(["frf", str(p["log"]), "--out", str(p["npz"])]) == 0
-    assert run(["export", str(p["log"]), "--frf", str(p["npz"]), "--out", str(p["frf_uff"])]) == 0
+    p["modes"] = d / "modes.json"
+    assert run(["modal", str(p["npz"]), "--modes-out", str(p["modes"])]) == 0
+    assert run(["export", str(p["log"]), "--frf", str(p["npz"]), "--modes", str(p["modes"]), "--out", str(p["frf_uff"])]) == 0
     assert run(["export", str(p["log"]), "--binary", "--out", str(p["time_uff"])]) == 0
     return p
 
@@ -58,6 +60,13 @@ def test_gvtlink_uff_export_imports_to_the_same_modes(exported, tmp_path, capsys
     meta = LogReader(out).metadata()[META_IMPORT]
     assert meta["format"] == "uff58" and len(meta["sha256"]) == 64 and meta["tool"] == "gvt import"
     assert any("exponential window" in a for a in json.loads(meta["assumptions"]))
+    shapes = json.loads(dict(LogReader(out).attachments())["import/modes.json"][1])
+    orig = json.loads(exported["modes"].read_text())
+    assert shapes["outputs"] == orig["outputs"] and len(shapes["freq_hz"]) == len(orig["freq_hz"])
+    np.testing.assert_allclose(shapes["freq_hz"], orig["freq_hz"], rtol=5e-6)  # dataset 55 writes E13.5
+    scale = np.abs(np.asarray(orig["shapes_re"])).max()
+    np.testing.assert_allclose(shapes["shapes_re"], orig["shapes_re"], rtol=5e-6, atol=5e-6 * scale)
+    np.testing.assert_allclose(shapes["shapes_im"], orig["shapes_im"], rtol=5e-6, atol=5e-6 * scale)
     want = _modes(capsys, exported["npz"])
     for source in (out, exported["frf_uff"]):  # the import, and the UFF file given to gvt modal directly
         got = _modes(capsys, source)

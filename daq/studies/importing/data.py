@@ -51,6 +51,7 @@ class TimeImport:
     source_units: list[str] = field(default_factory=list)
     t0_s: float = 0.0
     geometry: Geometry | None = None
+    modes: dict | None = None  # mode shapes the file carries (UFF 55): freq_hz, zeta, outputs, shapes (n_out, n_modes)
 
     def __post_init__(self) -> None:
         n_ch = len(self.channels)
@@ -71,3 +72,4 @@ class FrfImport:
     provenance: Provenance
     coherence_known: bool = True
     geometry: Geometry | None = None
+    modes: dict | None = None  # mode shapes the file carries (UFF 55), as in TimeImport

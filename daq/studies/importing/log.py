@@ -27,6 +27,7 @@ from daq.studies.importing.data import FrfImport, ImportError_, TimeImport
 META_IMPORT = "gvtlink.import"
 MATRIX_ATTACHMENT = "frf/matrix.npz"  # daq/lanes/frf.py MATRIX_ATTACHMENT (not imported: a lane is the service's)
 GEOMETRY_ATTACHMENT = "import/geometry.json"
+MODES_ATTACHMENT = "import/modes.json"  # the file's mode shapes (UFF 55), as gvt modal --modes-out writes them
 STREAM = "import"
 BLOCK = 4096  # samples per block: a recording's order of size (drivers write 256 .. 8192)
 #: Trigger level as a share of the largest force in the record when nothing says otherwise: a hammer test's hits are
@@ -62,6 +63,13 @@ def _write_provenance(w: LogWriter, data: TimeImport | FrfImport, summary: dict)
         "channels": json.dumps([{"name": c.name, "quantity": c.quantity, "unit": c.unit, "node": c.node,
                                  "xyz": list(c.xyz), "direction": c.direction} for c in data.channels]),
     })  # fmt: skip
+    if data.modes:
+        m = data.modes
+        doc = {"source": p.path, "freq_hz": m["freq_hz"], "zeta": m["zeta"], "outputs": m["outputs"],
+               "shapes_re": np.real(m["shapes"]).tolist()}  # fmt: skip
+        if np.iscomplexobj(m["shapes"]):
+            doc["shapes_im"] = np.imag(m["shapes"]).tolist()
+        w.add_attachment(MODES_ATTACHMENT, json.dumps(doc).encode(), "application/json")
     if data.geometry is not None:
         g = data.geometry
         doc = {"nodes": [[int(i), *map(float, x)] for i, x in zip(g.ids, g.xyz, strict=True)],
@@ -137,4 +145,4 @@ def record_length(force: np.ndarray, level: float, fs: float, longest: float = 1
     return float(max(min(longest, room - 1.0 / fs), 1.0 / fs))
 
 
-__all__ = ["GEOMETRY_ATTACHMENT", "MATRIX_ATTACHMENT", "META_IMPORT", "STREAM", "write_log"]
+__all__ = ["GEOMETRY_ATTACHMENT", "MATRIX_ATTACHMENT", "META_IMPORT", "MODES_ATTACHMENT", "STREAM", "write_log"]

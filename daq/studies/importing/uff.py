@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import re
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -96,9 +97,6 @@ def _read(path: Path, channels: Path | None) -> TimeImport | FrfImport:
     from daq.studies.uff.datasets import geometry_from_sets
 
     geometry = geometry_from_sets(others) if any(d.get("type") == 15 for d in others) else None
-    n_55 = sum(d.get("type") == 55 for d in others)
-    if n_55:
-        notes.append(f"{n_55} mode shape(s) (dataset 55) not imported: gvt modal identifies the modes from the data")
     prov = dict(path=where, sha256=digest.hexdigest(), format=fmt, writer=writer.split(":")[0][:80])
     frfs = [d for d in funcs if d["func_type"] == 4]
     if frfs:
@@ -106,11 +104,42 @@ def _read(path: Path, channels: Path | None) -> TimeImport | FrfImport:
         if times:
             notes.append(f"{times} time histories (dataset 58, type 1) not imported: the file's FRFs are; "
                          "import the time histories from a file without FRFs")  # fmt: skip
-        return _frf_import(frfs, [d for d in funcs if d["func_type"] == 6], others, units, geometry, prov, notes)
-    times = [d for d in funcs if d["func_type"] == 1]
-    if not times:
-        raise ImportError_(f"{where}: no time history or FRF (dataset 58, function type 1 or 4) in the file")
-    return _time_import(times, units, geometry, prov, notes)
+        rec = _frf_import(frfs, [d for d in funcs if d["func_type"] == 6], others, units, geometry, prov, notes)
+    else:
+        times = [d for d in funcs if d["func_type"] == 1]
+        if not times:
+            raise ImportError_(f"{where}: no time history or FRF (dataset 58, function type 1 or 4) in the file")
+        rec = _time_import(times, units, geometry, prov, notes)
+    shapes = [d for d in others if d.get("type") == 55]
+    if shapes:
+        rec.modes = mode_shapes(shapes, rec.channels, notes)
+        rec.provenance = replace(rec.provenance, assumptions=tuple(dict.fromkeys(notes)))
+    return rec
+
+
+def mode_shapes(sets: list[dict], channels: list[Channel], notes: list[str]) -> dict | None:
+    """Datasets 55 at the channels' DOFs: ``{"freq_hz", "zeta", "outputs", "shapes"}`` (``shapes`` (n_out, n_modes),
+    a channel's value the node's component along its direction, with its sign: the inverse of
+    ``daq/studies/uff/datasets.py`` mode_shape_sets), or None when no channel sits on a shape's node."""
+    from daq.studies.uff.datasets import mode_from_set
+
+    modes = [mode_from_set(d) for d in sets]
+    nodes = set().union(*(set(n.tolist()) for _f, _z, n, _r in modes))
+    outs = [c for c in channels if c.node in nodes and c.quantity != "force"]  # shapes are of the responses
+    if not outs:
+        notes.append(f"{len(sets)} mode shape(s) (dataset 55) not imported: no channel on their nodes")
+        return None
+    shapes = np.zeros((len(outs), len(modes)), dtype=complex)
+    for m, (_f, _z, ids, r) in enumerate(modes):
+        col = {int(n): i for i, n in enumerate(ids)}
+        for o, c in enumerate(outs):
+            if c.node in col:
+                shapes[o, m] = np.sign(c.direction) * r[abs(c.direction) - 1, col[c.node]]
+    if not np.iscomplexobj(shapes) or not np.any(shapes.imag):
+        shapes = shapes.real
+    notes.append(f"{len(sets)} mode shape(s) (dataset 55) kept at {len(outs)} channel(s) as import/modes.json")
+    return {"freq_hz": [float(f) for f, *_ in modes], "zeta": [float(z) for _f, z, *_ in modes],
+            "outputs": [c.name for c in outs], "shapes": shapes}  # fmt: skip
 
 
 def _mapped(path: Path) -> bytes:
@@ -332,4 +361,4 @@ def _time_import(times: list[dict], units: dict | None, geometry, prov: dict, no
                       [src_units[k] for k in range(len(dofs))], t0, geometry)  # fmt: skip
 
 
-__all__ = ["SUFFIXES", "is_uff", "read"]
+__all__ = ["SUFFIXES", "is_uff", "mode_shapes", "read"]

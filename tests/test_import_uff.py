@@ -43,6 +43,8 @@ def exported(tmp_path_factory) -> dict[str, Path]:
     assert run(["modal", str(p["npz"]), "--modes-out", str(p["modes"])]) == 0
     assert run(["export", str(p["log"]), "--frf", str(p["npz"]), "--modes", str(p["modes"]), "--out", str(p["frf_uff"])]) == 0
     assert run(["export", str(p["log"]), "--binary", "--out", str(p["time_uff"])]) == 0
+    p["frf_uff_b"] = d / "fb.uff"  # 58b FRFs as pyuff writes them: the header's byte count is half the data
+    assert run(["export", str(p["log"]), "--binary", "--frf", str(p["npz"]), "--out", str(p["frf_uff_b"])]) == 0
     return p
 
 
@@ -68,7 +70,7 @@ def test_gvtlink_uff_export_imports_to_the_same_modes(exported, tmp_path, capsys
     np.testing.assert_allclose(shapes["shapes_re"], orig["shapes_re"], rtol=5e-6, atol=5e-6 * scale)
     np.testing.assert_allclose(shapes["shapes_im"], orig["shapes_im"], rtol=5e-6, atol=5e-6 * scale)
     want = _modes(capsys, exported["npz"])
-    for source in (out, exported["frf_uff"]):  # the import, and the UFF file given to gvt modal directly
+    for source in (out, exported["frf_uff"], exported["frf_uff_b"]):  # the import; UFF files to gvt modal directly
         got = _modes(capsys, source)
         assert len(got) == len(want) >= 5
         for a, b in zip(got, want, strict=True):

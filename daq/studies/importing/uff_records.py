@@ -111,15 +111,32 @@ def binary_header(head: bytes, where: str) -> tuple[str, int, int]:
 
 
 def _skip_binary(raw: bytes, head: bytes, pos: int, where: str, number: int) -> int:
+    """End of a 58b dataset's data: its header's byte count, or -- where that does not end on a ``-1`` line -- the
+    size record 7 gives (points x values x bytes). pyuff (2.5) writes the byte count of complex data as if it were
+    real, half the size; its own reader never looks at it, so such files exist wherever pyuff wrote FRFs."""
     _bo, lines, nbytes = binary_header(head, f"{where}: dataset {number}")
-    for _ in range(lines):
+    rec7 = b""
+    for k in range(lines):
         if pos >= len(raw):
             break
-        pos = _line(raw, pos)[1]
+        line, pos = _line(raw, pos)
+        rec7 = line if k == 6 else rec7
+    for size in dict.fromkeys((nbytes, _record7_bytes(rec7))):
+        if size is not None and pos + size <= len(raw) and _is_delim(_line(raw, pos + size)[0]):
+            return pos + size
     if pos + nbytes > len(raw):
         raise ImportError_(f"{where}: truncated: dataset {number} (58b) needs {nbytes} data bytes, the file has "
                            f"{max(0, len(raw) - pos)}")  # fmt: skip
     return pos + nbytes
+
+
+def _record7_bytes(rec7: bytes) -> int | None:
+    """Data bytes record 7 implies (ordinate type 2/4/5/6, points, even or uneven abscissa); None if unreadable."""
+    try:
+        t, n, spacing = (int(x) for x in rec7.split()[:3])
+        return _expected({"ord_data_type": t, "num_pts": n, "abscissa_spacing": spacing})[0] * (4 if t in (2, 5) else 8)
+    except ValueError:
+        return None
 
 
 # --- dataset 58 ----------------------------------------------------------------------------------------------

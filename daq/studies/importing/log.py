@@ -95,11 +95,11 @@ def _write_time(w: LogWriter, data: TimeImport) -> dict:
 
     names = tuple(c.name for c in data.channels)
     w.add_stream(STREAM, _infos(data.channels), data.fs, offset_ns=round(data.t0_s * 1e9))
-    x = np.ascontiguousarray(data.samples, dtype=np.float32)
+    x = data.samples  # a channel-major table's transpose from tdms.py/hdf5.py: made float32 rows a block at a time
     detector, level = _detector(data)
     hits = []
     for a in range(0, x.shape[0], BLOCK):
-        block = SampleBlock(STREAM, a, data.fs, names, x[a : a + BLOCK])
+        block = SampleBlock(STREAM, a, data.fs, names, np.ascontiguousarray(x[a : a + BLOCK], dtype=np.float32))
         w.write_block(block, wait=True)
         hits += detector.feed(block) if detector is not None else []
     hits += detector.finish() if detector is not None else []

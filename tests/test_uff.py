@@ -24,6 +24,7 @@ from daq.studies.uff import datasets as uff
 
 E13 = 5e-6  # E13.5: 6 significant digits
 E20 = 1e-11  # E20.11: 12 significant digits
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +84,38 @@ def test_export_of_a_simulated_session_reads_back_in_pyuff(session, tmp_path):
         assert d["abscissa_inc"] == pytest.approx(1 / info.sample_rate, rel=E13)
     peak = max(np.abs(d["data"]).max() for d in times if d["rsp_ent_name"] == "hammer" and d["ver_num"] == 2)
     assert peak == pytest.approx(60.0, rel=0.02)  # the 60 N hit (the hammer channel's noise and ADC: < 2 %)
+
+
+def test_two_device_log_exports_every_device_on_the_session_timeline(tmp_path, capsys):
+    """Issue 31 item 5: the format 1 two-device log (tests/data/format1/two_devices.mcap: the hammer on hammer_daq,
+    14 accelerometers on acc_daq, whose sample 0 is the hammer's sample 3885) used to export the hammer alone.
+    Now every hit holds all 15 channels; acc_daq's records are its own samples 3885 earlier on its clock, equal to
+    the log's values, on the hammer's time axis -- and the driving point's response starts with the hammer's blow
+    (onset within 1 ms, the physics of an impact: the oracle that does not use the offset)."""
+    from .test_time_base import onset
+
+    log = ROOT / "tests" / "data" / "format1" / "two_devices.mcap"
+    out = tmp_path / "two.uff"
+    assert run(["export", str(log), "--out", str(out), "--binary"]) == 0
+    said = capsys.readouterr().out
+    assert "3 accepted hit(s) x 15 channels of 2 streams (hammer_daq, acc_daq at +3885 samples)" in said, said
+    times = [d for d in uff.read_uff(out) if d["type"] == 58]
+    assert len(times) == 3 * 15 and {d["rsp_ent_name"] for d in times} == {"hammer", *(f"a{k:02d}" for k in range(1, 15))}
+    reader = LogReader(log)
+    hits = [h for h in reader.json_messages("/daq/hits") if h["verdict"] == "accepted"]
+    acc = reader.read_stream("acc_daq")
+    fs = 16384.0
+    for h in hits:
+        rec = {d["rsp_ent_name"]: d for d in times if d["ver_num"] == h["hit"] + 1}
+        a, b = h["start_index"], h["end_index"]
+        own = (acc.index >= a - 3885) & (acc.index < b - 3885)
+        for k, name in enumerate(reader.streams()["acc_daq"].channels):
+            assert np.array_equal(rec[name]["data"], acc.data[own, k].astype(float)), (h["hit"], name)  # 58b: exact
+            assert rec[name]["x"][0] == pytest.approx(a / fs, rel=E13)  # the hammer's time axis, not acc_daq's own
+        t = rec["hammer"]["x"]
+        ts = h["index"] / fs
+        dt = onset(t, rec["a13"]["data"], ts - 0.01, ts + 0.02) - onset(t, rec["hammer"]["data"], ts - 0.01, ts + 0.02)
+        assert abs(dt) <= 1e-3, (h["hit"], dt)  # a13 is at the hammer's DOF (sim_two_devices.toml); 1 ms = 16 samples
 
 
 def test_binary_58b_is_exact_and_smaller(session, tmp_path):

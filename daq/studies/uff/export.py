@@ -7,13 +7,17 @@ The FRFs come first because sdypy-EMA's ``Model.read_uff`` takes the FRF form (r
 accelerance) from the ordinate type of the file's *first* dataset 58, whatever its function type.
 The channel table (node, direction, quantity of each channel) is the log's attached rig's
 (``analysis.model.channels.rig_channels``) or a CSV given with ``--channels``; a log channel the table does not
-name is left out and said so. A hit record is ``start_index .. end_index`` of its ``/daq/hits`` record, or for
+name is left out and said so. Every device's channels are exported: each stream is placed on the session's
+timeline by the offset the log records (``daq.log.export.time_base``; a second DAQ's sample 0 is the hammer's sample
+``offset``), so a hit's records of all devices share one time axis; a stream whose samples do not cover a hit's record
+is left out of that hit with a warning line. A hit record is ``start_index .. end_index`` of its ``/daq/hits`` record, or for
 logs whose hits carry only the trigger (simulated ones) 10 ms before it to the rig's record length after it.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -81,32 +85,81 @@ def load_modes_json(path: Path) -> dict[str, Any]:
         raise BadInput(f"--modes {path}: not a modes file (freq_hz, zeta, outputs, shapes_re[, shapes_im]): {exc}") from None
 
 
+@dataclass(frozen=True)
+class _Placed:
+    """The channel-table channels of one stream and where its samples lie on the hits' grid (the force stream's):
+    own index = hit index - ``offset`` at the same rate (exact), or own time = hit time - ``shift_s`` at another."""
+
+    stream: str
+    channels: tuple[str, ...]
+    fs: float
+    offset: int
+    shift_s: float
+
+
+def _placed_streams(reader: LogReader, force_stream: str, table: dict[str, Channel]) -> tuple[list[_Placed], list[str]]:
+    """Every stream with a channel of the table, placed on the session's timeline (``daq.log.export.time_base``: the
+    offsets the log records, a second device's included), the force stream first; and the log channels left out
+    because the table does not name them."""
+    from daq.log.export import time_base
+
+    infos = reader.streams()
+    tb = time_base(reader)
+    fs_ref = infos[force_stream].sample_rate
+    base_n, base_ns = tb.offset_samples.get(force_stream, 0), tb.offset_ns.get(force_stream, 0)
+    placed, skipped = [], []
+    for s in [force_stream, *sorted(x for x in infos if x != force_stream)]:
+        info = infos[s]
+        for c, unit in zip(info.channels, info.units, strict=True):
+            if c in table and unit and unit != table[c].unit:
+                raise BadInput(f"{reader.path}: channel {c} is recorded in {unit!r} but the channel table says {table[c].unit!r}")
+        skipped += [c for c in info.channels if c not in table]
+        names = tuple(c for c in info.channels if c in table)
+        if names:
+            shift = (tb.offset_ns.get(s, 0) - base_ns) / 1e9
+            placed.append(_Placed(s, names, info.sample_rate, tb.offset_samples.get(s, 0) - base_n, shift))
+    assert placed and placed[0].stream == force_stream and fs_ref > 0
+    return placed, skipped
+
+
+def _own_window(p: _Placed, a: int, b: int, fs_ref: float) -> tuple[int, int, float]:
+    """Own sample range [j0, j1) of stream ``p`` for the hit record [a, b) of the force stream, and its session time."""
+    if p.fs == fs_ref:
+        return a - p.offset, b - p.offset, a / fs_ref
+    j0, j1 = (int(np.ceil((x / fs_ref - p.shift_s) * p.fs - 1e-9)) for x in (a, b))
+    return j0, j1, j0 / p.fs + p.shift_s
+
+
 def _hit_sets(reader: LogReader, stream: str, table: dict[str, Channel], record_s: float, binary: bool):
-    """Datasets 58 of every accepted hit of ``stream``, and the names of the log channels left out."""
-    info = reader.streams()[stream]
-    names = [c for c in info.channels if c in table]
-    skipped = [c for c in info.channels if c not in table]
-    for c, unit in zip(info.channels, info.units, strict=True):
-        if c in table and unit and unit != table[c].unit:
-            raise BadInput(f"{reader.path}: channel {c} is recorded in {unit!r} but the channel table says {table[c].unit!r}")
-    ref = table["hammer"] if "hammer" in table else next((table[c] for c in names if table[c].quantity == "force"), None)
+    """Datasets 58 of every accepted hit, every stream's channels on the session's timeline; the names of the log
+    channels left out of the table; and one line per stream whose samples do not cover a hit's record (left out)."""
+    placed, skipped = _placed_streams(reader, stream, table)
+    ref = table["hammer"] if "hammer" in table else next(
+        (table[c] for p in placed for c in p.channels if table[c].quantity == "force"), None)  # fmt: skip
     if ref is None:
         raise BadInput(f"{reader.path}: no force channel in the channel table; the hits need their reference DOF")
+    fs = placed[0].fs
     n_total = int(reader.stream_records().get(stream, {}).get("end_index") or 2**62)
-    sets, hits, fid = [], [], 1
-    for hit, a, b in hit_windows(reader, info.sample_rate, record_s, n_total):
-        sd = reader.read_stream(stream, names, start=(a - 0.5) / info.sample_rate, end=(b - 0.5) / info.sample_rate)
-        keep = (sd.index >= a) & (sd.index < b)
-        if int(keep.sum()) != b - a:
-            raise BadInput(
-                f"{reader.path}: hit {hit} needs samples [{a}, {b}) of {stream}; the log has {int(keep.sum())} of them"
-            )
-        chans = [table[c] for c in names]
-        sets += uff.time_sets(sd.data[keep], info.sample_rate, chans, ref, t0=a / info.sample_rate, hit=hit, binary=binary,
-                              first_id=fid)  # fmt: skip
-        fid += len(chans)
+    sets, hits, fid, uncovered = [], [], 1, {}
+    for hit, a, b in hit_windows(reader, fs, record_s, n_total):
+        for k, p in enumerate(placed):
+            j0, j1, t0 = _own_window(p, a, b, fs)
+            sd = reader.read_stream(p.stream, list(p.channels), start=(j0 - 0.5) / p.fs, end=(j1 - 0.5) / p.fs)
+            keep = (sd.index >= j0) & (sd.index < j1)
+            if int(keep.sum()) != j1 - j0:
+                if k == 0:  # the force itself: no hit without it
+                    raise BadInput(f"{reader.path}: hit {hit} needs samples [{a}, {b}) of {stream}; the log has "
+                                   f"{int(keep.sum())} of them")  # fmt: skip
+                uncovered.setdefault(p.stream, []).append(hit)
+                continue
+            chans = [table[c] for c in p.channels]
+            sets += uff.time_sets(sd.data[keep], p.fs, chans, ref, t0=t0, hit=hit, binary=binary, first_id=fid)
+            fid += len(chans)
         hits.append(hit)
-    return sets, hits, skipped
+    chans = {p.stream: ", ".join(p.channels) for p in placed}
+    notes = [f"{s} ({chans[s]}) left out of hit(s) {', '.join(map(str, h))}: the log has not all its samples of those records"
+             for s, h in uncovered.items()]  # fmt: skip
+    return sets, hits, skipped, notes, placed
 
 
 def _force_stream(reader: LogReader, table: dict[str, Channel]) -> str:
@@ -115,6 +168,12 @@ def _force_stream(reader: LogReader, table: dict[str, Channel]) -> str:
         if any(c in table and table[c].quantity == "force" for c in info.channels):
             return name
     raise BadInput(f"{reader.path}: no stream carries a force channel of the channel table; streams: {sorted(streams)}")
+
+
+def _stream_text(p: _Placed) -> str:
+    if p.offset == 0 and p.shift_s == 0:
+        return p.stream
+    return f"{p.stream} at {p.offset:+d} samples" if round(p.shift_s * p.fs) == p.offset else f"{p.stream} at {p.shift_s:+.6f} s"
 
 
 def _plan_references(reader: LogReader, chans: dict[str, Channel]) -> dict[str, Channel]:
@@ -148,7 +207,7 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
     chans.update(_plan_references(reader, chans))
     record_s = rig.config.daq.record_length if rig is not None else 2.0
     stream = _force_stream(reader, chans)
-    hit_sets, hits, skipped = _hit_sets(reader, stream, chans, record_s, binary)
+    hit_sets, hits, skipped, uncovered, placed = _hit_sets(reader, stream, chans, record_s, binary)
     if reader.damage:  # a chunk of hit records (or samples) failed: hits may be missing, as gvt frf says (exit 3)
         from daq.studies.frf_judge import damage_error
 
@@ -160,7 +219,8 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
     parts = [
         f"{geometry.ids.size} nodes",
         f"{len(geometry.lines)} lines",
-        f"{len(hits)} accepted hit(s) x {len(hit_sets) // max(1, len(hits))} channels",
+        f"{len(hits)} accepted hit(s) x {sum(len(p.channels) for p in placed)} channels"
+        + (f" of {len(placed)} streams ({', '.join(_stream_text(p) for p in placed)})" if len(placed) > 1 else ""),
     ]
     note = None
     if frf is not None:
@@ -179,7 +239,7 @@ def export_uff(log: Path, out: Path, *, channels_csv: Path | None = None, frf: P
     sets += hit_sets  # after the FRFs: sdypy-EMA's read_uff takes the FRF form from the file's first dataset 58
     uff.write_uff(out, sets)
     left = f"; left out (not in the channel table): {', '.join(skipped)}" if skipped else ""
-    warn = f"\nwarning: {note}" if note else ""
+    warn = "".join(f"\nwarning: {x}" for x in [*uncovered, *([note] if note else [])])
     return f"{len(sets)} UFF datasets: {', '.join(parts)}{left}{warn}"
 
 

@@ -51,6 +51,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_load.py  # the load matrix at 60 s a cell, 16 hogs, 10 minutes at 8 hogs (issue 30)
 	$(BIN)/python bench/bench_startup.py
 	$(BIN)/python bench/bench_sweep.py
+	$(BIN)/python bench/bench_public_data.py  # public measured data against sdypy-EMA (issue 31)
 	$(BIN)/python bench/bench_analysis.py
 	$(BIN)/python bench/bench_hits.py
 	$(BIN)/python bench/eval_detection.py

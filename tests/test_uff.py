@@ -118,6 +118,39 @@ def test_two_device_log_exports_every_device_on_the_session_timeline(tmp_path, c
         assert abs(dt) <= 1e-3, (h["hit"], dt)  # a13 is at the hammer's DOF (sim_two_devices.toml); 1 ms = 16 samples
 
 
+def test_a_device_that_does_not_cover_a_hit_is_left_out_of_it_with_one_line(tmp_path, capsys):
+    """A second device whose clock starts late (its sample 0 is the hammer's sample 600, 1 kHz): the first hit's
+    record [290, 1290) is not all in it, so that hit has the hammer alone and one warning line names the device,
+    its channels and the hit; the second hit has both, the accelerometer's samples its own 600 earlier."""
+    from daq.log.writer import ChannelInfo, LogWriter
+    from drivers.blocks import SampleBlock
+
+    log, fs, d = tmp_path / "late.mcap", 1000.0, 600
+    with LogWriter(log, origin_ns=0) as w:
+        w.add_stream("h", [ChannelInfo("hammer", "force", "N")], fs, offset_ns=0)
+        w.add_stream("a", [ChannelInfo("a1", "acceleration", "m/s^2")], fs, offset_ns=round(d * 1e9 / fs))
+        force = np.zeros(2000, np.float32)
+        force[[300, 1300]] = 50.0
+        w.write_block(SampleBlock("h", 0, fs, ("hammer",), force[:, None]), wait=True)
+        own = np.arange(1400, dtype=np.float32)  # value = own index
+        w.write_block(SampleBlock("a", 0, fs, ("a1",), own[:, None]), wait=True)
+        for k, (a, b) in enumerate(((290, 1290), (1290, 2000))):
+            w.write_hit({"hit": k, "index": a + 10, "t_s": (a + 10) / fs, "verdict": "accepted", "start_index": a,
+                         "end_index": b})  # fmt: skip
+    table = tmp_path / "ch.csv"
+    table.write_text("name,node,x,y,z,direction,sensitivity,unit\nhammer,1,0,0,0,+Z,2.25,mV/N\na1,2,1,0,0,+Z,100,mV/g\n")
+    out = tmp_path / "late.uff"
+    assert run(["export", str(log), "--out", str(out), "--channels", str(table), "--binary"]) == 0
+    said = capsys.readouterr().out
+    warn = [x for x in said.splitlines() if x.startswith("warning:")]
+    assert warn == ["warning: a (a1) left out of hit(s) 0: the log has not all its samples of those records"], said
+    times = [x for x in uff.read_uff(out) if x["type"] == 58]
+    assert sorted((x["ver_num"], x["rsp_ent_name"]) for x in times) == [(1, "hammer"), (2, "a1"), (2, "hammer")]
+    a1 = next(x for x in times if x["rsp_ent_name"] == "a1")
+    np.testing.assert_array_equal(a1["data"], np.arange(1290 - d, 2000 - d))  # own index = hammer index - 600
+    assert a1["x"][0] == pytest.approx(1.29, rel=E13)  # on the hammer's time axis
+
+
 def test_binary_58b_is_exact_and_smaller(session, tmp_path):
     ascii_, binary = tmp_path / "a.uff", tmp_path / "b.uff"
     assert run(["export", str(session), "--out", str(ascii_)]) == 0

@@ -1,0 +1,195 @@
+"""``gvt import`` readers of CSV, NI TDMS and SEP005-in-HDF5 (issue 31): exact imports and one-line refusals.
+
+Oracles: the samples a file was written from (by gvtlink's own ``gvt log export``, by npTDMS's ``TdmsWriter``, by
+h5py), converted with the units' defining factors written out here (g = 9.80665 m/s^2 and lbf = 0.45359237 kg x
+g = 4.4482216152605 N, ISO 80000-3 / NIST SP 811; mm = 1e-3 m). Equality is exact (``np.array_equal`` on float64):
+a reader that parses, casts or scales differently is off by at least one ulp somewhere in a thousand samples.
+"""
+
+from __future__ import annotations
+
+import csv as pycsv
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+from daq.log.export import export
+from daq.log.reader import LogReader
+from daq.studies.importing import csv, hdf5, tdms
+from daq.studies.importing.data import ImportError_
+
+ROOT = Path(__file__).resolve().parents[1]
+LOG = ROOT / "replay_logs" / "two_dof_3hits.mcap"  # the seed's 2-DOF system, 3 hits, 9005 samples x 3 channels
+G, LBF = 9.80665, 4.4482216152605
+RNG = np.random.default_rng(31)
+
+
+def refused(fn, *args, **kw) -> str:
+    """The one line a reader refuses with (exit 2)."""
+    with pytest.raises(ImportError_) as info:
+        fn(*args, **kw)
+    line = str(info.value)
+    assert info.value.exit_code == 2 and "\n" not in line and "Traceback" not in line
+    return line
+
+
+# --- CSV ----------------------------------------------------------------------------------------------------------
+def test_gvt_log_export_csv_imports_back_exactly(tmp_path):
+    out = tmp_path / "two_dof.csv"
+    export(LOG, out, "csv")
+    got = csv.read(out)
+    r = LogReader(LOG)
+    info = r.streams()["dev0"]
+    want = r.read_stream("dev0")
+    assert [c.name for c in got.channels] == list(want.channels) == ["hammer", "x1", "x2"]
+    assert got.source_units == list(info.units) and [c.unit for c in got.channels] == list(info.units)  # N, m, m
+    assert got.fs == info.sample_rate == 50.0 and got.t0_s == 0.0
+    assert np.array_equal(got.samples, want.data.astype(np.float64))  # every float32 back, bit for bit
+    assert got.provenance.format == "csv" and got.provenance.writer.startswith("gvtlink")
+    assert len(got.provenance.sha256) == 64
+
+
+def _write(path: Path, rows: list[list[str]]) -> Path:
+    with open(path, "w", newline="") as fh:
+        pycsv.writer(fh).writerows(rows)
+    return path
+
+
+def test_generic_csv_units_and_channel_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(csv, "CHUNK_ROWS", 7)  # rows cross several chunks (the streaming path), one with an empty cell
+    n, fs = 40, 2000.0
+    acc, ham, volts = RNG.standard_normal(n), 100 * RNG.standard_normal(n), RNG.standard_normal(n)
+    rows = [["time [ms]", "acc [g]", "ham [lbf]", "v [mV]"]]
+    rows += [[repr(1e3 * k / fs), *(repr(float(x[k])) for x in (acc, ham, volts))] for k in range(n)]
+    rows[10][1] = ""  # no sample there
+    src = _write(tmp_path / "lab.csv", rows)
+    table = tmp_path / "table.csv"
+    table.write_text("name,node,x,y,z,direction,sensitivity,unit\nham,1,0,0,0,-Z,2.25,mV/N\n"
+                     "acc,2,0.5,0,0,+Z,100,mV/g\nv,3,1.0,0,0,+Y,100,mV/g\n")  # fmt: skip
+    got = csv.read(src, table)
+    assert got.fs == fs and got.t0_s == 0.0 and got.source_units == ["g", "lbf", "mV"]
+    a = acc * G
+    a[9] = np.nan
+    assert np.array_equal(got.samples[:, 0], a, equal_nan=True) and np.array_equal(got.samples[:, 1], ham * LBF)
+    # volts over the table's 100 mV/g = 0.1 V / 9.80665 (m/s^2): 2 roundings (pint, the division), 1e-15 relative
+    assert np.allclose(got.samples[:, 2], volts * 1e-3 / (0.1 / G), rtol=1e-15, atol=0)
+    assert [(c.name, c.quantity, c.node, c.direction) for c in got.channels] == [
+        ("acc", "acceleration", 2, 3), ("ham", "force", 1, 1 * -3), ("v", "acceleration", 3, 2)]  # fmt: skip
+    assert any("1 empty cell" in a for a in got.provenance.assumptions)
+
+
+@pytest.mark.parametrize(
+    ("rows", "where", "words"),
+    [
+        ([["t [s]", "a [g]"], ["0", "1"], ["0.001", "2", "3"]], ":3:", "3 fields but the header has 2 columns"),
+        ([["t [s]", "a [g]"], ["0", "1"], ["0.001", "2"], ["0.002", "x7"]], ":4:", "column 'a [g]': 'x7' is not a number"),
+        ([["t [s]", "a [g]"], ["0", "1"], ["0.001", "2"], ["0.003", "2"], ["0.004", "2"]], ":4:", "time column breaks"),
+        ([["t [s]", "a"], ["0", "1"], ["0.001", "2"]], "", "channel 'a' has no unit"),
+        ([["t [s]", "a [bananas]"], ["0", "1"], ["0.001", "2"]], "", "'bananas', which pint does not know"),
+        ([["t [s]", "p [Pa]"], ["0", "1"], ["0.001", "2"]], "", "not an acceleration, velocity, displacement, force"),
+        ([["a [g]"], ["1"], ["2"]], "", "no time column"),
+    ],
+)
+def test_csv_bad_input_is_one_line_naming_the_line(tmp_path, monkeypatch, rows, where, words):
+    monkeypatch.setattr(csv, "CHUNK_ROWS", 2)  # the bad row may sit in any chunk
+    src = _write(tmp_path / "bad.csv", rows)
+    line = refused(csv.read, src)
+    assert line.startswith(f"{src}{where}") and words in line, line
+
+
+def test_gvt_export_with_a_gap_is_refused_at_its_line(tmp_path):
+    out = tmp_path / "two_dof.csv"
+    export(LOG, out, "csv")
+    lines = out.read_text().splitlines(keepends=True)
+    out.write_text("".join(lines[:101] + lines[102:]))  # row of index 100 (file line 102) removed
+    assert refused(csv.read, out).startswith(f"{out}:102: index goes from 99 to 101")
+
+
+# --- TDMS ---------------------------------------------------------------------------------------------------------
+def _tdms(path: Path, *objects) -> Path:
+    with TdmsWriter(path) as w:
+        w.write_segment([RootObject(properties={"author": "FlexLogger"}), *objects])
+    return path
+
+
+def test_tdms_written_by_nptdms_imports_exactly(tmp_path):
+    n, inc = 1000, 1 / 51200
+    acc = RNG.standard_normal(n).astype(np.float32)
+    ham = (100 * RNG.standard_normal(n)).astype(np.float32)
+    disp = RNG.integers(-3000, 3000, n).astype(np.int16)
+    src = _tdms(tmp_path / "hits.tdms", GroupObject("Hits"),
+                ChannelObject("Hits", "acc", acc, properties={"wf_increment": inc, "wf_start_offset": 0.25,
+                                                              "unit_string": "g", "NI_ChannelName": "cDAQ1Mod1/ai0"}),
+                ChannelObject("Hits", "ham", ham, properties={"wf_increment": inc, "unit_string": "lbf"}),
+                ChannelObject("Hits", "disp", disp, properties={"wf_increment": inc, "unit_string": "mm"}))  # fmt: skip
+    got = tdms.read(src)
+    assert got.fs == 51200.0 and got.t0_s == 0.25 and [c.name for c in got.channels] == ["acc", "ham", "disp"]
+    assert np.array_equal(got.samples[:, 0], acc.astype(np.float64) * G)
+    assert np.array_equal(got.samples[:, 1], ham.astype(np.float64) * LBF)
+    assert np.array_equal(got.samples[:, 2], disp.astype(np.float64) * 1e-3)
+    assert got.provenance.writer == "FlexLogger" and got.source_units == ["g", "lbf", "mm"]
+    assert any("cDAQ1Mod1/ai0" in a for a in got.provenance.assumptions)
+
+
+def test_tdms_time_channel_groups_and_no_time_track(tmp_path):
+    n = 300
+    t = np.arange(n) / 1000.0
+    a, b = RNG.standard_normal(n), RNG.standard_normal(2 * n)
+    src = _tdms(tmp_path / "two.tdms", GroupObject("slow"), ChannelObject("slow", "Time", t, properties={"unit_string": "s"}),
+                ChannelObject("slow", "a", a, properties={"unit_string": "m/s^2"}), GroupObject("fast"),
+                ChannelObject("fast", "b", b, properties={"unit_string": "N", "wf_increment": 1 / 2000}))  # fmt: skip
+    line = refused(tdms.read, src)
+    assert "'slow' (1 ch, 1000 Hz" in line and "'fast' (1 ch, 2000 Hz" in line and "--group" in line
+    got = tdms.read(src, group="slow")  # the rate from the time channel; the other group named as not imported
+    assert got.fs == 1000.0 and np.array_equal(got.samples[:, 0], a) and [c.name for c in got.channels] == ["a"]
+    assert any("not imported (--group slow): 'fast'" in x for x in got.provenance.assumptions)
+    bare = _tdms(tmp_path / "bare.tdms", GroupObject("g"), ChannelObject("g", "a", a, properties={"unit_string": "g"}))
+    assert "group 'g' has no time information" in refused(tdms.read, bare)
+    nounit = _tdms(tmp_path / "nounit.tdms", GroupObject("g"), ChannelObject("g", "a", a, properties={"wf_increment": 1e-3}))
+    assert "channel 'a' has no unit" in refused(tdms.read, nounit)
+    assert "not a readable TDMS file" in refused(tdms.read, LOG)
+
+
+# --- HDF5 (SEP005) ------------------------------------------------------------------------------------------------
+def test_hdf5_sep005_written_by_h5py_imports_exactly(tmp_path):
+    n = 1000
+    acc, ham = RNG.standard_normal(n).astype(np.float32), 50 * RNG.standard_normal(n)
+    src = tmp_path / "sep005.h5"
+    with h5py.File(src, "w", track_order=True) as f:
+        f.attrs["writer"] = "sep005 test"
+        g = f.create_group("ch_z")  # created first, named last: creation order rules
+        g["data"] = acc
+        g.attrs.update(name="acc", unit_str="g", fs=2048.0, start_timestamp="2026-11-28T10:00:00+00:00", quantity="acceleration")
+        f["hammer"] = ham  # a channel as a dataset with its fields as attributes
+        f["hammer"].attrs.update(unit_str="N", fs=2048)
+        f["notes"] = np.arange(3)  # not a channel: said, not imported
+    got = hdf5.read(src)
+    assert got.fs == 2048.0 and [c.name for c in got.channels] == ["acc", "hammer"] and got.provenance.writer == "sep005 test"
+    assert np.array_equal(got.samples[:, 0], acc.astype(np.float64) * G) and np.array_equal(got.samples[:, 1], ham)
+    said = " | ".join(got.provenance.assumptions)
+    assert "creation order" in said and "2026-11-28T10:00:00+00:00" in said and "['notes']" in said
+
+
+def test_hdf5_sep005_time_vector_and_bad_files(tmp_path):
+    n = 200
+    t, v = 0.5 + np.arange(n) / 512.0, RNG.standard_normal(n)
+    src = tmp_path / "time.h5"
+    with h5py.File(src, "w") as f:
+        f.create_group("v")
+        f["v/data"], f["v/time"] = v, t
+        f["v"].attrs["unit_str"] = "mm/s"
+    got = hdf5.read(src)
+    assert got.fs == 512.0 and got.t0_s == 0.5 and np.array_equal(got.samples[:, 0], v * 1e-3)
+    with h5py.File(src, "a") as f:
+        f.create_group("w")
+        f["w/data"] = v[:100]
+        f["w"].attrs.update(unit_str="N", fs=512.0)
+    assert "channels on different grids" in refused(hdf5.read, src)
+    with h5py.File(src, "w") as f:
+        f["x"] = v
+        f["x"].attrs["unit_str"] = "g"
+    assert "channel 'x' has neither fs nor time" in refused(hdf5.read, src)
+    assert "not a readable HDF5 file" in refused(hdf5.read, LOG)

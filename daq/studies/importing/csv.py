@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.model.units import _unit_text, _units
-from daq.studies.importing._common import channel_list, file_sha256, load_table, rate_from_time, si_factors
+from daq.studies.importing._common import channel_list, hash_in_background, load_table, rate_from_time, si_factors
 from daq.studies.importing.data import ImportError_, Provenance, TimeImport
 
 CHUNK_ROWS = 65536
@@ -147,6 +147,7 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None) -> T
         fh = open(path, newline="", encoding="utf-8-sig")
     except OSError as exc:
         raise ImportError_(f"{where}: cannot read ({exc.strerror or exc})") from None
+    sha = hash_in_background(path)
     with fh:
         try:
             first = next(csv.reader([fh.readline()]), [])
@@ -178,7 +179,7 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None) -> T
                               "log's float32 samples")  # fmt: skip
     if empty:
         assumptions.append(f"{empty} empty cell(s): no sample there (NaN)")
-    prov = Provenance(where, file_sha256(path), "csv", "gvtlink (gvt log export)" if h.gvtlink else "", tuple(assumptions))
+    prov = Provenance(where, sha(), "csv", "gvtlink (gvt log export)" if h.gvtlink else "", tuple(assumptions))
     return TimeImport(samples, rate, chans, prov, source_units=h.units, t0_s=t0)
 
 

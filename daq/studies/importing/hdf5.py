@@ -16,7 +16,8 @@ that mapping in HDF5:
 
 All channels must share one grid (rate, length, start); else the file is refused naming them. A channel with no
 unit, an unknown one, or neither ``fs`` nor ``time`` is one line, exit 2. ``data`` is read as stored and converted
-to float64, then multiplied by the unit's exact factor: a file written by h5py imports bit for bit.
+to float64, then multiplied by the unit's exact factor: a file written by h5py imports bit for bit. The samples
+are the transpose of a channel-major array (each channel contiguous; see tdms.py).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from daq.studies.importing._common import _si, channel_list, file_sha256, load_table, rate_from_time, si_factors
+from daq.studies.importing._common import _si, channel_list, hash_in_background, load_table, rate_from_time, si_factors
 from daq.studies.importing.data import ImportError_, Provenance, TimeImport
 
 SPEC = "SEP005 in HDF5: one group per channel (dataset data, attributes name, unit_str, fs) (docs/import-formats.md)"
@@ -100,6 +101,7 @@ def read(path: Path, channels: Path | None = None) -> TimeImport:
         f = h5py.File(path, "r")
     except OSError as exc:
         raise ImportError_(f"{where}: not a readable HDF5 file ({str(exc)[:80]})") from None
+    sha = hash_in_background(path)
     with f:
         found = [(k, _as_channel(where, k, f[k])) for k in f]
         chans = [c for _k, c in found if c is not None]
@@ -115,9 +117,12 @@ def read(path: Path, channels: Path | None = None) -> TimeImport:
             raise ImportError_(f"{where}: channels on different grids: {desc}; write one file per grid")
         units = [c.unit for c in chans]
         factors, quantities, conv = si_factors(where, names, units, table)
-        samples = np.empty((chans[0].data.shape[0], len(chans)), np.float64)
+        by_channel = np.empty((len(chans), chans[0].data.shape[0]), np.float64)  # channel-major, as in tdms.py
         for k, c in enumerate(chans):
-            np.multiply(c.data[...], factors[k], out=samples[:, k], dtype=np.float64)
+            if c.data.dtype == np.float64 and factors[k] == 1:
+                c.data.read_direct(by_channel[k])
+            else:  # float32, ints -> float64 exactly, then the factor, in one pass
+                np.multiply(c.data[...], factors[k], out=by_channel[k], dtype=np.float64)
         order = f["/"].id.get_create_plist().get_link_creation_order() & h5py.h5p.CRT_ORDER_TRACKED
         writer = _text(f.attrs.get("writer", f.attrs.get("software", "")))
     table_chans, more = channel_list(where, names, quantities, table)
@@ -126,5 +131,5 @@ def read(path: Path, channels: Path | None = None) -> TimeImport:
              *sorted({f"starts at {c.start} (start_timestamp)" for c in chans if c.start}), *conv, *more]  # fmt: skip
     if other:
         notes.append(f"root object(s) {other} are not SEP005 channels: not imported")
-    prov = Provenance(where, file_sha256(path), "hdf5-sep005", writer, tuple(notes))
-    return TimeImport(samples, chans[0].fs, table_chans, prov, source_units=units, t0_s=chans[0].t0)
+    prov = Provenance(where, sha(), "hdf5-sep005", writer, tuple(notes))
+    return TimeImport(by_channel.T, chans[0].fs, table_chans, prov, source_units=units, t0_s=chans[0].t0)

@@ -193,3 +193,25 @@ def test_hdf5_sep005_time_vector_and_bad_files(tmp_path):
         f["x"].attrs["unit_str"] = "g"
     assert "channel 'x' has neither fs nor time" in refused(hdf5.read, src)
     assert "not a readable HDF5 file" in refused(hdf5.read, LOG)
+
+
+# --- through `gvt import` -----------------------------------------------------------------------------------------
+def test_gvt_import_round_trip_and_bad_input_through_the_cli(tmp_path, capsys):
+    from daq.cli import run
+
+    src, out = tmp_path / "two_dof.csv", tmp_path / "back.mcap"
+    export(LOG, src, "csv")
+    assert run(["import", str(src), "-o", str(out)]) == 0
+    back, orig = LogReader(out), LogReader(LOG)
+    assert np.array_equal(back.read_stream("import").data, orig.read_stream("dev0").data)  # float32 log -> log, exact
+    assert back.streams()["import"].units == orig.streams()["dev0"].units
+    assert back.streams()["import"].sample_rate == 50.0
+    bad_csv = _write(tmp_path / "bad.csv", [["t [s]", "a [g]"], ["0", "1"], ["0.001", "2", "3"]])
+    bare = _tdms(tmp_path / "bare.tdms", GroupObject("g"), ChannelObject("g", "a", np.ones(9), properties={"unit_string": "g"}))
+    for bad, words in ((bad_csv, f"{bad_csv}:3: 3 fields"), (bare, "has no time information")):
+        capsys.readouterr()
+        code = run(["import", str(bad), "-o", str(tmp_path / "x.mcap")])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and err.startswith("gvt: error: ") and words in err and len(err.splitlines()) == 1, err
+        assert not (tmp_path / "x.mcap").exists() and not list(tmp_path.glob("*x.mcap*"))  # nothing written
+    assert run(["import", str(bare), "-o", str(tmp_path / "x.mcap"), "--rate", "100"]) == 0  # the stated rate

@@ -17,6 +17,10 @@ def import_(
     channels: Annotated[
         Path | None, typer.Option("--channels", help="Channel table CSV (name,node,x,y,z,direction,sensitivity,unit).")
     ] = None,
+    rate: Annotated[
+        float | None, typer.Option("--rate", help="Sample rate (Hz) of a CSV or TDMS file that has no time information.")
+    ] = None,
+    group: Annotated[str | None, typer.Option("--group", help="The TDMS group to import (groups on different grids).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
     overwrite: OverwriteOpt = False,
 ) -> None:
@@ -28,7 +32,7 @@ def import_(
     from daq.studies.importing.log import write_log
 
     check_output(out_path, overwrite, "--out", inputs=[src])
-    data = read_any(src, fmt, channels)
+    data = read_any(src, fmt, channels, rate=rate, group=group)
     summary = write_log(data, out_path, overwrite=overwrite)
     notes = list(data.provenance.assumptions)
     if summary.get("trigger_N"):

@@ -38,8 +38,10 @@ def format_of(path: Path, fmt: str = "auto") -> str:
     raise ImportError_(f"{path}: format not known by its suffix ({known}); give --format")
 
 
-def read_any(path: Path, fmt: str = "auto", channels: Path | None = None) -> TimeImport | FrfImport:
-    """The file at ``path`` read by its format's module."""
+def read_any(path: Path, fmt: str = "auto", channels: Path | None = None, *, rate: float | None = None,
+             group: str | None = None) -> TimeImport | FrfImport:  # fmt: skip
+    """The file at ``path`` read by its format's module; ``rate`` (Hz, ``fs`` of the csv and tdms readers) and
+    ``group`` (tdms) go to a reader that takes them, and are refused by name for one that does not."""
     path = Path(path)
     if not path.is_file():
         raise ImportError_(f"{path}: no such file")
@@ -50,7 +52,14 @@ def read_any(path: Path, fmt: str = "auto", channels: Path | None = None) -> Tim
         if exc.name != FORMATS[name][0]:
             raise
         raise ImportError_(f"{path}: format {name} not available in this gvtlink") from None
-    return module.read(path, channels)
+    import inspect
+
+    options = {k: v for k, v in (("fs", rate), ("group", group)) if v is not None}
+    takes = inspect.signature(module.read).parameters
+    if bad := [k for k in options if k not in takes]:
+        flags = ", ".join("--rate" if k == "fs" else f"--{k}" for k in bad)
+        raise ImportError_(f"{path}: {flags} does not apply to a {name} file; leave it out")
+    return module.read(path, channels, **options)
 
 
 __all__ = ["FORMATS", "format_of", "read_any"]

@@ -8,7 +8,8 @@ cache, pint's registry already built (it loads once a process, ~1 s, and is not 
 * gvtlink's reader (``daq/studies/importing/{tdms,hdf5}.py``): that read, the file's SHA-256, the unit factor
   and the (n, ch) float64 table in SI units;
 * the CSV reader on ``gvt log export``'s layout (fewer rows: text is ~20 x slower to parse, and the issue's goal
-  is for the binary formats), beside ``np.loadtxt`` of the same file.
+  is for the binary formats), beside ``np.loadtxt`` of the same file; and its peak memory (RSS) in a fresh
+  process on a larger CSV against the file's size ("a 1 GB CSV must not need 10 GB": rows are streamed).
 
 Prints a table and writes bench/results/bench_import_formats.json.
 
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -82,11 +84,30 @@ def write_csv(path: Path, data: np.ndarray, fs: float) -> None:
     np.savetxt(path, table, fmt=["%.9f", "%d", *["%.9g"] * len(data)], delimiter=",", header=head, comments="")
 
 
+_RSS = """import re, sys
+from pathlib import Path
+from daq.studies.importing import csv
+def hwm():  # the process' peak RSS: /proc's VmHWM starts afresh at exec (ru_maxrss keeps the parent's peak)
+    return int(re.search(r"VmHWM:\\s+(\\d+) kB", Path("/proc/self/status").read_text()).group(1)) * 1024
+base = hwm()
+x = csv.read(Path(sys.argv[1]))
+print(base, hwm(), x.samples.nbytes)"""
+
+
+def csv_memory(path: Path) -> dict:
+    """Peak RSS of ``csv.read(path)`` in a fresh process, over the process' RSS before the read (bytes)."""
+    base, peak, table = map(int, subprocess.run([sys.executable, "-c", _RSS, str(path)], check=True, capture_output=True,
+                                                text=True, cwd=Path(__file__).resolve().parents[1]).stdout.split())  # fmt: skip
+    size = path.stat().st_size
+    return {"csv_bytes": size, "table_bytes": table, "peak_rss_over_base": peak - base, "ratio_to_file": (peak - base) / size}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--channels", type=int, default=16)
     ap.add_argument("--samples", type=int, default=2_000_000)
     ap.add_argument("--csv-samples", type=int, default=100_000)
+    ap.add_argument("--csv-memory-samples", type=int, default=500_000, help="rows of the CSV whose peak memory is measured")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--dir", default=None)
     args = ap.parse_args()
@@ -114,6 +135,9 @@ def main() -> None:
             t = best(fn, args.repeats)
             rows.append({"format": fmt, "reader": what, "samples": n, "bytes": path.stat().st_size, "seconds": t,
                          "msamples_per_s": n / t / 1e6})  # fmt: skip
+        big = d / "big.csv"
+        write_csv(big, data[:, : args.csv_memory_samples], fs)
+        mem = csv_memory(big)
     print(f"{'format':<12} {'reader':<36} {'samples':>11} {'MB':>7} {'s':>7} {'M samples/s':>12}")
     for r in rows:
         print(f"{r['format']:<12} {r['reader']:<36} {r['samples']:>11} {r['bytes'] / 1e6:>7.1f} {r['seconds']:>7.3f} "
@@ -121,8 +145,11 @@ def main() -> None:
     ours = {r["format"]: r["msamples_per_s"] for r in rows if r["reader"].startswith("gvtlink")}
     for fmt in ("tdms", "hdf5-sep005"):
         print(f"{fmt}: {ours[fmt]:.1f} M samples/s, goal {GOAL / 1e6:.0f}: {'met' if ours[fmt] * 1e6 >= GOAL else 'NOT met'}")
+    print(f"csv memory: {mem['csv_bytes'] / 1e6:.0f} MB CSV -> {mem['table_bytes'] / 1e6:.0f} MB table, peak RSS "
+          f"+{mem['peak_rss_over_base'] / 1e6:.0f} MB ({mem['ratio_to_file']:.2f} x the file)")  # fmt: skip
     RESULTS.mkdir(exist_ok=True)
-    out = {"channels": args.channels, "samples_per_channel": args.samples, "fs": fs, "goal_samples_per_s": GOAL, "rows": rows}
+    out = {"channels": args.channels, "samples_per_channel": args.samples, "fs": fs, "goal_samples_per_s": GOAL, "rows": rows,
+           "csv_memory": mem}  # fmt: skip
     (RESULTS / "bench_import_formats.json").write_text(json.dumps(out, indent=1))
 
 

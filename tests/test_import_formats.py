@@ -79,6 +79,9 @@ def test_generic_csv_units_and_channel_table(tmp_path, monkeypatch):
     assert [(c.name, c.quantity, c.node, c.direction) for c in got.channels] == [
         ("acc", "acceleration", 2, 3), ("ham", "force", 1, 1 * -3), ("v", "acceleration", 3, 2)]  # fmt: skip
     assert any("1 empty cell" in a for a in got.provenance.assumptions)
+    cr = tmp_path / "cr.csv"  # bare CR line ends: the row count from newlines is 0, the table grows as rows come
+    cr.write_bytes(src.read_bytes().replace(b"\r\n", b"\r"))
+    assert np.array_equal(csv.read(cr, table).samples, got.samples, equal_nan=True)
 
 
 @pytest.mark.parametrize(

@@ -17,8 +17,9 @@ index that jumps (a gap in the exported log). An empty cell is "no sample" (NaN)
 counted in the assumptions.
 
 Memory: rows are parsed CHUNK_ROWS at a time (numpy's C parser; a chunk it refuses is parsed again by the csv
-module to name the line) and converted to SI per chunk, so a CSV needs about twice its samples as float64, not
-the text's size in Python objects.
+module to name the line) and converted to SI per chunk into a table allocated once from the file's line count,
+so a CSV needs its samples as float64 (8 bytes a cell, plus 24 a row) and one chunk, not the text in Python
+objects (bench/bench_import_formats.py measures the peak).
 """
 
 from __future__ import annotations
@@ -137,6 +138,48 @@ def _rows(where: str, fh, h: _Header, header: list[str]):
         yield arr, nums
 
 
+def _count_rows(path: Path) -> int:
+    """Lines after the header: the rows to allocate for (blank lines make it an upper bound), counted in 8 MiB
+    pieces so that the table is allocated once instead of gathered in chunks and copied (half the peak memory)."""
+    n, last = 0, b"\n"
+    with open(path, "rb") as fb:
+        while buf := fb.read(1 << 23):
+            n += buf.count(b"\n")
+            last = buf[-1:]
+    return max(n + (last != b"\n") - 1, 0)
+
+
+class _Table:
+    """The samples, time and index columns and each row's file line, filled chunk by chunk into arrays allocated
+    once (grown, by copy, only if the line count was short: a file with bare CR line ends)."""
+
+    def __init__(self, rows: int, n_ch: int) -> None:
+        self.n = 0
+        self.samples, self.t, self.k = np.empty((rows, n_ch)), np.empty(rows), np.empty(rows)
+        self.lines = np.empty(rows, np.int64)
+
+    def _grow(self, need: int) -> None:
+        for name in ("samples", "t", "k", "lines"):
+            a = getattr(self, name)
+            b = np.empty((max(need, 2 * a.shape[0]), *a.shape[1:]), a.dtype)
+            b[: self.n] = a[: self.n]
+            setattr(self, name, b)
+
+    def add(self, d: np.ndarray, arr: np.ndarray, lines: np.ndarray, h: _Header) -> None:
+        a, b = self.n, self.n + d.shape[0]
+        if b > self.samples.shape[0]:
+            self._grow(b)
+        self.samples[a:b] = d
+        self.t[a:b] = arr[:, h.time_col] if h.time_col is not None else np.nan
+        self.k[a:b] = arr[:, h.index_col] if h.index_col is not None else np.nan
+        self.lines[a:b] = lines
+        self.n = b
+
+    def done(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        n = self.n
+        return self.samples[:n], self.t[:n], self.k[:n], self.lines[:n]
+
+
 def read(path: Path, channels: Path | None = None, fs: float | None = None) -> TimeImport:
     """Read ``path`` (either layout, module docstring) with an optional channel table ``channels`` and a stated rate
     ``fs`` (Hz; needed when the CSV has no time column). ImportError_ (one line, exit 2) on bad input."""
@@ -153,25 +196,19 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None) -> T
             first = next(csv.reader([fh.readline()]), [])
             h = _header(where, first)
             factors, quantities, notes = si_factors(where, h.names, h.units, table)
-            parts, times, index, nums, empty = [], [], [], [], 0
+            acc = _Table(_count_rows(path), len(h.names))
             for arr, lines in _rows(where, fh, h, first):
                 d = arr[:, h.data_cols]
                 if h.gvtlink:
                     d = d.astype(np.float32).astype(np.float64)  # the log's float32 values, exactly
-                empty += int(np.isnan(d).sum())
-                parts.append(d * factors if (factors != 1).any() else d)
-                if h.time_col is not None:
-                    times.append(arr[:, h.time_col] * h.time_factor)
-                if h.index_col is not None:
-                    index.append(arr[:, h.index_col])
-                nums.append(lines)
+                acc.add(d * factors if (factors != 1).any() else d, arr, lines, h)
         except UnicodeDecodeError:
             raise ImportError_(f"{where}: not UTF-8 text; save the CSV as UTF-8") from None
-    samples = np.concatenate(parts) if parts else np.zeros((0, len(h.names)))
+    samples, t, k, lines = acc.done()
     if samples.shape[0] < 2:
         raise ImportError_(f"{where}: {samples.shape[0]} data row(s); a time history needs at least two")
-    lines = np.concatenate(nums)
-    rate, t0, how = _time(where, h, times, index, lines, fs)
+    empty = int(np.isnan(samples).sum())
+    rate, t0, how = _time(where, h, t, k, lines, fs)
     chans, more = channel_list(where, h.names, quantities, table)
     assumptions = [*h.notes, how, *notes, *more]
     if h.gvtlink:
@@ -183,7 +220,7 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None) -> T
     return TimeImport(samples, rate, chans, prov, source_units=h.units, t0_s=t0)
 
 
-def _time(where: str, h: _Header, times: list, index: list, lines: np.ndarray, fs: float | None) -> tuple[float, float, str]:
+def _time(where: str, h: _Header, t: np.ndarray, k: np.ndarray, lines: np.ndarray, fs: float | None) -> tuple[float, float, str]:
     """(rate, t0, what was assumed) from the time (and index) column, or the stated rate; one line where it breaks."""
     if h.time_col is None:
         if fs is None:
@@ -192,13 +229,13 @@ def _time(where: str, h: _Header, times: list, index: list, lines: np.ndarray, f
         if not (np.isfinite(fs) and fs > 0):
             raise ImportError_(f"{where}: sample rate {fs!r} Hz is not a positive number")
         return float(fs), 0.0, f"sample rate {fs:g} Hz as stated (the CSV has no time column), t0 = 0"
-    t = np.concatenate(times)
+    t = t * h.time_factor
     if np.isnan(t).any():
         r = int(np.flatnonzero(np.isnan(t))[0])
         raise ImportError_(f"{where}:{lines[r]}: the time column is empty; every row needs its time")
-    k = None
-    if h.gvtlink:
-        k = np.concatenate(index)
+    if not h.gvtlink:
+        k = None
+    else:
         jumps = np.flatnonzero(np.diff(k) != 1)
         if jumps.size or (k != np.round(k)).any():
             r = int(jumps[0]) + 1 if jumps.size else int(np.flatnonzero(k != np.round(k))[0])

@@ -52,6 +52,22 @@ def test_gvt_log_export_csv_imports_back_exactly(tmp_path):
     assert len(got.provenance.sha256) == 64
 
 
+def test_two_device_export_imports_the_rows_both_devices_have(tmp_path):
+    """The format 1 two-device session: acc_daq starts 3885 samples after hammer_daq (docs/log-format.md, "Time
+    base"); its export has empty cells at both ends. The import keeps the rows where both have samples, exactly."""
+    log, out = ROOT / "tests" / "data" / "format1" / "two_devices.mcap", tmp_path / "two.csv"
+    export(log, out, "csv")
+    got = csv.read(out)
+    r = LogReader(log)
+    ham, acc = r.read_stream("hammer_daq"), r.read_stream("acc_daq")
+    d = 3885  # the offset the log's timeline records
+    assert got.samples.shape == (ham.data.shape[0] - d, 15) and got.t0_s == d / 16384
+    assert np.array_equal(got.samples[:, 0], ham.data[d:, 0].astype(np.float64))
+    assert np.array_equal(got.samples[:, 1:], acc.data[:-d].astype(np.float64))
+    said = " | ".join(got.provenance.assumptions)
+    assert "3885 row(s) before line 3887 lack a01 .. a14" in said and "3885 row(s) after line 32769 lack hammer" in said
+
+
 def _write(path: Path, rows: list[list[str]]) -> Path:
     with open(path, "w", newline="") as fh:
         pycsv.writer(fh).writerows(rows)
@@ -64,24 +80,23 @@ def test_generic_csv_units_and_channel_table(tmp_path, monkeypatch):
     acc, ham, volts = RNG.standard_normal(n), 100 * RNG.standard_normal(n), RNG.standard_normal(n)
     rows = [["time [ms]", "acc [g]", "ham [lbf]", "v [mV]"]]
     rows += [[repr(1e3 * k / fs), *(repr(float(x[k])) for x in (acc, ham, volts))] for k in range(n)]
-    rows[10][1] = ""  # no sample there
+    for r in (1, 2, 3):
+        rows[r][1] = ""  # acc starts 3 rows late (a two-device export's empty cells): those rows are not imported
     src = _write(tmp_path / "lab.csv", rows)
     table = tmp_path / "table.csv"
     table.write_text("name,node,x,y,z,direction,sensitivity,unit\nham,1,0,0,0,-Z,2.25,mV/N\n"
                      "acc,2,0.5,0,0,+Z,100,mV/g\nv,3,1.0,0,0,+Y,100,mV/g\n")  # fmt: skip
     got = csv.read(src, table)
-    assert got.fs == fs and got.t0_s == 0.0 and got.source_units == ["g", "lbf", "mV"]
-    a = acc * G
-    a[9] = np.nan
-    assert np.array_equal(got.samples[:, 0], a, equal_nan=True) and np.array_equal(got.samples[:, 1], ham * LBF)
+    assert got.fs == fs and got.t0_s == 3 / fs and got.source_units == ["g", "lbf", "mV"]
+    assert np.array_equal(got.samples[:, 0], acc[3:] * G) and np.array_equal(got.samples[:, 1], ham[3:] * LBF)
     # volts over the table's 100 mV/g = 0.1 V / 9.80665 (m/s^2): 2 roundings (pint, the division), 1e-15 relative
-    assert np.allclose(got.samples[:, 2], volts * 1e-3 / (0.1 / G), rtol=1e-15, atol=0)
+    assert np.allclose(got.samples[:, 2], volts[3:] * 1e-3 / (0.1 / G), rtol=1e-15, atol=0)
     assert [(c.name, c.quantity, c.node, c.direction) for c in got.channels] == [
         ("acc", "acceleration", 2, 3), ("ham", "force", 1, 1 * -3), ("v", "acceleration", 3, 2)]  # fmt: skip
-    assert any("1 empty cell" in a for a in got.provenance.assumptions)
+    assert any("3 row(s) before line 5 lack acc (empty cells)" in a for a in got.provenance.assumptions)
     cr = tmp_path / "cr.csv"  # bare CR line ends: the row count from newlines is 0, the table grows as rows come
     cr.write_bytes(src.read_bytes().replace(b"\r\n", b"\r"))
-    assert np.array_equal(csv.read(cr, table).samples, got.samples, equal_nan=True)
+    assert np.array_equal(csv.read(cr, table).samples, got.samples)
 
 
 @pytest.mark.parametrize(
@@ -94,6 +109,7 @@ def test_generic_csv_units_and_channel_table(tmp_path, monkeypatch):
         ([["t [s]", "a [bananas]"], ["0", "1"], ["0.001", "2"]], "", "'bananas', which pint does not know"),
         ([["t [s]", "p [Pa]"], ["0", "1"], ["0.001", "2"]], "", "not an acceleration, velocity, displacement, force"),
         ([["a [g]"], ["1"], ["2"]], "", "no time column"),
+        ([["t [s]", "a [g]"], ["0", "1"], ["0.001", ""], ["0.002", "2"]], ":3:", "column 'a' is empty inside the record"),
     ],
 )
 def test_csv_bad_input_is_one_line_naming_the_line(tmp_path, monkeypatch, rows, where, words):

@@ -13,8 +13,8 @@ Two layouts, told apart by the header (one row, comma-separated):
 
 Bad input is one line naming ``file:line`` and the fix (exit 2): a row with more or fewer fields than the header,
 a cell that is not a number, a time column that breaks (a missing sample, a jump: gvtlink does not resample), an
-index that jumps (a gap in the exported log). An empty cell is "no sample" (NaN), as the export writes it, and
-counted in the assumptions.
+index that jumps (a gap in the exported log), an empty cell inside the record (a gap in one channel). Empty cells
+at the start or end (a two-device export's streams that began or ended apart) are left out, and said.
 
 Memory: rows are parsed CHUNK_ROWS at a time (numpy's C parser; a chunk it refuses is parsed again by the csv
 module to name the line) and converted to SI per chunk into a table allocated once from the file's line count,
@@ -205,19 +205,40 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None) -> T
         except UnicodeDecodeError:
             raise ImportError_(f"{where}: not UTF-8 text; save the CSV as UTF-8") from None
     samples, t, k, lines = acc.done()
-    if samples.shape[0] < 2:
-        raise ImportError_(f"{where}: {samples.shape[0]} data row(s); a time history needs at least two")
-    empty = int(np.isnan(samples).sum())
+    samples, t, k, lines, edges = _full_rows(where, h, samples, t, k, lines)
     rate, t0, how = _time(where, h, t, k, lines, fs)
     chans, more = channel_list(where, h.names, quantities, table)
-    assumptions = [*h.notes, how, *notes, *more]
+    assumptions = [*h.notes, how, *edges, *notes, *more]
     if h.gvtlink:
-        assumptions.insert(0, f"gvt log export CSV of a session started {h.start_utc}: 9-digit values read back as the "
-                              "log's float32 samples")  # fmt: skip
-    if empty:
-        assumptions.append(f"{empty} empty cell(s): no sample there (NaN)")
+        start = f"started {h.start_utc}" if h.start_utc[:1].isdigit() else f"({h.start_utc})"
+        assumptions.insert(0, f"gvt log export CSV of a session {start}: 9-digit values read back as the log's float32 "
+                              "samples")  # fmt: skip
     prov = Provenance(where, sha(), "csv", "gvtlink (gvt log export)" if h.gvtlink else "", tuple(assumptions))
     return TimeImport(samples, rate, chans, prov, source_units=h.units, t0_s=t0)
+
+
+def _full_rows(where: str, h: _Header, samples: np.ndarray, t: np.ndarray, k: np.ndarray, lines: np.ndarray):
+    """The rows where every channel has a sample. Empty cells at the start or end (streams of a two-device export
+    that began or ended apart: the export's NaN) are left out and said; an empty cell inside the record is a gap in
+    that channel, refused at its line (one uniform grid, no invented samples: D84)."""
+    gap = np.isnan(samples).any(axis=1)
+    full = np.flatnonzero(~gap)
+    if full.size < 2:
+        raise ImportError_(f"{where}: {full.size} row(s) with a value in every channel; a time history needs at least two")
+    a, b = int(full[0]), int(full[-1]) + 1
+    if inner := np.flatnonzero(gap[a:b]).tolist():
+        r = a + inner[0]
+        name = h.names[int(np.flatnonzero(np.isnan(samples[r]))[0])]
+        raise ImportError_(f"{where}:{lines[r]}: column {name!r} is empty inside the record (a gap in that channel); "
+                           "gvtlink imports one uniform grid: import the part before or after it, or fill the gap")  # fmt: skip
+    def lacking(rows: slice) -> str:
+        cols = [h.names[j] for j in np.flatnonzero(np.isnan(samples[rows]).any(axis=0))]
+        return ", ".join(cols) if len(cols) <= 4 else f"{cols[0]} .. {cols[-1]} ({len(cols)} channels)"
+
+    said = [f"{a} row(s) before line {lines[a]} lack {lacking(slice(0, a))} (empty cells): not imported"] if a else []
+    if b < gap.size:
+        said.append(f"{gap.size - b} row(s) after line {lines[b - 1]} lack {lacking(slice(b, None))} (empty cells): not imported")
+    return samples[a:b], t[a:b], k[a:b], lines[a:b], said
 
 
 def _time(where: str, h: _Header, t: np.ndarray, k: np.ndarray, lines: np.ndarray, fs: float | None) -> tuple[float, float, str]:

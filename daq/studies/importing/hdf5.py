@@ -46,7 +46,13 @@ class _Channel:
 
 
 def _text(v) -> str:
+    v = _scalar(v)
     return v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v)
+
+
+def _scalar(v):
+    """An attribute as one value: MATLAB and some h5py writers store a scalar as a 1-element array."""
+    return v.reshape(-1)[0] if isinstance(v, np.ndarray) and v.size == 1 else v
 
 
 def _as_channel(where: str, key: str, obj) -> _Channel | None:
@@ -74,7 +80,10 @@ def _as_channel(where: str, key: str, obj) -> _Channel | None:
             pass  # the unit itself is refused with its channel name below
     start = _text(attrs["start_timestamp"]) if "start_timestamp" in attrs else ""
     if "fs" in attrs:
-        fs = float(attrs["fs"])
+        try:
+            fs = float(_scalar(attrs["fs"]))
+        except (TypeError, ValueError):
+            fs = float("nan")
         if not (np.isfinite(fs) and fs > 0):
             raise ImportError_(f"{where}: channel {name!r} has fs = {attrs['fs']!r}; SEP005's fs is a positive rate in Hz")
         return _Channel(key, name, unit, data, fs, 0.0, "fs", start)

@@ -79,6 +79,18 @@ def _is_time(ch) -> bool:
     return ch.name.strip().lower() in TIME_NAMES or unit in ("s", "ms")
 
 
+def _seconds(ch, notes: list[str]) -> np.ndarray:
+    """A time channel in seconds: numbers in s or ms, or NI timestamps (datetime64, as DAQmx logs them), taken
+    relative to the first one (which is said)."""
+    raw = ch[:]
+    if raw.dtype.kind == "M":
+        notes.append(f"time channel {ch.name!r} starts at {raw[0]} (a timestamp); times taken from it")
+        return (raw - raw[0]).astype("timedelta64[ns]").astype(np.int64) / 1e9
+    if raw.dtype.kind not in "fiu":
+        raise ImportError_(f"time channel {ch.group_name}/{ch.name} holds {raw.dtype}, not times")
+    return raw.astype(np.float64) * (1e-3 if str(ch.properties.get("unit_string", "")).strip() == "ms" else 1.0)
+
+
 def _grid(where: str, group, fs_stated: float | None) -> _Grid | None:
     """The group's data channels on one grid, or None for a group without data; one line when they disagree."""
     chans = [c for c in group.channels() if len(c) > 0]
@@ -104,7 +116,7 @@ def _grid(where: str, group, fs_stated: float | None) -> _Grid | None:
         notes.append(f"group {group.name!r}: {fs:.9g} Hz from wf_increment, t0 = {t0:g} s (wf_start_offset)")
         notes += [f"time channel {c.name!r} of group {group.name!r} not imported (wf_increment gives the rate)" for c in times]
     elif times:
-        t = times[0][:].astype(np.float64) * (1e-3 if str(times[0].properties.get("unit_string", "")).strip() == "ms" else 1.0)
+        t = _seconds(times[0], notes)
         if t.size != data[0].__len__():
             raise ImportError_(f"{where}: group {group.name!r}: time channel {times[0].name!r} has {t.size} samples, the "
                                f"channels {len(data[0])}; give them one length")  # fmt: skip

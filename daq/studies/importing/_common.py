@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.model.channels import Channel, read_channel_csv
-from analysis.model.units import SI_UNITS, _unit_text, _units
+from analysis.model.units import SI_UNITS, _units
 from daq.studies.importing.data import ImportError_
 
 #: quantities a column may hold: the channel table's four, and volts (converted by a sensitivity)
@@ -57,16 +57,21 @@ def hash_in_background(path: Path) -> Callable[[], str]:
 def _si(unit_text: str) -> tuple[float, str]:
     """``"g"`` -> (9.80665, "acceleration"), ``"mm"`` -> (0.001, "displacement"), ``"mV"`` -> (0.001, "voltage"):
     the factor to the SI unit of the quantity (SI_UNITS, or V). ValueError (one line, no fix) for an empty, unknown
-    or non-vibration unit. A bare ``g`` is standard gravity, as on every accelerometer sheet (analysis/model/units.py).
-    Helper I1's ``daq/studies/importing/units.py`` is meant to take this over (issue 31)."""
+    or non-vibration unit. A bare ``g`` is standard gravity, as on every accelerometer sheet (analysis/model/units.py);
+    spellings are read as ``daq/studies/importing/units.py`` (the UFF reader's) reads them (``m/s2``, ``sec``, a
+    blank or ``none`` is no unit). Unlike that module's ``si_factor`` it takes volts (divided by a channel table's
+    sensitivity) and refuses pressure (a channel table has no pressure quantity), and it returns the definition's
+    decimal factor (:func:`_decimal`)."""
+    from daq.studies.importing.units import _BLANK, _pint_text
+
     text = (unit_text or "").strip()
-    if not text:
+    if text.lower() in _BLANK:
         raise ValueError("has no unit")
     for quantity, si in SI_UNITS.items():  # the SI spellings gvtlink writes: no pint registry to build (~1 s)
         if text == si:
             return 1.0, quantity
     try:
-        q = _units().Quantity(1.0, _unit_text(text))
+        q = _units().Quantity(1.0, _pint_text(text))
     except Exception as exc:  # pint's UndefinedUnitError, tokenize's TokenError, SyntaxError, ...
         raise ValueError(f"has unit {text!r}, which pint does not know ({type(exc).__name__})") from None
     for quantity, si in (*SI_UNITS.items(), (VOLTAGE, "V")):

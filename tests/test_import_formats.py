@@ -165,6 +165,9 @@ def test_tdms_time_channel_groups_and_no_time_track(tmp_path):
     got = tdms.read(src, group="slow")  # the rate from the time channel; the other group named as not imported
     assert got.fs == 1000.0 and np.array_equal(got.samples[:, 0], a) and [c.name for c in got.channels] == ["a"]
     assert any("not imported (--group slow): 'fast'" in x for x in got.provenance.assumptions)
+    same = _tdms(tmp_path / "same.tdms", *(o for g in ("g1", "g2") for o in (
+        GroupObject(g), ChannelObject(g, "a", a, properties={"unit_string": "N", "wf_increment": 1e-3}))))  # fmt: skip
+    assert [c.name for c in tdms.read(same).channels] == ["g1/a", "g2/a"]  # one grid: both groups, names told apart
     stamps = np.datetime64("2026-11-28T10:00:00", "ns") + (np.arange(n) * 1_000_000).astype("timedelta64[ns]")
     ts = _tdms(tmp_path / "ts.tdms", GroupObject("g"), ChannelObject("g", "Time", stamps),
                ChannelObject("g", "a", a, properties={"unit_string": "m/s^2"}))  # fmt: skip

@@ -106,11 +106,13 @@ def read(path: Path, channels: Path | None = None) -> TimeImport:
     path = Path(path)
     where = str(path)
     table = load_table(channels)
+    if not path.is_file():
+        raise ImportError_(f"{where}: no such file")
+    sha = hash_in_background(path)  # beside h5py's reads, not after them
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
         raise ImportError_(f"{where}: not a readable HDF5 file ({str(exc)[:80]})") from None
-    sha = hash_in_background(path)
     with f:
         found = [(k, _as_channel(where, k, f[k])) for k in f]
         chans = [c for _k, c in found if c is not None]

@@ -161,8 +161,10 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None, grou
     path = Path(path)
     where = str(path)
     table = load_table(channels)
+    if not path.is_file():
+        raise ImportError_(f"{where}: no such file")
+    sha = hash_in_background(path)  # beside npTDMS's read, not after it
     f = _open(where, path)
-    sha = hash_in_background(path)
     grids = [g for g in (_grid(where, grp, fs) for grp in f.groups()) if g is not None]
     if not grids:
         raise ImportError_(f"{where}: no channel holds samples")

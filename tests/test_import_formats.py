@@ -109,6 +109,7 @@ def test_generic_csv_units_and_channel_table(tmp_path, monkeypatch):
         ([["t [s]", "a [bananas]"], ["0", "1"], ["0.001", "2"]], "", "'bananas', which pint does not know"),
         ([["t [s]", "p [Pa]"], ["0", "1"], ["0.001", "2"]], "", "not an acceleration, velocity, displacement, force"),
         ([["a [g]"], ["1"], ["2"]], "", "no time column"),
+        ([["t [s];a [g]"], ["0;1,5"], ["0,001;2"]], ":1:", "separated by semicolons, not commas"),
         ([["t [s]", "a [g]"], ["0", "1"], ["0.001", ""], ["0.002", "2"]], ":3:", "column 'a' is empty inside the record"),
     ],
 )

@@ -66,6 +66,10 @@ class _Header:
 def _header(where: str, row: list[str]) -> _Header:
     """The header row: gvt log export's (``t [s] since ...``, ``index``) or names with ``[unit]`` and a time column."""
     cells = [c.strip() for c in row]
+    if len(cells) == 1 and (sep := next((c for c in ";\t" if c in cells[0]), None)):
+        what = "semicolons" if sep == ";" else "tabs"
+        raise ImportError_(f"{where}:1: the columns are separated by {what}, not commas; save the CSV comma-separated "
+                           "with a decimal point (Excel: CSV UTF-8 in an English locale)")  # fmt: skip
     if len(cells) >= 2 and (m := _GVTLINK_T.match(cells[0])) and cells[1] == "index":
         h = _Header([], [], [], len(cells), time_col=0, index_col=1, start_utc=m.group(1))
         first = 2

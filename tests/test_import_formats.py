@@ -165,7 +165,15 @@ def test_tdms_time_channel_groups_and_no_time_track(tmp_path):
     assert "'slow' (1 ch, 1000 Hz" in line and "'fast' (1 ch, 2000 Hz" in line and "--group" in line
     got = tdms.read(src, group="slow")  # the rate from the time channel; the other group named as not imported
     assert got.fs == 1000.0 and np.array_equal(got.samples[:, 0], a) and [c.name for c in got.channels] == ["a"]
-    assert any("not imported (--group slow): 'fast'" in x for x in got.provenance.assumptions)
+    assert any("not imported (--group slow): 'fast' (1 ch)" in x for x in got.provenance.assumptions)
+    env = [ChannelObject("env", "T", np.ones(1), properties={"unit_string": "degC"}),
+           ChannelObject("env", "p", np.ones(4), properties={"unit_string": "Pa"})]  # fmt: skip
+    acc = ChannelObject("acc", "a", a, properties={"unit_string": "g", "wf_increment": 1e-3})
+    mixed = _tdms(tmp_path / "mixed.tdms", GroupObject("acc"), acc, GroupObject("env"), *env)
+    line = refused(tdms.read, mixed)  # an environment group beside the data, as a monitoring DAQ writes them
+    assert "group 'env' has channels of different lengths (1 of 1 samples, 1 of 4 samples)" in line
+    assert "--group NAME; groups: 'acc', 'env'" in line
+    assert tdms.read(mixed, group="acc").samples.shape == (n, 1)
     same = _tdms(tmp_path / "same.tdms", *(o for g in ("g1", "g2") for o in (
         GroupObject(g), ChannelObject(g, "a", a, properties={"unit_string": "N", "wf_increment": 1e-3}))))  # fmt: skip
     assert [c.name for c in tdms.read(same).channels] == ["g1/a", "g2/a"]  # one grid: both groups, names told apart

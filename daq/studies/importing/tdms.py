@@ -76,7 +76,7 @@ def _rate_from_increment(inc: float) -> float:
 
 def _is_time(ch) -> bool:
     unit = str(ch.properties.get("unit_string", "")).strip()
-    return ch.name.strip().lower() in TIME_NAMES or unit in ("s", "ms")
+    return unit in ("s", "ms") or (not unit and ch.name.strip().lower() in TIME_NAMES)  # "T" in degC is a temperature
 
 
 def _seconds(ch, notes: list[str]) -> np.ndarray:
@@ -102,8 +102,10 @@ def _grid(where: str, group, fs_stated: float | None) -> _Grid | None:
     notes = notes if len(chans) < len(group.channels()) else []
     lengths = {c.name: len(c) for c in data}
     if len(set(lengths.values())) > 1:
-        raise ImportError_(f"{where}: group {group.name!r} has channels of different lengths {lengths}; "
-                           "import channels of one length (re-export, or --group on a group that has them)")  # fmt: skip
+        counts = {n: sum(v == n for v in lengths.values()) for n in sorted(set(lengths.values()))}
+        said = ", ".join(f"{k} of {n} samples" for n, k in counts.items())
+        raise ImportError_(f"{where}: group {group.name!r} has channels of different lengths ({said}); import channels "
+                           "of one length (re-export, or --group on a group that has them)")  # fmt: skip
     for c in data:
         if c.dtype is None or c.dtype.kind not in "fiub":
             raise ImportError_(f"{where}: channel {group.name}/{c.name} holds {c.dtype}, not numbers; remove it from the file")
@@ -142,13 +144,29 @@ def _grid(where: str, group, fs_stated: float | None) -> _Grid | None:
     return _Grid(group.name, [c.name for c in data], units, [c[:] for c in data], fs, t0, notes)
 
 
-def _choose(where: str, grids: list[_Grid], group: str | None) -> tuple[list[_Grid], list[str]]:
+def _choose(where: str, f, group: str | None, fs: float | None) -> tuple[list[_Grid], list[str]]:
+    """The groups to import: ``group`` alone (the others named), else every group with data, which must share one
+    grid; a group that cannot be read (mixed lengths or rates, no time) refuses the file naming it and ``--group``."""
+    groups = [g for g in f.groups() if any(len(c) for c in g.channels())]
+    names = ", ".join(repr(g.name) for g in groups)
     if group is not None:
-        picked = [g for g in grids if g.group == group]
-        if not picked:
-            raise ImportError_(f"{where}: no group {group!r} with data; groups: {[g.group for g in grids]}")
-        rest = [g.label() for g in grids if g.group != group]
-        return picked, [f"group(s) not imported (--group {group}): {'; '.join(rest)}"] if rest else []
+        picked = [g for g in groups if g.name == group]
+        grid = _grid(where, picked[0], fs) if picked else None
+        if grid is None:
+            raise ImportError_(f"{where}: no group {group!r} with data channels; groups with data: {names}")
+        rest = [f"{g.name!r} ({len(g.channels())} ch)" for g in groups if g.name != group]
+        return [grid], [f"group(s) not imported (--group {group}): {', '.join(rest)}"] if rest else []
+    grids = []
+    for g in groups:
+        try:
+            grids += [x] if (x := _grid(where, g, fs)) is not None else []
+        except ImportError_ as exc:
+            if len(groups) == 1:
+                raise
+            why = str(exc).removeprefix(f"{where}: ").split(";")[0]
+            raise ImportError_(f"{where}: {why}; import one group at a time (gvt import --group NAME; groups: {names})") from None
+    if not grids:
+        raise ImportError_(f"{where}: no channel holds samples")
     if len({(g.fs, g.n, g.t0) for g in grids}) > 1:
         raise ImportError_(f"{where}: groups on different grids: {'; '.join(g.label() for g in grids)}; import one at a "
                            "time (gvt import --group NAME)")  # fmt: skip
@@ -165,10 +183,7 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None, grou
         raise ImportError_(f"{where}: no such file")
     sha = hash_in_background(path)  # beside npTDMS's read, not after it
     f = _open(where, path)
-    grids = [g for g in (_grid(where, grp, fs) for grp in f.groups()) if g is not None]
-    if not grids:
-        raise ImportError_(f"{where}: no channel holds samples")
-    grids, notes = _choose(where, grids, group)
+    grids, notes = _choose(where, f, group, fs)
     seen: dict[str, int] = {}
     for g in grids:
         for n in g.names:

@@ -178,7 +178,7 @@ def test_tdms_time_channel_groups_and_no_time_track(tmp_path):
         GroupObject(g), ChannelObject(g, "a", a, properties={"unit_string": "N", "wf_increment": 1e-3}))))  # fmt: skip
     assert [c.name for c in tdms.read(same).channels] == ["g1/a", "g2/a"]  # one grid: both groups, names told apart
     stamps = np.datetime64("2026-11-28T10:00:00", "ns") + (np.arange(n) * 1_000_000).astype("timedelta64[ns]")
-    ts = _tdms(tmp_path / "ts.tdms", GroupObject("g"), ChannelObject("g", "Time", stamps),
+    ts = _tdms(tmp_path / "ts.tdms", GroupObject("g"), ChannelObject("g", "Timestamp", stamps),
                ChannelObject("g", "a", a, properties={"unit_string": "m/s^2"}))  # fmt: skip
     got = tdms.read(ts)  # NI timestamps as the time track: 1 ms apart
     assert got.fs == 1000.0 and got.t0_s == 0.0 and any("2026-11-28T10:00:00" in x for x in got.provenance.assumptions)

@@ -76,6 +76,8 @@ def _rate_from_increment(inc: float) -> float:
 
 def _is_time(ch) -> bool:
     unit = str(ch.properties.get("unit_string", "")).strip()
+    if getattr(ch.dtype, "kind", "") == "M":  # NI timestamps, whatever the channel's name
+        return True
     return unit in ("s", "ms") or (not unit and ch.name.strip().lower() in TIME_NAMES)  # "T" in degC is a temperature
 
 
@@ -196,7 +198,7 @@ def read(path: Path, channels: Path | None = None, fs: float | None = None, grou
     for k, d in enumerate(cols):
         np.multiply(d, factors[k], out=by_channel[k], dtype=np.float64)  # float32 -> float64 exactly, then the factor
     chans, more = channel_list(where, names, quantities, table)
-    writer = str(f.properties.get("author") or f.properties.get("name") or "")
+    writer = str(f.properties.get("author") or f.properties.get("Author") or "")  # the root's "name" is the file's title
     said = (*(n for g in grids for n in g.notes), *notes, *conv, *more)
     prov = Provenance(where, sha(), "tdms", writer, said)
     return TimeImport(by_channel.T, grids[0].fs, chans, prov, source_units=units, t0_s=grids[0].t0)

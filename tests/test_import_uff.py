@@ -326,3 +326,23 @@ def test_model_update_takes_the_modes_of_a_uff_frf_file(exported, rigs, capsys):
     np.testing.assert_allclose(log.measured.freq_hz, want, rtol=1e-9)
     assert np.all(np.asarray(log.measured.freq_std_hz) > 0) and log.hits_used == []
     assert any("exponential window" in n for n in log.notes)
+
+
+def test_a_band_limited_pulse_ringing_across_the_trigger_is_one_hit():
+    """pyFRF's measured hits cut at 6.4 kHz ring across the trigger level after the pulse; the gate took each ring for
+    a hit (7 hits 2 samples apart, 0.16 ms records). Two true hits 0.5 s apart must give one record each, ending at
+    the next hit's pre-trigger (0.5 - 0.01 s)."""
+    from daq.studies.importing.log import record_length
+
+    fs = 51200.0
+    f = np.zeros(int(1.2 * fs))
+    for t0 in (0.1, 0.6):  # a 60 µs steel tip: a sharp pulse, then an ideal cut at 6.4 kHz
+        i = int(t0 * fs)
+        f[i : i + 3] = 500.0 * np.sin(np.pi * np.arange(1, 4) / 4)
+    spec = np.fft.rfft(f)
+    spec[np.fft.rfftfreq(f.size, 1 / fs) > 6400.0] = 0.0
+    ringing = np.fft.irfft(spec, f.size)
+    level = 0.05 * ringing.max()
+    above = ringing >= level
+    assert np.count_nonzero(above[1:] & ~above[:-1]) > 2  # the case: more upward crossings than hits
+    assert record_length(ringing, level, fs) == pytest.approx(0.5 - 0.01 - 1 / fs, abs=2e-3)

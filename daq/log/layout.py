@@ -46,3 +46,10 @@ def stream_of(topic: str) -> str | None:
     if topic.startswith(DAQ_PREFIX) and topic.endswith("/samples"):
         return topic[len(DAQ_PREFIX) : -len("/samples")]
     return None
+
+
+PREVIEW_PREFIX = "/preview/"  # per-stream preview topics (daq/log/preview.py): min/max/mean per bucket, for viewers
+
+
+def preview_topic(stream: str) -> str:
+    return f"{PREVIEW_PREFIX}{stream}"

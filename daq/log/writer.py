@@ -55,12 +55,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.opcode import Opcode
 from mcap.writer import CompressionType, Writer
 
 from analysis import records
 from analysis.errors import BadInput, DataLost, RuntimeFailure
 from daq.log import layout
+from daq.log.preview import BUCKET, MAX_PREVIEW_CHANNELS, STATS, PreviewEncoder, bucket_stats, preview_fields, preview_schema
 from daq.log.proto import block_schema, encode_block
 from daq.log.seal import seal
 from drivers.blocks import BlockStatus, SampleBlock
@@ -535,8 +537,12 @@ class LogWriter:
         origin_ns: int | None = 0,
         max_hold_s: float = 5.0,
         note_backlog_s: float | None = None,
+        preview: bool = True,
     ) -> None:
         self.path = Path(path)
+        #: write ``/preview/<stream>`` beside each stream's blocks (daq/log/preview.py); encoders by stream
+        self._preview = bool(preview)
+        self._previews: dict[str, PreviewEncoder] = {}
         self._note_backlog_s = note_backlog_s
         self._overwrite = overwrite
         self._queue = _Backlog(None if queue_size is None else max(2, queue_size), buffer_bytes)
@@ -887,6 +893,33 @@ class LogWriter:
             layout.META_CALIBRATION.format(stream=spec["stream"]),
             {"sample_rate": repr(spec["sample_rate"]), "t0_ns": str(spec["t0_ns"]), "channels": json.dumps(spec["channels"])},
         )
+        if self._preview and len(spec["channels"]) <= MAX_PREVIEW_CHANNELS:
+            self._register_preview(spec)
+
+    def _register_preview(self, spec: dict[str, Any]) -> None:
+        """The stream's ``/preview/<stream>`` channel: its own schema, the bucket and the field names in its metadata."""
+        assert self._mcap is not None
+        chans = [c["name"] for c in spec["channels"]]
+        name, fds = preview_schema(spec["stream"], chans)
+        meta = {"stream": spec["stream"], "bucket_samples": str(BUCKET), "stats": ",".join(STATS),
+                "channels": json.dumps(chans), "fields": json.dumps(preview_fields(chans))}  # fmt: skip
+        schema_id = self._mcap.register_schema(name, "protobuf", fds)
+        self._channel_ids[layout.preview_topic(spec["stream"])] = self._mcap.register_channel(
+            layout.preview_topic(spec["stream"]), "protobuf", schema_id, meta
+        )
+        self._previews.setdefault(spec["stream"], PreviewEncoder(len(chans)))
+
+    def _write_preview(self, b: SampleBlock, t0: int) -> None:
+        """The block's buckets on ``/preview/<stream>``, each at its first sample's log time (vectorised: no
+        per-sample Python; one ``add_message`` per bucket)."""
+        enc = self._previews.get(b.stream)
+        cid = self._channel_ids.get(layout.preview_topic(b.stream))
+        if enc is None or cid is None:
+            return
+        bk = bucket_stats(b.first_index, b.data, BUCKET)
+        times = (t0 + np.round(bk.first * (1e9 / b.sample_rate))).astype(np.int64).tolist()
+        for t, raw in zip(times, enc.encode(bk), strict=True):
+            self._message(cid, t, raw)
 
     def _json_channel(self, topic: str) -> int:
         assert self._mcap is not None
@@ -1087,6 +1120,8 @@ class LogWriter:
             ranges.append([b.first_index, b.end_index, 1])
         self._count_block(b)
         self._message(self._channel_ids[layout.samples_topic(b.stream)], log_time, raw)
+        if self._preview:
+            self._write_preview(b, t0)
         end_ns = t0 + round(b.end_index * 1e9 / b.sample_rate)
         self._data_end_ns = end_ns if self._data_end_ns is None else max(self._data_end_ns, end_ns)
         self.stats.blocks_written += 1

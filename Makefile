@@ -44,6 +44,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_log.py
 	$(BIN)/python bench/bench_log_info.py
 	$(BIN)/python bench/bench_writer_buffer.py
+	$(BIN)/python bench/bench_preview.py
 	$(BIN)/python bench/bench_serial.py
 	$(BIN)/python bench/bench_can.py
 	$(BIN)/python bench/bench_modbus.py

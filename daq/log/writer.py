@@ -538,10 +538,13 @@ class LogWriter:
         max_hold_s: float = 5.0,
         note_backlog_s: float | None = None,
         preview: bool = True,
+        preview_bucket: int = BUCKET,
     ) -> None:
         self.path = Path(path)
-        #: write ``/preview/<stream>`` beside each stream's blocks (daq/log/preview.py); encoders by stream
+        #: write ``/preview/<stream>`` beside each stream's blocks (daq/log/preview.py), ``preview_bucket`` samples a
+        #: message (the benchmark compares others); encoders by stream
         self._preview = bool(preview)
+        self._bucket = max(1, int(preview_bucket))
         self._previews: dict[str, PreviewEncoder] = {}
         self._note_backlog_s = note_backlog_s
         self._overwrite = overwrite
@@ -901,7 +904,7 @@ class LogWriter:
         assert self._mcap is not None
         chans = [c["name"] for c in spec["channels"]]
         name, fds = preview_schema(spec["stream"], chans)
-        meta = {"stream": spec["stream"], "bucket_samples": str(BUCKET), "stats": ",".join(STATS),
+        meta = {"stream": spec["stream"], "bucket_samples": str(self._bucket), "stats": ",".join(STATS),
                 "channels": json.dumps(chans), "fields": json.dumps(preview_fields(chans))}  # fmt: skip
         schema_id = self._mcap.register_schema(name, "protobuf", fds)
         self._channel_ids[layout.preview_topic(spec["stream"])] = self._mcap.register_channel(
@@ -916,7 +919,7 @@ class LogWriter:
         cid = self._channel_ids.get(layout.preview_topic(b.stream))
         if enc is None or cid is None:
             return
-        bk = bucket_stats(b.first_index, b.data, BUCKET)
+        bk = bucket_stats(b.first_index, b.data, self._bucket)
         times = (t0 + np.round(bk.first * (1e9 / b.sample_rate))).astype(np.int64).tolist()
         for t, raw in zip(times, enc.encode(bk), strict=True):
             self._message(cid, t, raw)

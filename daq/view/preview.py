@@ -19,8 +19,8 @@ from pathlib import Path
 APP_ID = "gvtlink"
 
 
-def preview_topics(log: str | Path) -> dict[str, tuple[str, list[str], list[str]]]:
-    """Per preview topic of ``log``: (schema name, channel names, field names) from the channel's metadata."""
+def preview_topics(log: str | Path) -> dict[str, tuple[str, list[str], list[str], list[str]]]:
+    """Per preview topic of ``log``: (schema name, channel names, field names, statistics) from its channel metadata."""
     from daq.log import layout
     from daq.log.reader import LogReader
 
@@ -30,27 +30,26 @@ def preview_topics(log: str | Path) -> dict[str, tuple[str, list[str], list[str]
     for ch in r.channels():
         if ch.topic.startswith(layout.PREVIEW_PREFIX) and ch.schema_id in schemas:
             md = ch.metadata
-            out[ch.topic] = (schemas[ch.schema_id].name, json.loads(md["channels"]), json.loads(md["fields"]))
+            out[ch.topic] = (schemas[ch.schema_id].name, json.loads(md["channels"]), json.loads(md["fields"]),
+                             md.get("stats", "min,max").split(","))  # fmt: skip
     return out
 
 
-def preview_blueprint(log: str | Path, out: str | Path, application_id: str = APP_ID, stats: tuple[str, ...] = ("min", "max")):
-    """Write ``out`` (.rbl): a Time series view per preview topic of ``log``, a line per channel and statistic in
-    ``stats`` (min and max by default: the envelope; ``"mean"`` adds the bucket means). Returns the blueprint."""
+def preview_blueprint(log: str | Path, out: str | Path, application_id: str = APP_ID):
+    """Write ``out`` (.rbl): a Time series view per preview topic of ``log``, a line per channel and statistic (the
+    min/max envelope). Returns the blueprint."""
     import rerun as rr
     import rerun.blueprint as rrb
     from rerun.blueprint.encodings import VisualizerComponentMapping
 
     views = []
-    for topic, (schema, channels, fields) in sorted(preview_topics(log).items()):
+    for topic, (schema, channels, fields, stats) in sorted(preview_topics(log).items()):
         lines = []
         for k, name in enumerate(channels):
-            for j, stat in enumerate(("min", "max", "mean")):
-                if stat not in stats:
-                    continue
+            for j, stat in enumerate(stats):
                 mapping = VisualizerComponentMapping(
                     target="Scalars:scalars", source_kind="SourceComponent", source_component=f"{schema}:message",
-                    selector=f".{fields[3 * k + j]}",
+                    selector=f".{fields[len(stats) * k + j]}",
                 )  # fmt: skip
                 lines.append(rr.SeriesLines(names=f"{name} {stat}").visualizer(mappings=[mapping]))
         views.append(rrb.TimeSeriesView(origin=topic, name=f"{topic} (min/max per bucket)", overrides={topic: lines}))

@@ -235,7 +235,7 @@ class Session:
         meta = {"session": cfg.name, "rig": self.rig.name, **rig_identity(self.rig)}
         lane = LogLane(self.out, buffer_bytes=round(cfg.writer_buffer_mib * 2**20), rotate_bytes=cfg.rotate_bytes,
                        rotate_seconds=cfg.rotate_seconds, metadata=meta,
-                       overwrite=overwrite, max_hold_s=hold_s)  # fmt: skip
+                       overwrite=overwrite, max_hold_s=hold_s, preview=cfg.log.preview)  # fmt: skip
         infos = {c.name: c for c in channel_infos(self.rig)}
         offsets = (cfg.timeline or TimelineSpec()).offsets if cfg.multi else {}
         ref = self.result.reference

@@ -260,3 +260,44 @@ def test_rerun_web_viewer_plots_the_preview_in_headless_chromium(logs, tmp_path)
             cdp.close()
         os.killpg(server.pid, 15)
         server.wait(timeout=10)
+
+
+def test_a_session_log_has_a_preview_per_stream_and_log_preview_false_leaves_it_out(tmp_path):
+    from mcap.reader import make_reader
+
+    from analysis.model.rigs import open_rig
+    from daq.config.session import AnalysisSpec, DeviceSpec, LogSpec, SessionConfig, TriggerSpec
+    from daq.session import run_session
+
+    def cfg(preview: bool) -> SessionConfig:
+        return SessionConfig(
+            name="preview", rig="beam_ch4_exp", duration=1.0, log=LogSpec(preview=preview),
+            device=DeviceSpec(driver="sim", config={"paced": False, "block_size": 512, "forces": [700.0], "period": 0.6,
+                                                    "physics_seconds": 1.2, "seed": 3}),
+            trigger=TriggerSpec(level=20.0, record_length=0.3), analysis=AnalysisSpec(enabled=False),
+        )  # fmt: skip
+
+    rig = open_rig("beam_ch4_exp")
+    for preview in (True, False):
+        out = tmp_path / f"session-{preview}.mcap"
+        res = run_session(cfg(preview), rig, out)
+        assert res.lost_samples == 0
+        s = LogReader(out).read_stream("dev0")
+        with open(out, "rb") as f:
+            msgs = [(m.log_time, m.data) for _s, c, m in make_reader(f).iter_messages() if c.topic == "/preview/dev0"]
+        if not preview:
+            assert msgs == []
+            continue
+        name, fds = preview_schema("dev0", s.channels)
+        pool = descriptor_pool.DescriptorPool()
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(fds).file:
+            pool.Add(fd)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+        got = [cls.FromString(raw) for _t, raw in msgs]
+        assert sum(m.n_samples for m in got) == len(s.index) and len(got) == -(-len(s.index) // BUCKET)
+        hammer = s.channels.index("hammer")
+        peak = max(m.hammer_max for m in got)
+        assert peak == s.data[:, hammer].max() > 20.0  # the hit is in the envelope, to the sample
+        for m in got[::7]:
+            seg = s.data[m.first_index - s.index[0] : m.first_index - s.index[0] + m.n_samples, hammer]
+            assert (m.hammer_min, m.hammer_max) == (seg.min(), seg.max())

@@ -221,6 +221,12 @@ class ChannelsSpec(_Strict):
     required: ChannelList = []  # response channels whose failure (clipped or dead) rejects a hit
 
 
+class LogSpec(_Strict):
+    """What the session log holds beside the samples (docs/log-format.md)."""
+
+    preview: bool = True  # /preview/<stream>: min/max per 256-sample bucket, for viewers ("Preview topic")
+
+
 class AnalysisSpec(_Strict):
     """The near-live analysis lane (analysis/operator.py); results go to the log's ``/analysis/...`` topics."""
 
@@ -320,6 +326,7 @@ class SessionConfig(_Strict):
     trigger: TriggerSpec
     channels: ChannelsSpec = ChannelsSpec()
     analysis: AnalysisSpec = AnalysisSpec()
+    log: LogSpec = LogSpec()
     plan: PlanSpec | None = None  # a roving-hammer test plan (docs/session.md, "Roving hammer")
 
     _source: str | None = PrivateAttr(default=None)  # the file it was loaded from (analysis/model/loader.py)

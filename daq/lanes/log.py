@@ -36,12 +36,13 @@ class LogLane:
         self, path: str | Path, *, buffer_bytes: int = 256 << 20, queue_size: int | None = None,
         rotate_bytes: int | None = None, rotate_seconds: float | None = None,
         metadata: Mapping[str, str] | None = None, overwrite: bool = False, max_hold_s: float = 5.0,
+        preview: bool = True,
     ) -> None:  # fmt: skip
         self.path = Path(path)
         self.writer = LogWriter(
             self.path, queue_size=queue_size, buffer_bytes=buffer_bytes, rotate_bytes=rotate_bytes,
             rotate_seconds=rotate_seconds, session_metadata=metadata, overwrite=overwrite, origin_ns=None,
-            max_hold_s=max_hold_s, note_backlog_s=BACKLOG_NOTE_S,
+            max_hold_s=max_hold_s, note_backlog_s=BACKLOG_NOTE_S, preview=preview,
         )  # fmt: skip
         self.dropped_results = 0
         self.reference: set[str] = set()  # streams on the reference's clock: the first block of one sets the origin

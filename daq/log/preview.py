@@ -18,7 +18,7 @@ third reduction over every sample; the envelope's middle shows the slow part of 
 
 Buckets are ``BUCKET`` samples on the stream's own index grid (bucket j holds samples [j*BUCKET, (j+1)*BUCKET)),
 whatever the rate: the preview then costs the same share of the samples at every rate — 2 values of 6 bytes on
-the wire per channel per 256 samples of 4 bytes, 1.2 % before compression, 3.1 % of the compressed file at 64 ch
+the wire per channel per 256 samples of 4 bytes, 1.2 % before compression, 3.3 % of the compressed file at 64 ch
 x 51.2 kHz — and a slow stream (256 Hz) is not inflated by a fixed time bucket. In time it is 5 ms at 51.2 kHz,
 15.6 ms at 16384 Hz, 1 s at 256 Hz. A 1 ms bucket (51 samples at 51.2 kHz) misses the 5 % goal
 (bench/bench_preview.py measures both).
@@ -86,9 +86,9 @@ class Buckets:
 
 def _tree(part: np.ndarray, op: np.ufunc) -> np.ndarray:
     """``op`` reduced over axis 1 of (n_buckets, bucket, n_channels) by halving: log2(bucket) elementwise ops on
-    large contiguous slices. Why not ``part.min(axis=1)``: numpy runs that as n_buckets x bucket short loops over
-    the channels: 50-88 us against 33 us for a 64 ch x 1024-sample block here (load 8 on 2 cores), and the
-    preview must stay a few % of the writer's time."""
+    large contiguous slices. Why not ``part.min(axis=1)``: measured here (thread CPU, 64 ch x 1024-sample block,
+    min and max) 55-58 us against 64-70 us, and 100 us with ``out=`` a strided view; the preview must stay a few %
+    of the writer's time."""
     x = part
     while x.shape[1] > 1:
         h = x.shape[1] // 2
@@ -113,14 +113,17 @@ _OPS = {"min": np.minimum, "max": np.maximum}
 def bucket_stats(first_index: int, data: np.ndarray, bucket: int = BUCKET) -> Buckets:
     """Min and max per channel of each bucket of ``data`` (float32 (n_samples, n_channels), first sample at
     ``first_index``), buckets on the stream's grid of ``bucket`` samples: a block that does not start or end on
-    the grid has a short first or last bucket (``count`` says so). Whole buckets are one reshape and three reductions."""
+    the grid has a short first or last bucket (``count`` says so). Whole buckets are one reshape and two reductions."""
     d = np.asarray(data, dtype=np.float32)
-    n = d.shape[0]
-    if n == 0 or d.shape[1] == 0:
-        return Buckets(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, d.shape[1], len(STATS)), np.float32))
+    n, n_c = d.shape
     head = min((-int(first_index)) % bucket, n)
     n_full = (n - head) // bucket
     tail = n - head - n_full * bucket
+    if head == 0 and tail == 0 and n_full:  # a block on the grid (the usual case): one reshape, no concatenation
+        first = first_index + bucket * np.arange(n_full, dtype=np.int64)
+        return Buckets(first, np.full(n_full, bucket, np.int64), _reduce(d.reshape(n_full, bucket, n_c)))
+    if n == 0 or n_c == 0:
+        return Buckets(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, n_c, len(STATS)), np.float32))
     firsts, counts, parts = [], [], []
     if head:
         firsts.append([first_index])
@@ -129,7 +132,7 @@ def bucket_stats(first_index: int, data: np.ndarray, bucket: int = BUCKET) -> Bu
     if n_full:
         firsts.append(first_index + head + bucket * np.arange(n_full, dtype=np.int64))
         counts.append(np.full(n_full, bucket))
-        parts.append(_reduce(d[head : head + n_full * bucket].reshape(n_full, bucket, d.shape[1])))
+        parts.append(_reduce(d[head : head + n_full * bucket].reshape(n_full, bucket, n_c)))
     if tail:
         firsts.append([first_index + n - tail])
         counts.append([tail])

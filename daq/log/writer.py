@@ -913,16 +913,18 @@ class LogWriter:
         self._previews.setdefault(spec["stream"], PreviewEncoder(len(chans)))
 
     def _write_preview(self, b: SampleBlock, t0: int) -> None:
-        """The block's buckets on ``/preview/<stream>``, each at its first sample's log time (vectorised: no
-        per-sample Python; one ``add_message`` per bucket)."""
-        enc = self._previews.get(b.stream)
+        """The block's buckets on ``/preview/<stream>``, each at its first sample's log time."""
         cid = self._channel_ids.get(layout.preview_topic(b.stream))
-        if enc is None or cid is None:
+        if cid is None or b.stream not in self._previews:
             return
+        for t, raw in self._preview_messages(b, t0):
+            self._message(cid, t, raw)
+
+    def _preview_messages(self, b: SampleBlock, t0: int) -> list[tuple[int, bytes]]:
+        """(log time, message) per bucket of the block: vectorised, no per-sample Python (daq/log/preview.py)."""
         bk = bucket_stats(b.first_index, b.data, self._bucket)
         times = (t0 + np.round(bk.first * (1e9 / b.sample_rate))).astype(np.int64).tolist()
-        for t, raw in zip(times, enc.encode(bk), strict=True):
-            self._message(cid, t, raw)
+        return list(zip(times, self._previews[b.stream].encode(bk), strict=True))
 
     def _json_channel(self, topic: str) -> int:
         assert self._mcap is not None

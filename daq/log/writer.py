@@ -912,16 +912,11 @@ class LogWriter:
         )
         self._previews.setdefault(spec["stream"], PreviewEncoder(len(chans)))
 
-    def _write_preview(self, b: SampleBlock, t0: int) -> None:
-        """The block's buckets on ``/preview/<stream>``, each at its first sample's log time."""
-        cid = self._channel_ids.get(layout.preview_topic(b.stream))
-        if cid is None or b.stream not in self._previews:
-            return
-        for t, raw in self._preview_messages(b, t0):
-            self._message(cid, t, raw)
-
     def _preview_messages(self, b: SampleBlock, t0: int) -> list[tuple[int, bytes]]:
-        """(log time, message) per bucket of the block: vectorised, no per-sample Python (daq/log/preview.py)."""
+        """(log time, message) per bucket of the block on ``/preview/<stream>``, each at its first sample's time:
+        vectorised, no per-sample Python (daq/log/preview.py); none for a stream without a preview."""
+        if b.stream not in self._previews:
+            return []
         bk = bucket_stats(b.first_index, b.data, self._bucket)
         times = (t0 + np.round(bk.first * (1e9 / b.sample_rate))).astype(np.int64).tolist()
         return list(zip(times, self._previews[b.stream].encode(bk), strict=True))
@@ -1115,6 +1110,8 @@ class LogWriter:
         t0 = spec["t0_ns"]
         log_time = t0 + round(b.first_index * 1e9 / b.sample_rate)
         raw = encode_block(b.stream, b.first_index, b.sample_rate, b.data, int(b.status), t0)
+        # the preview now, while the block is in the cache: adding the block may compress a whole chunk first
+        preview = self._preview_messages(b, t0) if self._preview else []
         self._rates[b.stream] = b.sample_rate
         self._open_blocks.append((b.stream, b.first_index, b.end_index))  # before add_message: it may close the chunk
         ranges = self._part_ranges.setdefault(b.stream, [])  # [first, end, blocks], contiguous runs
@@ -1125,8 +1122,9 @@ class LogWriter:
             ranges.append([b.first_index, b.end_index, 1])
         self._count_block(b)
         self._message(self._channel_ids[layout.samples_topic(b.stream)], log_time, raw)
-        if self._preview:
-            self._write_preview(b, t0)
+        if (cid := self._channel_ids.get(layout.preview_topic(b.stream))) is not None:
+            for t, msg in preview:
+                self._message(cid, t, msg)
         end_ns = t0 + round(b.end_index * 1e9 / b.sample_rate)
         self._data_end_ns = end_ns if self._data_end_ns is None else max(self._data_end_ns, end_ns)
         self.stats.blocks_written += 1

@@ -7,11 +7,28 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out, rerun_hint
+from daq.cli.common import (
+    OutDirOpt,
+    OverwriteOpt,
+    Progress,
+    SchedulerOpt,
+    WorkersOpt,
+    campaign,
+    check_output,
+    err,
+    fail,
+    is_campaign,
+    open_rig,
+    out,
+    rerun_hint,
+    rig_arg,
+)
 
 
 def analyze(
-    log: Annotated[Path, typer.Argument(help="Session log (.mcap).")],
+    logs: Annotated[
+        list[Path], typer.Argument(metavar="LOG...", help="Session log (.mcap); several, or a directory: a campaign.")
+    ],
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
     stream: Annotated[str | None, typer.Option(help="Stream to analyse (default: the one with all the rig's sensors).")] = None,
     window: Annotated[float | None, typer.Option(min=0.0, help="Window length, s (default: 0.45 / f1 of the rig).")] = None,
@@ -19,8 +36,18 @@ def analyze(
     windows_out: Annotated[bool, typer.Option("--windows", help="With --json: also every window's RQ and modal result.")] = False,
     rrd: Annotated[Path | None, typer.Option("--rrd", help="Also write a rerun recording (.rrd).")] = None,
     overwrite: OverwriteOpt = False,
+    out_dir: OutDirOpt = None,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = None,
 ) -> None:
-    """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live)."""
+    """Near-live detection in batch over a log: RQ curves, window-robust spikes and IR events (same kernels as live).
+    Over several logs or a directory: one Dask job, one summary table (docs/campaign.md)."""
+    if is_campaign(logs, scheduler, workers, out_dir):
+        if window is not None and window <= 0:
+            fail("--window must be > 0 s")
+        opts = {"rig": rig_arg(rig), "stream": stream, "window": window, "windows": windows_out}
+        return campaign("analyze", logs, opts, {"--rrd": rrd}, out_dir, scheduler, workers, json_out, overwrite)
+    log = logs[0]
     console = err if json_out else out
     if rrd is not None:
         check_output(rrd, overwrite, "--rrd", inputs=[log])

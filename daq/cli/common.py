@@ -118,3 +118,74 @@ class Progress:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.stop()
+
+
+# --- campaigns: a verb over many logs as one Dask job (daq/studies/campaign/, docs/campaign.md) ----------------------
+
+SchedulerOpt = Annotated[
+    str | None, typer.Option("--scheduler", help="Run over many logs on this Dask scheduler (tcp://HOST:PORT).")
+]
+WorkersOpt = Annotated[
+    int | None, typer.Option("--workers", min=1, help="Worker processes of the local Dask cluster (default: the cores).")
+]
+OutDirOpt = Annotated[
+    Path | None, typer.Option("--out-dir", help="Campaign: each log's outputs and its --json document go here.")
+]
+
+
+def is_campaign(logs: Sequence[Path], scheduler: str | None, workers: int | None, out_dir: Path | None) -> bool:
+    """Several logs, a directory, or a campaign option: the campaign path; one file alone: the verb as it always was."""
+    return len(logs) != 1 or logs[0].is_dir() or scheduler is not None or workers is not None or out_dir is not None
+
+
+def rig_arg(rig: str | None) -> str | None:
+    """A ``--rig`` for the workers: checked here (a bad one is one line before any work), a file as an absolute path."""
+    if rig is None:
+        return None
+    open_rig(rig)
+    return str(Path(rig).resolve()) if Path(rig).is_file() else rig
+
+
+def campaign(verb: str, logs: Sequence[Path], options: dict, outputs: dict, out_dir: Path | None, scheduler: str | None,
+             workers: int | None, json_out: bool, overwrite: bool) -> None:  # fmt: skip
+    """Plan, check every output, run on Dask with a progress bar, write each log's --json document to ``out_dir``,
+    print the summary table (or JSON) and exit with the campaign's code (daq/studies/campaign/table.py)."""
+    import json
+    import time
+
+    from daq.outputs import atomic_output
+    from daq.studies.campaign.plan import check_outputs, find_logs, plan
+    from daq.studies.campaign.runner import default_workers, run_campaign
+    from daq.studies.campaign.table import document, exit_code, summary_table
+
+    found = find_logs(logs)
+    if out_dir is not None:
+        if out_dir.exists() and not out_dir.is_dir():
+            fail(f"--out-dir {out_dir}: exists and is not a directory")
+        out_dir.mkdir(parents=True, exist_ok=True)
+    tasks = plan(verb, found, options, outputs, out_dir)
+    check_outputs(tasks, overwrite)
+    where = scheduler or f"a local cluster of {workers or default_workers(len(tasks))} worker processes"
+    console = err if json_out else out
+    console.print(f"gvt {verb}: {len(tasks)} log(s) on {where}", markup=False)
+    t0 = time.perf_counter()
+    with Progress(console, "logs") as report:
+        rows = run_campaign(tasks, scheduler, workers, progress=lambda d, n, _row: report(f"{d}/{n} logs", d / n))
+    for t, row in zip(tasks, rows, strict=True):
+        if t.document is not None and row["result"] is not None:
+            with atomic_output(t.document, "--out-dir") as tmp:
+                tmp.write_text(json.dumps(row["result"], indent=1, default=_plain))
+            row["outputs"].append(t.document)
+    doc = document(verb, rows, time.perf_counter() - t0, where)
+    if json_out:
+        out.print_json(json.dumps(doc, default=_plain))
+    else:
+        out.print(summary_table(verb, rows, [str(p) for p in found]))
+    if code := exit_code(rows):
+        raise typer.Exit(code)
+
+
+def _plain(x: object) -> object:
+    """JSON for numpy values in a row (``json.dumps(default=...)``): arrays as lists, scalars as numbers."""
+    tolist = getattr(x, "tolist", None)
+    return tolist() if tolist is not None else float(x)  # type: ignore[arg-type]

@@ -7,11 +7,31 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out
+from daq.cli.common import (
+    OutDirOpt,
+    OverwriteOpt,
+    Progress,
+    SchedulerOpt,
+    WorkersOpt,
+    campaign,
+    check_output,
+    err,
+    fail,
+    is_campaign,
+    open_rig,
+    out,
+    rig_arg,
+)
 
 
 def frf(
-    log: Annotated[Path, typer.Argument(help="Session log (.mcap), a UFF 58 FRF file, or a log of `gvt import` of one.")],
+    logs: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="LOG...",
+            help="Session log (.mcap), a UFF 58 FRF file or its import; several logs, or a directory: a campaign.",
+        ),
+    ],
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     plot_path: Annotated[Path | None, typer.Option("--plot", help="Write FRF, coherence and hammer spectra to this PNG.")] = None,
     out_path: Annotated[Path | None, typer.Option("--out", help="Write the FRFs (FRFSet) to this .npz.")] = None,
@@ -31,8 +51,12 @@ def frf(
         typer.Option(help="Force level averaged: a number (1 = lowest) or 'all'; default the lowest with 2 hits."),
     ] = None,
     overwrite: OverwriteOpt = False,
+    out_dir: OutDirOpt = None,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = None,
 ) -> None:
-    """FRFs (H1/H2/Hv) and coherence of the accepted hits, averaged; each hit's hammer checks and verdict."""
+    """FRFs (H1/H2/Hv) and coherence of the accepted hits, averaged; each hit's hammer checks and verdict.
+    Over several logs or a directory: one Dask job, one summary table (docs/campaign.md)."""
     import json
 
     from daq.log.reader import LogReader
@@ -41,6 +65,12 @@ def frf(
     from daq.studies.frf import frf_from_log, plot, summary
     from daq.studies.importing.frfs import frf_file
 
+    if is_campaign(logs, scheduler, workers, out_dir):
+        opts = {"rig": rig_arg(rig), "reference": reference, "channels": _channels(channels), "band": band, "kind": kind,
+                "quantity": quantity, "peaks": peaks, "level": _level(level), "show": show}  # fmt: skip
+        outputs = {"--out": out_path, "--plot": plot_path}
+        return campaign("frf", logs, opts, outputs, out_dir, scheduler, workers, json_out, overwrite)
+    log = logs[0]
     for p, what in ((plot_path, "--plot"), (out_path, "--out")):
         if p is not None:
             check_output(p, overwrite, what, inputs=[log])
@@ -49,9 +79,8 @@ def frf(
         _given_set(log, given, json_out, out_path, plot_path, peaks)
         return
     r = open_rig(rig) if rig is not None else rig_from_log(LogReader(log))
-    chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
-    if level is not None and level != "all" and not level.isdigit():
-        fail(f"--level {level!r}: give a level number (1 = the lowest force) or 'all'")
+    chans = _channels(channels)
+    _level(level)
     console = err if json_out else out
     with Progress(console) as report:
         run = frf_from_log(log, r, reference=reference, channels=chans, band_hz=band, kind=kind, quantity=quantity,
@@ -99,6 +128,17 @@ def _given_set(log: Path, given: tuple, json_out: bool, out_path: Path | None, p
         with atomic_output(plot_path) as tmp:
             plot(run, tmp)
         console.print(f"wrote {plot_path}", markup=False)
+
+
+def _channels(channels: str | None) -> list[str] | None:
+    return [c.strip() for c in channels.split(",") if c.strip()] if channels else None
+
+
+def _level(level: str | None) -> str | int | None:
+    """``--level``: None, 'all' or a level number (1 = the lowest force); anything else is one line, exit 2."""
+    if level is not None and level != "all" and not level.isdigit():
+        fail(f"--level {level!r}: give a level number (1 = the lowest force) or 'all'")
+    return level if level in (None, "all") else int(level)
 
 
 def _print(s: dict) -> None:

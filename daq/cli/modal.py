@@ -7,12 +7,31 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, Progress, check_output, err, fail, open_rig, out
+from daq.cli.common import (
+    OutDirOpt,
+    OverwriteOpt,
+    Progress,
+    SchedulerOpt,
+    WorkersOpt,
+    campaign,
+    check_output,
+    err,
+    fail,
+    is_campaign,
+    open_rig,
+    out,
+    rig_arg,
+)
 
 
 def modal(
-    source: Annotated[
-        Path, typer.Argument(help="Session log (.mcap), FRFs of `gvt frf --out` (.npz), a UFF 58 FRF file or its import.")
+    sources: Annotated[
+        list[Path],
+        typer.Argument(
+            metavar="SOURCE...",
+            help="Session log (.mcap), FRFs of `gvt frf --out` (.npz), a UFF 58 FRF file or its import; "
+            "several, or a directory of logs: a campaign.",
+        ),
     ],
     rig: Annotated[str | None, typer.Option(help="Rig name or TOML (default: the rig attached to the log).")] = None,
     band: Annotated[
@@ -31,9 +50,12 @@ def modal(
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
     overwrite: OverwriteOpt = False,
+    out_dir: OutDirOpt = None,
+    scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = None,
 ) -> None:
     """Stabilisation chart, one pole per physical mode, shapes, quality figures and one-to-one pairing with the rig's
-    FE modes (docs/modal-id.md)."""
+    FE modes (docs/modal-id.md). Over several logs or a directory: one Dask job, one summary table (docs/campaign.md)."""
     import json
 
     from analysis.modal_id import load_targets
@@ -41,6 +63,12 @@ def modal(
     from daq.studies.importing.frfs import frf_file
     from daq.studies.modal import load_frf_source, modal_from_frf, rejected_note, rows_summary, table_text, write_modes
 
+    if is_campaign(sources, scheduler, workers, out_dir):
+        opts = {"rig": rig_arg(rig), "band": band, "max_order": max_order,
+                "targets": load_targets(poles) if poles is not None else None}  # fmt: skip
+        outputs = {"--png": png, "--modes-out": modes_out, "--rrd": rrd}
+        return campaign("modal", sources, opts, outputs, out_dir, scheduler, workers, json_out, overwrite)
+    source = sources[0]
     for p, what in ((png, "--png"), (modes_out, "--modes-out"), (rrd, "--rrd")):
         if p is not None:
             check_output(p, overwrite, what, inputs=[source])

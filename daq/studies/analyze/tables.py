@@ -31,11 +31,16 @@ def summary(run: AnalysisRun) -> dict:
     }
 
 
-def print_json(console: Console, run: AnalysisRun, full: bool = False) -> None:
+def document(run: AnalysisRun, full: bool = False) -> dict:
+    """The ``--json`` document: the summary; ``full`` (``--windows``): also every window's RQ and modal result."""
     obj = summary(run)
     if full:
         obj["windows"] = {k: v for k, v in run.results.items() if k in (layout.RQ_TOPIC, layout.MODAL_TOPIC)}
-    console.print_json(json.dumps(obj))
+    return obj
+
+
+def print_json(console: Console, run: AnalysisRun, full: bool = False) -> None:
+    console.print_json(json.dumps(document(run, full)))
 
 
 def _event_note(e: dict) -> str | None:

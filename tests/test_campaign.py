@@ -19,7 +19,7 @@ import pytest
 
 from analysis.errors import BadInput
 from daq.cli import run as gvt
-from daq.studies.campaign.plan import Task, find_logs, output_for, plan
+from daq.studies.campaign.plan import find_logs, output_for, plan
 from daq.studies.campaign.table import exit_code
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,25 +29,28 @@ DAMAGED = "run07.mcap"
 CLOCK = ("wall_seconds", "speed_x_real_time")
 
 
-def _where_and_threads() -> tuple[str, str]:
+def _where_and_env() -> tuple[str, dict[str, str]]:
     import os
 
     import daq.studies.campaign.tasks as tasks
 
-    return tasks.__file__, os.environ["OMP_NUM_THREADS"]
+    return tasks.__file__, {k: os.environ.get(k, "") for k in ("OMP_NUM_THREADS", "NUMBA_NUM_THREADS", "NUMBA_CACHE_DIR")}
 
 
 @pytest.fixture(scope="module")
 def cluster():
     from distributed import Client, LocalCluster
 
+    from analysis.jit_cache import cache_dir
     from daq.studies.campaign.runner import worker_env
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
                       silence_logs=logging.ERROR, env=worker_env()) as lc, Client(lc) as client:  # fmt: skip
-        # the workers run this tree's code (spawned with this process' sys.path), with one thread per pool
-        where = client.run(_where_and_threads)
-        assert all(f.startswith(str(ROOT)) and n == "1" for f, n in where.values()), where
+        # the workers run this tree's code (spawned with this process' sys.path), one thread per pool, and load the
+        # numba kernels from the cache this process uses (analysis/jit_cache.py)
+        env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "NUMBA_CACHE_DIR": str(cache_dir())}
+        where = client.run(_where_and_env)
+        assert all(f.startswith(str(ROOT)) and e == env for f, e in where.values()), where
         yield lc.scheduler_address
 
 
@@ -120,6 +123,15 @@ def test_modal_campaign_writes_each_logs_modes_as_the_single_verb(cluster, logs,
         assert code == 0 and row["exit_code"] == 0 and row["result"] == want and row["modes"] == len(want["modes"]) >= 5
         assert (out / f"{stem}.modes.json").read_text() == mine.read_text()  # the same file, byte for byte
         assert row["outputs"] == [str((out / f"{stem}.modes.json").resolve())]
+    # gvt frf over the same directory: each log's document and FRF file as `gvt frf LOG --json --out F` gives them
+    assert gvt(["frf", str(d), "--scheduler", cluster, "--out", str(out / "frf.npz"), "--json"]) == 2
+    rows = {Path(r["log"]).stem: r for r in json.loads(capsys.readouterr().out)["rows"]}
+    for stem in ("beam_ch4_exp_weak", "beam_ch4_exp_strong"):
+        mine = tmp_path / f"{stem}.npz"
+        code, want = single(capsys, "frf", str(d / f"{stem}.mcap"), "--out", str(mine))
+        assert code == 0 and rows[stem]["result"] == want and rows[stem]["accepted"] == rows[stem]["hits"] == 1
+        assert (out / f"{stem}.frf.npz").read_bytes() == mine.read_bytes()
+    assert rows["two_dof"]["exit_code"] == 2 and rows["two_dof"]["accepted"] == 0
     # a second run would replace them: refused before anything runs, one line, exit 2
     capsys.readouterr()
     assert gvt(argv) == 2
@@ -154,8 +166,11 @@ def test_the_campaigns_exit_code_rule(codes, lost, want):
 
 
 def test_a_single_file_keeps_the_single_log_verb(tmp_path, capsys):
-    """One log, no campaign option: the verb as before (no cluster, its own output), not a one-row table."""
+    """One log, no campaign option: the verb as before (no cluster, its own document), not a one-row table; a
+    campaign asked both to start a cluster and to use one is refused before anything starts."""
     log = ROOT / "replay_logs" / "two_dof_3hits.mcap"
     assert gvt(["analyze", str(log), "--json"]) == 0
-    assert "rows" not in json.loads(capsys.readouterr().out)
-    assert Task("analyze", str(log), 0).options == {}
+    doc = json.loads(capsys.readouterr().out)
+    assert "rows" not in doc and doc["rq_windows"] > 0
+    assert gvt(["analyze", str(log), str(log), "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    assert "--workers sizes the local cluster" in capsys.readouterr().err

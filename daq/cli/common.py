@@ -158,6 +158,8 @@ def campaign(verb: str, logs: Sequence[Path], options: dict, outputs: dict, out_
     from daq.studies.campaign.runner import default_workers, run_campaign
     from daq.studies.campaign.table import document, exit_code, summary_table
 
+    if scheduler is not None and workers is not None:
+        fail("--workers sizes the local cluster; with --scheduler the scheduler's own workers run the logs (give one)")
     found = find_logs(logs)
     if out_dir is not None:
         if out_dir.exists() and not out_dir.is_dir():

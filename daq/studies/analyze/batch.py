@@ -83,8 +83,11 @@ def analyze_log(
     settings: AnalysisSettings | None = None,
     chunk_s: float = 0.5,
     progress: Callable[[float], None] | None = None,
+    pipelined: bool = True,
 ) -> AnalysisRun:
-    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second."""
+    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second. ``pipelined``: the
+    operator's three stages on three threads (D72), what one log alone wants; a campaign runs a log per core and its
+    workers ask for one thread (``pipelined=False``: the same emits in the same order, docs/campaign.md)."""
     reader, rig, model, name = open_for_analysis(path, rig, stream)
     info = reader.streams()[name]
     run = AnalysisRun(stream=name, rig=rig.name)
@@ -93,7 +96,7 @@ def analyze_log(
         run.results.setdefault(topic, []).append(records.encode(obj))
 
     try:
-        op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit, pipelined=True)
+        op = AnalysisOperator(model, tuple(info.channels), info.sample_rate, settings, emit, pipelined=pipelined)
     except ValueError as exc:
         raise AnalyzeError(f"{path}: {exc}") from None
     # blocks are decoded as they are read (bounded memory, daq/replay.py); progress counts blocks from the index

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import uuid
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -58,8 +59,10 @@ def connect(scheduler: str | None, workers: int):
     from distributed import Client, LocalCluster
 
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=logging.ERROR, env=worker_env())  # fmt: skip
+        with warnings.catch_warnings():  # distributed's "port 8787 in use" for a dashboard nobody opens (as gvt sweep)
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None, silence_logs=logging.ERROR, env=worker_env())  # fmt: skip
         return Client(cluster), cluster
     if "://" not in scheduler and ":" not in scheduler:
         raise BadInput(f"--scheduler {scheduler!r}: give the scheduler's address, e.g. tcp://127.0.0.1:8786")

@@ -12,6 +12,8 @@ also starts its workers with the variables set: runner.py).
 
 from __future__ import annotations
 
+import os
+import socket
 import time
 import warnings
 from collections.abc import Callable
@@ -26,7 +28,7 @@ def empty_row(task: Task) -> dict[str, Any]:
     """A row before its log is run: what the table and ``--json`` show per log."""
     return {"index": task.index, "log": task.log, "verb": task.verb, "exit_code": 0, "error": None, "hits": None,
             "accepted": None, "events": None, "modes": None, "damage": None, "data_lost": False, "warnings": [],
-            "outputs": [], "seconds": 0.0, "result": None}  # fmt: skip
+            "outputs": [], "seconds": 0.0, "cpu_s": 0.0, "worker": None, "result": None}  # fmt: skip
 
 
 def run_task(task: Task) -> dict[str, Any]:
@@ -34,7 +36,7 @@ def run_task(task: Task) -> dict[str, Any]:
     write): that is the row's ``exit_code`` and ``error``, as ``gvt VERB LOG`` would have said it."""
     from threadpoolctl import threadpool_limits
 
-    row, t0 = empty_row(task), time.perf_counter()
+    row, t0, c0 = empty_row(task), time.perf_counter(), time.process_time()
     try:
         with threadpool_limits(1), warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -49,7 +51,8 @@ def run_task(task: Task) -> dict[str, Any]:
     else:
         row["warnings"] += list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     row["damage"], row["data_lost"] = log_health(task.log)
-    row["seconds"] = time.perf_counter() - t0
+    row["seconds"], row["cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     return row
 
 
@@ -108,7 +111,9 @@ def analyze_task(task: Task, row: dict) -> None:
     from daq.studies.analyze.tables import document
 
     o, r = task.options, _rig(task.options.get("rig"))
-    run = analyze_log(task.log, r, o.get("stream"), AnalysisSettings(window_s=o.get("window")))
+    # one thread: the campaign's parallelism is a log per worker process (the pipelined operator's three threads per
+    # log made two workers on two cores 3x slower each; its emits are the serial operator's, D72)
+    run = analyze_log(task.log, r, o.get("stream"), AnalysisSettings(window_s=o.get("window")), pipelined=False)
 
     def rrd(tmp: Path) -> None:
         from daq.studies.analyze.rrd import build_rrd

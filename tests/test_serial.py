@@ -27,7 +27,7 @@ from drivers.serial.protocol import (
 from drivers.sim.faults import Faults
 from drivers.sim.faults import merge_ranges as merge
 
-FUZZ = int(os.environ.get("GVT_FUZZ_EXAMPLES", 5000))  # per fuzz test; two tests: >= 10k examples by default
+FUZZ = int(os.environ.get("GVT_FUZZ_EXAMPLES", 1000))  # per fuzz test in make test; make fuzz runs 200 000 each
 
 
 @pytest.fixture(scope="module")

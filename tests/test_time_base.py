@@ -73,7 +73,8 @@ def test_a_held_stream_is_placed_by_its_offset_and_keeps_its_own_index(tmp_path)
     assert [blk.first_index for _lt, blk in b] == [0, 100, 200, 300]  # the device's own index, unchanged
     assert all(lt == ORIGIN + off_ns + round(blk.first_index * 1e9 / FS) for lt, blk in b)
     assert all(lt == ORIGIN + round(blk.first_index * 1e9 / FS) for lt, blk in ref)
-    times = {json.loads(d).get("kind", t): lt for t, lt, d in msgs if not t.endswith("/samples")}
+    json_msgs = [(t, lt, d) for t, lt, d in msgs if not t.endswith("/samples") and not t.startswith("/preview/")]
+    times = {json.loads(d).get("kind", t): lt for t, lt, d in json_msgs}
     assert times["early"] == ORIGIN
     assert times["/analysis/rq"] == ORIGIN + off_ns + 250_000_000
     assert times["silence"] == ORIGIN + off_ns + 150_000_000

@@ -918,7 +918,9 @@ class LogWriter:
         if b.stream not in self._previews:
             return []
         bk = bucket_stats(b.first_index, b.data, self._bucket)
-        times = (t0 + np.round(bk.first * (1e9 / b.sample_rate))).astype(np.int64).tolist()
+        # int64 before adding t0: a UTC origin (~1.8e18 ns) in float64 is only good to 256 ns (the preview came 113 ns
+        # before its own block, and before the session's origin)
+        times = (t0 + np.round(bk.first * 1e9 / b.sample_rate).astype(np.int64)).tolist()
         return list(zip(times, self._previews[b.stream].encode(bk), strict=True))
 
     def _json_channel(self, topic: str) -> int:

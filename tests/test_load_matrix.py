@@ -27,7 +27,8 @@ hammer on one serial device and the 14 accelerometers on another, so the analysi
 
 Duration: ``GVT_LOAD_SECONDS`` per cell. The issue asks for 60 s; the full matrix at 60 s is 12 minutes of wall
 clock and cannot fit in the 10-minute ``make test``, so the suite runs the same matrix with short cells (3 s: ~100 s
-of wall clock, a loaded cell's lanes catching up for up to 5 s after it) and ``make bench`` runs it at 60 s
+of wall clock; a loaded cell's lanes catch up for up to 2 s after it, not the recorder's 5 s: the rule under test is
+that every shed window is counted, whatever the catch-up) and ``make bench`` runs it at 60 s
 (bench/bench_load.py, which adds 16 hogs and a 10-minute session at 8 hogs). Marked host_timing: the hogs are the
 load, so the suite's own parallel phase must not add to it (make test runs these alone, after the parallel phase).
 """
@@ -255,13 +256,18 @@ class Cell:
 def run_cell(directory: Path, cell: str, hogs: Hogs, seconds: float, rig_small: Path | None = None) -> Cell:
     """Record one cell with ``hogs`` running (started once the simulated devices are built, :func:`load_from_device_start`;
     stopped when the session returns — the caller's finaliser stops them too if the session raises)."""
+    import daq.lanes.host as host_module
+
     path = session_file(directory, cell, seconds, rig_small)
     cfg = load_config(SessionConfig, path)
     out = directory / f"{cell}-{hogs.n}.mcap"
+    catch_up = host_module.END_CATCH_UP_S
+    host_module.END_CATCH_UP_S = min(catch_up, max(2.0, seconds / 12))  # short cells: module docstring; 60 s: 5 s
     try:
         with load_from_device_start(hogs):
             res = run_session(cfg, open_rig(cfg.rig), out)
     finally:
+        host_module.END_CATCH_UP_S = catch_up
         seen = hogs.stop()
     if hogs.started < hogs.n:  # the session no longer builds its devices through daq.session.start_simulation
         raise RuntimeError(f"{cell}: the {hogs.n} hogs never started (load_from_device_start found no hook)")

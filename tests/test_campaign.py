@@ -103,9 +103,11 @@ def test_campaign_of_20_logs_on_two_worker_processes_equals_each_log_alone(clust
     assert len(medians) == N_LOGS - 1  # every log its own numbers: a result handed to another log would show
 
 
-def _same(a, b, rel: float = 1e-9) -> bool:
+def _same(a, b, rel: float = 1e-6) -> bool:
     """Equal structures, floats to ``rel``: the modal chain's least squares run on BLAS, whose summation order
-    depends on its thread count (one in a worker, the test process's own here): make test saw 1e-15 relative."""
+    depends on its thread count (one in a worker, the test process's own here): frequencies and damping moved by
+    1e-15 relative, their uncertainties (a covariance of an ill-conditioned fit) by up to 1e-8 (OMP 1 against 2
+    threads on beam_ch4_exp_weak)."""
     if isinstance(a, dict) and isinstance(b, dict):
         return a.keys() == b.keys() and all(_same(a[k], b[k], rel) for k in a)
     if isinstance(a, list) and isinstance(b, list):

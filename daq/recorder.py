@@ -41,6 +41,11 @@ from daq.sources import Source
 #: seconds a lane may take to finish after the source ended, by lane name (the confirmation lane has its own)
 #: (a replay's confirmations have no deadline)
 FINISH_S = {"hits": 30.0, "frf": 30.0, "analysis": 60.0, "view": 12.0, "confirm": 3600.0}
+#: ... and after a stop request (Ctrl-C, SIGTERM): the confirmations get 15 s, not an hour. A stop asks for the file
+#: now; a service manager sends SIGKILL after its own timeout (systemd's default: 90 s), and on a busy host the
+#: confirmation worker at nice +10 held ``gvt record`` 124 s after SIGTERM (6 CPU hogs, one IR event). What is left
+#: is recorded as abandoned, and ``gvt confirm LOG`` confirms it from the log afterwards.
+STOPPED_FINISH_S = {"confirm": 15.0}
 
 
 @dataclass
@@ -127,8 +132,9 @@ class Recorder:
             s.join(10.0)
             s.drain_events()
         self.fan.close()
+        limits = {**FINISH_S, **STOPPED_FINISH_S} if self.stop.is_set() else FINISH_S
         for lane in self.lanes:
-            lane.finish(time.monotonic() + FINISH_S.get(lane.name, 60.0))
+            lane.finish(time.monotonic() + limits.get(lane.name, 60.0))
 
     def _after_finish(self, outcome: Outcome) -> Outcome:
         """Say in the log why the session ended, then finalise the file."""

@@ -275,3 +275,34 @@ def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms
     assert len(res.analysis_events) == len(recs) and all(r["status"] not in ("error", "skipped") for r in recs if r not in marked)
     ev = [e["kind"] for e in LogReader(tmp_path / "s.mcap").json_messages("/daq/events")]
     assert ev.count("confirm_restarted") == 1 and "confirm_off" not in ev
+
+
+def test_a_stop_request_gives_the_confirmations_seconds_not_an_hour():
+    """After Ctrl-C or SIGTERM the recorder asks for the file now: the confirmation lane's drain is bounded by
+    ``STOPPED_FINISH_S`` (15 s), not ``FINISH_S``'s hour (on a busy host ``gvt record`` exited 124 s after SIGTERM,
+    6 CPU hogs, one IR event: a service manager's SIGKILL comes at 90 s). A session that ends at its duration still
+    waits for them. The lanes here only say which deadline the recorder gave them."""
+    import threading
+    import time
+
+    from daq.fanout import FanOut
+    from daq.lanes import Results
+    from daq.recorder import FINISH_S, STOPPED_FINISH_S, Recorder
+
+    class Told:
+        def __init__(self, name: str) -> None:
+            self.name, self.seconds = name, None
+
+        def finish(self, deadline: float) -> None:
+            self.seconds = deadline - time.monotonic()
+
+    for stopped in (False, True):
+        stop = threading.Event()
+        if stopped:
+            stop.set()
+        lanes = [Told("hits"), Told("confirm")]
+        Recorder(fan=FanOut(), results=Results(), sources=[], lanes=lanes, stop=stop).shutdown()
+        want = STOPPED_FINISH_S["confirm"] if stopped else FINISH_S["confirm"]
+        assert want - 1.0 < lanes[1].seconds <= want
+        assert FINISH_S["hits"] - 1.0 < lanes[0].seconds <= FINISH_S["hits"]  # the other lanes keep theirs
+    assert STOPPED_FINISH_S["confirm"] <= 30.0

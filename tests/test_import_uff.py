@@ -346,3 +346,28 @@ def test_a_band_limited_pulse_ringing_across_the_trigger_is_one_hit():
     above = ringing >= level
     assert np.count_nonzero(above[1:] & ~above[:-1]) > 2  # the case: more upward crossings than hits
     assert record_length(ringing, level, fs) == pytest.approx(0.5 - 0.01 - 1 / fs, abs=2e-3)
+
+
+def test_an_inverted_force_channel_is_said_not_left_at_zero_hits(tmp_path, capsys):
+    """A hammer recorded with its sign flipped (negative sensitivity, swapped wires) swings negative: the gate looks
+    for positive force and the import said only "0 hit(s)". It must say why in one line; the upright copy finds the
+    hits and says nothing."""
+    from analysis.model.channels import Channel
+    from daq.studies.importing.data import Provenance, TimeImport
+    from daq.studies.importing.log import write_log
+
+    fs = 2048.0
+    f = np.zeros(int(2 * fs))
+    for t0 in (0.2, 1.2):  # two 3 ms half-sine hits of 400 N
+        i = int(t0 * fs)
+        f[i : i + 6] = 400.0 * np.sin(np.pi * np.arange(1, 7) / 7)
+    acc = np.random.default_rng(1).normal(0.0, 0.01, f.size)
+    chans = [Channel("hammer", "force", 1, (0.0, 0.0, 0.0), 3), Channel("a01", "acceleration", 2, (1.0, 0.0, 0.0), 3)]
+    prov = Provenance("synthetic", "0" * 64, "csv")
+    for sign, warned in ((1.0, False), (-1.0, True)):
+        data = TimeImport(np.column_stack([sign * f, acc]), fs, chans, prov)
+        s = write_log(data, tmp_path / f"s{sign:+.0f}.mcap")
+        assert (s["hits"] == 2) is not warned
+        assert bool(s["warnings"]) is warned
+        if warned:
+            assert "hammer" in s["warnings"][0] and f"{-f.max():.4g} N but only to 0 N" in s["warnings"][0]

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from daq.cli.common import OverwriteOpt, check_output, out
+from daq.cli.common import OverwriteOpt, check_output, err, out
 
 
 def import_(
@@ -40,6 +40,8 @@ def import_(
             f"hits found by the hammer trigger at {summary['trigger_N']:.4g} N (5 % of the largest force), "
             f"records of {summary['record_s']:.4g} s (to the next hit or the end of the data, 1 s at most)"
         )
+    for w in summary.get("warnings", []):  # on stderr, so --json's stdout stays one document
+        err.print(f"warning: {w}", markup=False)
     if json_out:
         out.print_json(json.dumps({**summary, "out": str(out_path), "format": data.provenance.format,
                                    "sha256": data.provenance.sha256, "assumptions": notes}, default=float))  # fmt: skip

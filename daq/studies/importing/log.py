@@ -105,10 +105,29 @@ def _write_time(w: LogWriter, data: TimeImport) -> dict:
     hits += detector.finish() if detector is not None else []
     for h in hits:
         w.write_hit(h.summary(), log_time_ns=round((data.t0_s + h.index / data.fs) * 1e9))
+    note = polarity_note(data)
     return {"kind": "time", "channels": list(names), "units": [c.unit for c in data.channels], "samples": int(x.shape[0]),
             "fs_hz": data.fs, "duration_s": x.shape[0] / data.fs, "hits": len(hits),
             "accepted": sum(h.verdict == "accepted" for h in hits), "trigger_N": level,
-            "record_s": detector.s.record_length if detector is not None else None}  # fmt: skip
+            "record_s": detector.s.record_length if detector is not None else None,
+            "warnings": [note] if note else []}  # fmt: skip
+
+
+def polarity_note(data: TimeImport) -> str | None:
+    """One line when the force channel swings mostly negative: the gate triggers on positive force (a hammer pushes),
+    so an inverted channel (a negative sensitivity, swapped wires, a DAQ that records compression as negative)
+    gives no hits or hits on its rebound ripple, and the import would say only "0 hit(s)"."""
+    force = next((k for k, c in enumerate(data.channels) if c.quantity == "force"), None)
+    if force is None or not data.samples.size:
+        return None
+    lo, hi = float(np.min(data.samples[:, force])), float(np.max(data.samples[:, force]))
+    hi = hi if hi > 0 else 0.0
+    if not -lo > 2.0 * hi:
+        return None
+    name = data.channels[force].name
+    return (f"force channel {name} swings to {lo:.4g} N but only to {hi:.4g} N: an inverted hammer? hits are "
+            f"found on positive force, so its hits and FRFs are missing or wrong; flip {name}'s sign in the source "
+            "and import again")
 
 
 def _detector(data: TimeImport):

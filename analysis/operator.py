@@ -417,6 +417,11 @@ class AnalysisOperator:
         if missing:
             raise ValueError(f"the stream lacks the rig's sensor channels {missing}")
         self._acc_cols = [channels.index(c) for c in model.sensors]
+        # the sensors as one slice when they sit side by side in the stream (the usual layout, hammer first): a slice
+        # and one conversion pass, where a list index gathers element by element (~3x the time a block)
+        a, n_acc = (self._acc_cols[0] if self._acc_cols else 0), len(self._acc_cols)
+        side_by_side = self._acc_cols == list(range(a, a + n_acc))
+        self._acc_take: slice | list[int] = slice(a, a + n_acc) if side_by_side else self._acc_cols
         self._ham_col = channels.index(model.hammer) if model.hammer in channels else None
         self.basis: ModalBasis = resolvable_basis(model, self.fs, min(self.s.n_modes, len(model.sensors)))
         self._guard = (None if self.s.health is None else
@@ -456,7 +461,7 @@ class AnalysisOperator:
         self.stats.blocks += 1
         self.stats.samples += n
         # C order (a column selection is laid out column-major): every kernel downstream reads rows of channels
-        acc = block.data[:, self._acc_cols].astype(np.float64, order="C")
+        acc = block.data[:, self._acc_take].astype(np.float64, order="C")
         inp = None
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n

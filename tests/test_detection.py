@@ -256,6 +256,17 @@ def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     assert any(t == "/analysis/warnings" and o["kind"] == "gap" for t, o in serial)
     assert any(t == "/analysis/events" for t, _ in serial)  # pipelined, their lock fits ran on the health worker
     assert pipelined == serial
+    # the stream's channels in another order (sensors reversed, the hammer last): the sensors are gathered by name, not
+    # taken as one slice as above, and the emits are the same
+    order = [*range(len(chans) - 1, 0, -1), 0]
+    chans_r, data_r = tuple(chans[i] for i in order), data[:, order]
+    got = []
+    op = AnalysisOperator(model, chans_r, fs, emit=lambda t, o: got.append((t, o)), pipelined=True)
+    assert not isinstance(op._acc_take, slice)
+    for s in (*range(0, 16384, 4096), *range(20480, data.shape[0], 6000)):
+        op.feed(SampleBlock("dev0", s, fs, chans_r, data_r[s : min(s + (4096 if s < 16384 else 6000), data.shape[0])]))
+    op.finish()
+    assert got == serial
 
 
 def test_operator_restarts_after_a_gap_and_says_so():

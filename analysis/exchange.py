@@ -253,8 +253,18 @@ class ModalWindower:
 
     def feed(self, q: FloatArray, qdot: FloatArray, input_active: FloatArray | None = None) -> list[WindowFeatures]:
         w = self.basis.omega
-        e = modal_energy(q, qdot, w)
-        if self._sos is not None and q.shape[0]:
+        q, qdot = np.asarray(q), np.asarray(qdot)
+        if self._sos is not None and q.shape[0] and q.dtype == qdot.dtype == w.dtype == np.float64:
+            # the band-pass and the energies (band-limited, then raw) in one compiled pass: the arithmetic of
+            # _bandpass_pairs and modal_energy, so the same numbers (three passes and a concatenation before)
+            q64, qd64 = np.ascontiguousarray(q), np.ascontiguousarray(qdot)
+            qf, qdf = np.empty_like(q64), np.empty_like(qd64)
+            e = np.empty((q.shape[0], 2 * q.shape[1] if self.energy_bandpass else q.shape[1]))
+            _bandpass_energies(q64, qd64, self._sos, self._zi, w, qf, qdf, e, self.energy_bandpass)
+            theta = modal_phase(qf, qdf, w)  # numpy's atan2 (its SIMD one differs from libm's by an ulp: kept)
+            qb = qf
+        elif self._sos is not None and q.shape[0]:
+            e = modal_energy(q, qdot, w)
             q64, qd64 = np.ascontiguousarray(q, np.float64), np.ascontiguousarray(qdot, np.float64)
             qf, qdf = np.empty_like(q64), np.empty_like(qd64)
             _bandpass_pairs(q64, qd64, self._sos, self._zi, qf, qdf)
@@ -263,14 +273,16 @@ class ModalWindower:
             if self.energy_bandpass:
                 e = np.concatenate([modal_energy(qf, qdf, w), e], axis=1)  # band-limited, then raw
         else:
+            e = modal_energy(q, qdot, w)
             theta = modal_phase(q, qdot, w)
             qb = np.asarray(q, float)
         prev = theta[:1] if self._last_theta is None else self._last_theta[None, :]
-        dphi = np.diff(np.concatenate([prev, theta]), axis=0)
-        # wrapped to [−π, π]: θ is an atan2 angle, so a step is off by 2π only where θ crossed ±π. Arithmetic, not
-        # np.angle(np.exp(1j·d)) (three transcendental calls per sample and mode, ~1.5 ms per data-s at 14 ch);
-        # equal to it within rounding (1e-16 rad a sample)
-        dphi -= (2 * np.pi) * np.round(dphi / (2 * np.pi))
+        if theta.dtype == np.float64 and theta.ndim == 2:
+            dphi = np.empty_like(theta)
+            _phase_steps(theta, prev[0] if theta.shape[0] else np.zeros(theta.shape[1]), dphi)
+        else:
+            dphi = np.diff(np.concatenate([prev, theta]), axis=0)
+            dphi -= (2 * np.pi) * np.round(dphi / (2 * np.pi))
         self._last_theta = theta[-1].copy() if theta.shape[0] else self._last_theta
         inp = np.zeros(q.shape[0], bool) if input_active is None else np.asarray(input_active, bool)
         self._e = np.concatenate([self._e, e])
@@ -344,6 +356,51 @@ def _bandpass_pairs(q, qd, sos, z, qf, qdf):  # pragma: no cover - compiled
                 x1 = y1
             qf[k, j] = x0
             qdf[k, j] = x1
+
+
+@numba.njit(cache=True, nogil=True)
+def _bandpass_energies(q, qd, sos, z, omega, qf, qdf, e, band):  # pragma: no cover - compiled
+    """:func:`_bandpass_pairs` and, in the same pass, the linear modal energies of every sample
+    (:func:`analysis.modal_filter.modal_energy`'s products in its order): with ``band`` the band-passed pair's in
+    ``e[:, :r]`` and the raw pair's in ``e[:, r:]``, else the raw pair's only. One pass over the block instead of three
+    and a concatenation (the modal lane's windower, on the caller's thread: issue 30)."""
+    n, r = q.shape
+    w2 = omega * omega
+    for k in range(n):
+        for j in range(r):
+            x0 = q[k, j]
+            x1 = qd[k, j]
+            raw = 0.5 * (x1 * x1 + w2[j] * (x0 * x0))
+            for s in range(sos.shape[1]):
+                b0, b1, b2, a1, a2 = sos[j, s, 0], sos[j, s, 1], sos[j, s, 2], sos[j, s, 4], sos[j, s, 5]
+                y0 = b0 * x0 + z[j, s, 0, 0]
+                z[j, s, 0, 0] = b1 * x0 - a1 * y0 + z[j, s, 1, 0]
+                z[j, s, 1, 0] = b2 * x0 - a2 * y0
+                y1 = b0 * x1 + z[j, s, 0, 1]
+                z[j, s, 0, 1] = b1 * x1 - a1 * y1 + z[j, s, 1, 1]
+                z[j, s, 1, 1] = b2 * x1 - a2 * y1
+                x0 = y0
+                x1 = y1
+            qf[k, j] = x0
+            qdf[k, j] = x1
+            if band:
+                e[k, j] = 0.5 * (x1 * x1 + w2[j] * (x0 * x0))
+                e[k, r + j] = raw
+            else:
+                e[k, j] = raw
+
+
+@numba.njit(cache=True, nogil=True)
+def _phase_steps(theta, prev, out):  # pragma: no cover - compiled
+    """The phase step of every sample from the one before (``prev``: the sample before the block), wrapped to
+    [−π, π]: θ is an atan2 angle, so a step is off by 2π only where θ crossed ±π. Arithmetic, not
+    ``np.angle(np.exp(1j·d))`` (three transcendental calls per sample and mode, ~1.5 ms per data-s at 14 ch), equal to
+    it within rounding (1e-16 rad a sample); ``np.diff`` and ``d − 2π·round(d/2π)`` in one pass, the same numbers."""
+    n, r = theta.shape
+    for k in range(n):
+        for j in range(r):
+            d = theta[k, j] - (prev[j] if k == 0 else theta[k - 1, j])
+            out[k, j] = d - (2 * np.pi) * np.round(d / (2 * np.pi))
 
 
 @dataclass(frozen=True)

@@ -335,7 +335,7 @@ def test_without_a_hammer_channel_the_energy_jump_marks_the_hits():
 def test_windower_bandpass_kernel_is_scipy_sosfilt_bit_for_bit():
     """The compiled per-mode band-pass of ModalWindower repeats scipy's sosfilt (with carried state) exactly,
     block after block; and the arithmetic phase wrap equals np.angle(exp(1j·d)) to rounding."""
-    from analysis.exchange import _bandpass_pairs, phase_bands
+    from analysis.exchange import _bandpass_energies, _bandpass_pairs, _phase_steps, phase_bands
 
     fs, freqs = 16384.0, np.array([20.8, 68.4, 194.5, 387.5])
     bands = [scipy.signal.butter(2, b, "bandpass", fs=fs, output="sos") for b in phase_bands(freqs, fs)]
@@ -353,6 +353,21 @@ def test_windower_bandpass_kernel_is_scipy_sosfilt_bit_for_bit():
     d = rng.uniform(-2 * np.pi, 2 * np.pi, 10000)
     wrapped = d - 2 * np.pi * np.round(d / (2 * np.pi))
     np.testing.assert_allclose(wrapped, np.angle(np.exp(1j * d)), rtol=0, atol=1e-14)
+    # the windower's fused pass (band-pass + energies) and its phase steps: the separate kernels' and numpy's numbers
+    w, z2 = np.array([130.0, 430.0, 1222.0, 2435.0]), np.zeros_like(z)
+    for band in (True, False):
+        qf2, qdf2, e = np.empty_like(q), np.empty_like(qd), np.empty((3000, 8 if band else 4))
+        _bandpass_energies(q, qd, sos, z2.copy(), w, qf2, qdf2, e, band)
+        qf, qdf = np.empty_like(q), np.empty_like(qd)
+        _bandpass_pairs(q, qd, sos, z2.copy(), qf, qdf)
+        raw, bp = modal_energy(q, qd, w), modal_energy(qf, qdf, w)
+        assert np.array_equal(qf2, qf) and np.array_equal(qdf2, qdf)
+        assert np.array_equal(e, np.concatenate([bp, raw], axis=1) if band else raw)
+    theta = np.arctan2(qd, q)
+    steps = np.empty_like(theta)
+    _phase_steps(theta, theta[0] * 0.5, steps)
+    ref = np.diff(np.concatenate([theta[:1] * 0.5, theta]), axis=0)
+    assert np.array_equal(steps, ref - (2 * np.pi) * np.round(ref / (2 * np.pi)))
 
 
 def _grid_events(cases, **settings):

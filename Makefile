@@ -25,7 +25,7 @@ run: $(VENV)/.installed
 # numba's cache built first, one group a core (tests/warm_numba.py says why); then two phases: everything else on
 # one worker more than the cores (much of the suite waits on real-time sessions, and a recording must hold on a busy
 # host: issue 30), then the host_timing tests alone (pyproject.toml's markers say why).
-HOST_TIMING_FILES := tests/test_two_devices.py tests/test_record_matrix.py tests/test_frf_lab.py tests/test_load_matrix.py
+HOST_TIMING_FILES := tests/test_two_devices.py tests/test_load_matrix.py
 test: $(VENV)/.installed-dev
 	$(BIN)/python tests/warm_numba.py sweep & p=$$!; $(BIN)/python tests/warm_numba.py analysis && wait $$p
 	$(BIN)/python -m pytest -n $$(( $$(nproc) + 1 )) --dist loadfile -m "not host_timing"

@@ -250,7 +250,6 @@ def test_gvt_frf_after_a_restart_averages_what_the_lane_averaged(restarted):
 
 
 # --- 4. two devices: the hammer on one, the accelerometers on the other -----------------------------------------------
-@pytest.mark.host_timing
 def test_two_devices_the_lane_builds_frfs_on_the_merged_timeline(tmp_path):
     """sim_two_devices.toml's layout at 2048 Hz: the accelerometer device's clock starts 0.2371 s late; the lane
     takes the responses from its stream at the hit's index less the timeline's fixed offset."""

@@ -187,7 +187,6 @@ TWO = {
 SECOND_CAN = {"messages": ["GVT_CC1A"]}
 
 
-@pytest.mark.host_timing
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_two_devices_one_timeline(tmp_path, capsys, transport):
     """Hammer on one device, an accelerometer on another of the same transport, the second's clock 0.1 s later."""

@@ -311,7 +311,6 @@ TRUE_DELAY = round(0.2371 * FS)  # samples by which acc_daq's clock starts after
 
 
 @pytest.mark.slow
-@pytest.mark.host_timing
 def test_two_device_session_finds_every_hit_and_records_the_offset(two):
     cfg, _out, res = two
     sim = cfg.devices[0].simulate
@@ -332,7 +331,6 @@ def test_two_device_session_finds_every_hit_and_records_the_offset(two):
 
 
 @pytest.mark.slow
-@pytest.mark.host_timing
 def test_two_device_log_holds_both_streams_whole_and_the_timeline(two):
     from daq.log.reader import LogReader
 
@@ -375,7 +373,6 @@ def _ranges(cfg) -> dict[str, float]:
 
 
 @pytest.mark.slow
-@pytest.mark.host_timing
 def test_gvt_frf_reads_the_responses_on_the_other_device_through_the_time_base(two):
     """``gvt frf`` on a two-device log: the force from hammer_daq, the 14 responses from acc_daq at the log's
     offset. Oracle: the same FRFs accumulated here from the two streams sliced by hand at the offset the hit gate

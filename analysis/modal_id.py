@@ -35,7 +35,15 @@ import numpy as np
 from analysis.errors import BadInput
 from analysis.lsfd import LSFDResult, lsfd, shapes_from_constants
 from analysis.mac import mac, mpc, mpd
-from analysis.modal_select import Rules, candidates, contributions, duplicate_groups, quality_flags, resolve_duplicates
+from analysis.modal_select import (
+    Rules,
+    candidates,
+    contributions,
+    duplicate_groups,
+    peak_flags,
+    quality_flags,
+    resolve_duplicates,
+)
 from analysis.plscf import PoleSet, one_blas_thread, plscf, pole_freq_hz, pole_zeta
 
 LABELS = ("o", "f", "d", "v", "s")  # status codes 0..4
@@ -240,6 +248,7 @@ def identify_arrays(
         res = modes_from_poles(freq, H, quantity, table, sel, f_lo, f_hi, driving, sigma_added)
         share = contributions(freq, H, res.fit, quantity)
     flags = quality_flags(res.zeta, res.mpc, count, H.shape[0], max_order, rules)
+    flags = [a + b for a, b in zip(flags, peak_flags(freq, H, res.fit, share, rules), strict=True)]
     return replace(res, stability=count, contribution=share, flags=flags, rejected=rejected)
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from daq.fanout import FanOut
-from daq.log.reader import Damage, DamageRanges, LogDamagedError, LogReader, LogReadError
+from daq.log.reader import OVERLAP, Damage, DamageRanges, LogDamagedError, LogReader, LogReadError
 from drivers.blocks import BlockStatus, SampleBlock
 
 
@@ -44,10 +44,13 @@ def iter_log_blocks(
 
     Blocks are decoded as they are read, with at most ``reorder`` blocks per stream held back to restore
     sample order. A block further out of place than that is yielded where it is found (consumers treat
-    it like any discontinuity). Every chunk is CRC-checked and every block checked (``block_problem``); a
-    damaged chunk or a block that does not decode or is implausible is skipped — a gap to the consumer,
-    like a lost block — and its exact sample range described in ``bad`` (one line each) when a list is
-    given; without one it raises :class:`LogDamagedError` (exit 3, naming ``gvt log recover``).
+    it like any discontinuity). A block over samples already yielded is never yielded (D78, as an export):
+    a bit-identical repeat (a chunk logged twice) quietly, a block that disagrees or holds samples no yielded
+    block has as damage over its range (:data:`~daq.log.reader.OVERLAP`). Every chunk is CRC-checked and
+    every block checked (``block_problem``); a damaged chunk or a block that does not decode or is
+    implausible is skipped — a gap to the consumer, like a lost block — and its exact sample range described
+    in ``bad`` (one line each) when a list is given; without one it raises :class:`LogDamagedError` (exit 3,
+    naming ``gvt log recover``).
     """
     infos = reader.streams()
     names = sorted(infos) if streams is None else sorted(set(streams))
@@ -63,6 +66,21 @@ def iter_log_blocks(
         def out(b) -> tuple[float, str, int, SampleBlock]:
             blk = SampleBlock(name, b.first_index, b.sample_rate, tuple(info.channels), b.data, BlockStatus(b.status))
             return (info.t0_ns / 1e9 + b.first_index / b.sample_rate, name, b.first_index, blk)
+
+        yielded: list[list[int]] = []  # merged [first, end) ranges yielded (one, in a log as written)
+
+        def overlaps(b) -> bool:
+            """Block ``b`` is over samples already yielded: judged against the log as the reader keeps it (first
+            read wins, compared bit for bit over the block's own window), reported if they disagree, dropped."""
+            a, z = b.first_index, b.first_index + b.data.shape[0]
+            if not yielded or a >= yielded[-1][1] or not any(lo < z and a < hi for lo, hi in yielded):
+                _merge_into(yielded, a, z)
+                return False
+            rate = info.sample_rate
+            kept = reader.read_stream(name, start=a / rate, end=z / rate, on_damage="skip")
+            if any(why == OVERLAP for _lo, _hi, why in kept.damaged):
+                report([(a, z, OVERLAP)])
+            return True
 
         def report(ranges: list[tuple[int, int, str]]) -> None:
             for a, z, why in ranges:
@@ -80,15 +98,32 @@ def iter_log_blocks(
             tracker.block(b.first_index, b.first_index + b.data.shape[0])
             report(tracker.ranges[done:])
             heapq.heappush(held, (b.first_index, seq, b))
-            if len(held) > reorder:
-                yield out(heapq.heappop(held)[2])
+            if len(held) > reorder and not overlaps(nxt := heapq.heappop(held)[2]):
+                yield out(nxt)
         done = len(tracker.ranges)
         report(tracker.finish(reader.stream_records().get(name, {}).get("end_index"))[done:])
         while held:
-            yield out(heapq.heappop(held)[2])
+            if not overlaps(nxt := heapq.heappop(held)[2]):
+                yield out(nxt)
 
     for _t, _name, _i, blk in heapq.merge(*(one(n) for n in names), key=lambda x: x[:3]):
         yield blk
+
+
+def _merge_into(ranges: list[list[int]], a: int, z: int) -> None:
+    """Add [a, z) to the sorted, merged ``ranges`` (blocks come in order: the last range grows, O(1))."""
+    if ranges and ranges[-1][0] <= a <= ranges[-1][1]:
+        ranges[-1][1] = max(ranges[-1][1], z)
+        return
+    ranges.append([a, z])
+    ranges.sort()
+    merged = [ranges[0]]
+    for lo, hi in ranges[1:]:
+        if lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    ranges[:] = merged
 
 
 class Replayer:

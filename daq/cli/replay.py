@@ -87,8 +87,15 @@ def _print(log: Path, res, companion: Path) -> None:
     stats = res.stats
     health = "" if res.complete_log else f" (damaged log: {res.salvaged_messages} messages salvaged)"
     if stats.bad_blocks:
-        err.print(f"skipped {len(stats.bad_blocks)} undecodable sample block(s), replayed as gaps; first: {stats.bad_blocks[0]}",
-                  markup=False)  # fmt: skip
+        from daq.log.reader import OVERLAP
+
+        bad = [b for b in stats.bad_blocks if OVERLAP not in b]
+        contra = [b for b in stats.bad_blocks if OVERLAP in b]
+        if bad:
+            err.print(f"skipped {len(bad)} undecodable sample block(s), replayed as gaps; first: {bad[0]}", markup=False)
+        if contra:  # D78: the samples are replayed once, as first read; the block that says otherwise is left out
+            err.print(f"left out {len(contra)} overlapping block(s) that disagree with the samples replayed; first: {contra[0]}",
+                      markup=False)  # fmt: skip
     for stream, n in stats.samples.items():
         gaps = stats.gaps.get(stream, [])
         out.print(f"replayed {stream}: {n} samples, {len(gaps)} gaps ({sum(b - a for a, b in gaps)} samples missing)",

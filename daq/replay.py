@@ -89,6 +89,8 @@ def iter_log_blocks(
                     raise LogDamagedError(f"{what}; `gvt log recover {reader.path} FIXED.mcap` keeps the rest")
                 bad.append(what)
 
+        if bad is not None:  # what the log had lost before `gvt log recover` (D101): said, never a refusal
+            report(reader.recovered_damage(name))
         for seq, item in enumerate(reader.iter_blocks(name)):
             if isinstance(item, Damage):
                 tracker.damage(item)

@@ -48,3 +48,50 @@ def test_a_replay_keeps_a_bit_identical_repeated_block_once_without_a_word(tmp_p
     _, clean_out, _ = _replay(SMALL_LOG, capsys)
     want = [ln for ln in clean_out.splitlines() if ln.startswith("replayed ")]
     assert want and [ln for ln in out.splitlines() if ln.startswith("replayed ")] == want, out
+
+
+def _damaged_first_chunk(tmp_path: Path):
+    """The first of 8 chunks (a chunk per 256-sample block) damaged, samples and message indexes: no log time in the
+    file says where its blocks were (test_probe_cases' export case)."""
+    from .test_log_integrity import _chunk_spans, _log
+
+    data = _log(tmp_path / "clean.mcap", n_blocks=8)
+    raw = bytearray((tmp_path / "clean.mcap").read_bytes())
+    a, z = _chunk_spans(bytes(raw))[0]
+    end = a + 9 + int.from_bytes(raw[a + 1 : a + 9], "little")
+    raw[end - 20] ^= 0x10
+    raw[end:z] = bytes(z - end)
+    (tmp_path / "bad.mcap").write_bytes(bytes(raw))
+    return tmp_path / "bad.mcap", data
+
+
+def test_a_recovered_log_keeps_the_place_of_its_damaged_first_chunk(tmp_path, capsys):
+    """``gvt log recover`` dropped the writer's stream record (it no longer holds) and with it the only thing that
+    placed the damaged first chunk: the recovered file started at sample 256 as if that were the session's start, and
+    its export exited 0 without a word. Now the recovered file records what the original lost (``gvtlink.recovered``)
+    and every read reports it: the export carries [0, 256) as a gap and exits 3 (D77), as the original's does."""
+    import numpy as np
+
+    from daq.log.reader import LogReader
+
+    bad, data = _damaged_first_chunk(tmp_path)
+    fixed = tmp_path / "fixed.mcap"
+    assert run(["log", "recover", str(bad), str(fixed)]) == 3
+    capsys.readouterr()
+    out = tmp_path / "x.npz"
+    code = run(["log", "export", str(fixed), "--out", str(out)])
+    _o, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 3 and len(lines) == 1, (code, err)
+    assert "without the damaged samples [0, 256) of stream dev0" in lines[0] and "left out as a gap" in lines[0], lines
+    with np.load(out) as x:
+        assert x["dev0/gaps"].tolist() == [[0, 256]] and x["dev0/damaged"].tolist() == [[0, 256]]
+        assert x["index"].tolist() == list(range(256, 2048)) and x["data"].tobytes() == data[256:].tobytes()
+    assert run(["log", "info", "--verify", str(fixed)]) == 3
+    o, _e = capsys.readouterr()
+    assert "dev0 samples [0, 256)" in o and "before `gvt log recover`" in o, o
+    again = tmp_path / "again.mcap"  # a recover of the recovered file keeps the place too (nothing more lost)
+    assert run(["log", "recover", str(fixed), str(again)]) in (0, 3)
+    capsys.readouterr()
+    assert LogReader(again).read_stream("dev0", on_damage="skip").damaged == LogReader(fixed).read_stream(
+        "dev0", on_damage="skip").damaged  # fmt: skip

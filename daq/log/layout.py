@@ -36,6 +36,10 @@ META_CONFIG = "gvtlink.config"
 META_TIME = "gvtlink.time"  # the session's origin: UTC ns of the reference's sample 0 (format 2)
 META_EVENTS = "gvtlink.events"  # at close: /daq/events counts by kind and the events themselves (≤ 2000)
 META_STREAMS = "gvtlink.streams"  # at close, per stream: counts, gaps, segments, flags, t0_ns, offset_ns (format 2)
+#: written by ``gvt log recover`` when data was lost: per stream, the sample ranges the original log had lost (JSON
+#: [[start, end, why], ...]); every read of the recovered file reports them as damage (issue 30: a damaged first
+#: chunk's place was gone, and an export of the recovered file exited 0)
+META_RECOVERED = "gvtlink.recovered"
 
 
 def samples_topic(stream: str) -> str:

@@ -702,6 +702,17 @@ class LogReader:
                 out.append({"kind": "undecodable", "raw_bytes": len(msg.data)})
         return out
 
+    def recovered_damage(self, stream: str) -> list[tuple[int, int, str]]:
+        """The sample ranges of ``stream`` a log lost before ``gvt log recover`` rewrote it (its
+        ``gvtlink.recovered`` record): damage on every read of the recovered file, which no longer holds the
+        chunks (nor, for a damaged first chunk, anything else) that said where those samples were."""
+        rec = self.metadata().get(layout.META_RECOVERED) or {}
+        try:
+            return [(int(a), int(b), str(why)) for a, b, why in json.loads(rec.get(stream, "[]"))]
+        except (ValueError, TypeError):
+            self.problems.append(f"metadata record {layout.META_RECOVERED!r} does not parse (left out)")
+            return []
+
     def stream_records(self) -> dict[str, dict[str, Any]]:
         """The writer's ``gvtlink.streams`` record (counts, gaps, segments per stream) when the file is complete
         and the record parses; {} otherwise (older logs, damaged ones)."""
@@ -788,6 +799,9 @@ class LogReader:
             damaged += _clipped(samples.kept()[1], lo_i, hi_i)
         if damaged and on_damage == "refuse":
             raise self.damaged_error(info, damaged)
+        # what the log had lost before `gvt log recover` (D101): listed, never a refusal (nothing in this file is
+        # damaged, and a recover would not give them back); a verb that needs whole data reads around them as a gap
+        damaged += _clipped(self.recovered_damage(stream), lo_i, hi_i)
         return samples.assemble(info, [info.channels[i] for i in sel], start, end, damaged)
 
     def _max_rows(self, info: StreamInfo, start_ns: int | None, end_ns: int | None) -> int | None:

@@ -19,6 +19,7 @@ from mcap.writer import CompressionType, Writer
 
 from daq.log import layout
 from daq.log.reader import OVERLAP, Damage, DamageRanges, LogReader, LogReadError, SalvageReport, StreamInfo, kept_blocks
+from daq.log.seal import seal
 from drivers.blocks import BlockStatus
 
 RESTART = int(BlockStatus.RESTART)
@@ -152,7 +153,7 @@ def _by_decoding(r: LogReader, name: str, info: StreamInfo) -> dict[str, Any]:
         if b.status & RESTART:
             restarts.append(b.first_index)
     # damage at the end reaches the stream's end, which the writer's sealed closing record says (when it is there)
-    damaged = tracker.finish(r.stream_records().get(name, {}).get("end_index"))
+    damaged = tracker.finish(r.stream_records().get(name, {}).get("end_index")) + r.recovered_damage(name)
     # a duplicated block is counted once; blocks that disagree about samples are damage (read_stream compares them)
     keep, dropped = kept_blocks(np.asarray(firsts, np.int64), np.asarray(counts, np.int64))
     if dropped:
@@ -273,11 +274,36 @@ def recover(src: str | Path, dst: str | Path, chunk_size: int = 1 << 20) -> Salv
             )
         r.report.missing_by_sequence = sum(max(s) + 1 - len(s) for s in sequences.values())
         r.report.messages = len(seen)  # what the new file holds
+        lost = _lost_ranges(r) if r.report.data_lost else {}
         for name, data in r.metadata().items():  # after the data: the writer's per-stream record only if it holds
+            if name == layout.META_RECOVERED and lost:
+                continue  # replaced below (it holds these ranges too)
             if name != layout.META_STREAMS or not (r.report.data_lost or r.report.duplicates):
                 w.add_metadata(name, data)
+        if lost:  # the samples' place: without the streams record a damaged first chunk left no trace
+            w.add_metadata(layout.META_RECOVERED, seal(layout.META_RECOVERED, {s: json.dumps(v) for s, v in lost.items()}))
         w.finish()
     return r.report
+
+
+def _lost_ranges(r: LogReader) -> dict[str, list[list[Any]]]:
+    """Per stream, the sample ranges of ``r`` that damage took (those it had lost before a recover included), as
+    ``gvt log info --verify`` finds them, each reason saying it was the original's; a second pass over the blocks,
+    paid only when data was lost. Overlapping blocks are not among them: recover copies both, its file says so."""
+    out = {}
+    for name, info in r.streams().items():
+        try:
+            ranges = _by_decoding(r, name, info)["damaged"]
+        except LogReadError:
+            continue
+        ranges = [[a, b, why if why.startswith(_LOST) else f"{_LOST} ({why})"] for a, b, why in ranges if why != OVERLAP]
+        if ranges:
+            out[name] = ranges
+    return out
+
+
+#: the reason a recovered file gives for samples its original had lost
+_LOST = "lost before `gvt log recover` rewrote the log"
 
 
 def info_text(info: dict[str, Any]) -> str:

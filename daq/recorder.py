@@ -44,7 +44,8 @@ FINISH_S = {"hits": 30.0, "frf": 30.0, "analysis": 60.0, "view": 12.0, "confirm"
 #: ... and after a stop request (Ctrl-C, SIGTERM): the confirmations get 15 s, not an hour. A stop asks for the file
 #: now; a service manager sends SIGKILL after its own timeout (systemd's default: 90 s), and on a busy host the
 #: confirmation worker at nice +10 held ``gvt record`` 124 s after SIGTERM (6 CPU hogs, one IR event). What is left
-#: is recorded as abandoned, and ``gvt confirm LOG`` confirms it from the log afterwards.
+#: is recorded as abandoned, and ``gvt confirm LOG`` confirms it from the log afterwards. A stop that arrives while a
+#: session that ran to its duration is draining cuts what is left of that drain to the same (a lane's ``cut``).
 STOPPED_FINISH_S = {"confirm": 15.0}
 
 
@@ -63,6 +64,7 @@ class Recorder:
         self, *, fan: FanOut, results: Results, sources: Sequence[Source], lanes: Sequence[Lane],
         log: LogLane | None = None, stop: threading.Event | None = None, duration_s: float | None = None,
         end_grace_s: float = 10.0, start_servers: Callable[[], None] | None = None,
+        stopped_finish_s: dict[str, float] | None = None,
     ) -> None:  # fmt: skip
         self.fan = fan
         self.results = results
@@ -73,6 +75,7 @@ class Recorder:
         self.duration_s = duration_s
         self.end_grace_s = end_grace_s
         self.start_servers = start_servers  # simulated devices hold their clocks until the links are open
+        self.stopped_finish_s = {**STOPPED_FINISH_S, **(stopped_finish_s or {})}  # a session's [analysis] stop_drain_s
         self.t0 = time.monotonic()
 
     # --- running --------------------------------------------------------------------------------------
@@ -132,9 +135,14 @@ class Recorder:
             s.join(10.0)
             s.drain_events()
         self.fan.close()
-        limits = {**FINISH_S, **STOPPED_FINISH_S} if self.stop.is_set() else FINISH_S
-        for lane in self.lanes:
-            lane.finish(time.monotonic() + limits.get(lane.name, 60.0))
+        watch = None if self.stop.is_set() else _StopDuringFinish(self.stop, self.lanes, self.stopped_finish_s)
+        try:
+            for lane in self.lanes:
+                limits = {**FINISH_S, **self.stopped_finish_s} if self.stop.is_set() else FINISH_S
+                lane.finish(time.monotonic() + limits.get(lane.name, 60.0))
+        finally:
+            if watch is not None:
+                watch.close()
 
     def _after_finish(self, outcome: Outcome) -> Outcome:
         """Say in the log why the session ended, then finalise the file."""
@@ -146,3 +154,30 @@ class Recorder:
                 outcome = Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code,
                                   outcome.seconds)  # fmt: skip
         return outcome
+
+
+class _StopDuringFinish:
+    """While the lanes finish after a session that was not stopped (its duration reached, a device ended): a stop
+    request (Ctrl-C, SIGTERM) then cuts each lane that can be cut (``lane.cut(deadline)``: the confirmation drain,
+    an hour or its own 120 s) to ``stopped_finish_s`` from the request, as a stop before the end would have; the
+    lane records what it abandons. Ctrl-C during a drain had waited the drain out (issue 30)."""
+
+    def __init__(self, stop: threading.Event, lanes: Sequence[Lane], limits: dict[str, float]) -> None:
+        self.stop, self.lanes, self.limits = stop, lanes, limits
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="stop-during-finish", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._done.is_set():
+            if self.stop.wait(0.1):
+                t = time.monotonic()
+                for lane in self.lanes:
+                    cut = getattr(lane, "cut", None)
+                    if cut is not None and lane.name in self.limits:
+                        cut(t + self.limits[lane.name])
+                return
+
+    def close(self) -> None:
+        self._done.set()
+        self._thread.join(1.0)

@@ -95,3 +95,110 @@ def test_a_recovered_log_keeps_the_place_of_its_damaged_first_chunk(tmp_path, ca
     capsys.readouterr()
     assert LogReader(again).read_stream("dev0", on_damage="skip").damaged == LogReader(fixed).read_stream(
         "dev0", on_damage="skip").damaged  # fmt: skip
+
+
+_DRAIN_SESSION = """name = "drain-stop"
+rig = "beam_ch4_exp"
+duration = 1.6
+
+[trigger]
+level = 20.0
+
+[device]
+driver = "sim"
+
+[device.config]
+paced = true
+block_size = 256
+forces = [1583.0]
+physics_seconds = 1.8
+seed = 3
+
+[analysis]
+stop_drain_s = 1.0
+"""
+
+
+def _hold_confirmation_workers(root: int, held: list[int], done) -> None:
+    """SIGSTOP every confirmation worker of process ``root`` as it appears (a leaf started by multiprocessing's
+    spawn): a worker starved of the CPU, as at nice +10 on a busy host, only it never catches up."""
+    import os
+    import signal
+    import time
+
+    import psutil
+
+    me = psutil.Process(root)
+    while not done.is_set():
+        try:
+            kids = me.children(recursive=True)
+        except psutil.Error:
+            return
+        for c in kids:
+            try:
+                if c.pid not in held and "spawn_main" in " ".join(c.cmdline()) and not c.children():
+                    os.kill(c.pid, signal.SIGSTOP)
+                    held.append(c.pid)
+            except (psutil.Error, OSError):
+                pass
+        time.sleep(0.05)
+
+
+def test_ctrl_c_during_the_confirmation_drain_cuts_it_and_records_what_it_abandoned(tmp_path):
+    """A session ran to its duration and is draining its confirmations (up to 120 s by the lane's own limit, an hour
+    by the recorder's): Ctrl-C then waited the drain out, since only a stop before the end shortened it. Now the stop
+    cuts what is left to ``[analysis] stop_drain_s`` (15 s by default; 1 s here), each confirmation still running is
+    recorded as skipped naming ``gvt confirm LOG --event ID``, and ``gvt record`` exits. The confirmation workers are
+    held stopped (SIGSTOP) so that the drain cannot end by itself."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    from daq.lanes.confirm import CONFIRM_TOPIC
+    from daq.log.reader import LogReader
+
+    cfg, log = tmp_path / "s.toml", tmp_path / "s.mcap"
+    cfg.write_text(_DRAIN_SESSION)
+    # this tree's gvt (the installed script may be another checkout's)
+    proc = subprocess.Popen([sys.executable, "-m", "daq.cli", "record", str(cfg), "--out", str(log)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    held: list[int] = []
+    done = threading.Event()
+    threading.Thread(target=_hold_confirmation_workers, args=(proc.pid, held, done), daemon=True).start()
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+    try:
+        until = time.monotonic() + 120
+        while proc.poll() is None and not any("confirming" in ln for ln in lines) and time.monotonic() < until:
+            time.sleep(0.05)
+        assert proc.poll() is None and held, ("the drain never began with a held worker", held, "".join(lines))
+        time.sleep(0.5)  # well inside the drain
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(60)
+        took = time.monotonic() - t0
+    finally:
+        done.set()
+        if proc.poll() is None:
+            proc.kill()
+        for pid in held:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+    reader.join(5)
+    text = "".join(lines)
+    assert proc.returncode == 0 and "Traceback" not in text, text  # the session itself reached its duration
+    # 1 s of drain, then the worker's last records, the log's close and the tables: ~2-4 s on a loaded 2-core
+    # machine; before, the drain ran to the lane's 120 s limit. 15 s separates the two whatever the load.
+    assert took < 15.0, (took, text)
+    recs = LogReader(log).json_messages(CONFIRM_TOPIC)
+    assert recs and all(r["status"] == "skipped" and "a stop request cut the drain" in r["reason"] for r in recs), recs
+    assert all(f"gvt confirm LOG --event {r['event']['id']}" in r["reason"] for r in recs), recs
+    kinds = [e.get("kind") for e in LogReader(log).json_messages("/daq/events")]
+    assert "confirm_abandoned" in kinds, kinds
+

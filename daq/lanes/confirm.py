@@ -137,6 +137,7 @@ class ConfirmLane:
         self.worker_deaths = 0
         self.off: str | None = None  # why the lane was switched off (a worker died more than ``restarts`` times)
         self.abandoned = 0  # confirmations still running when the drain's time ran out
+        self.cut_at: float | None = None  # a stop request during the drain: it ends by then (:meth:`cut`)
         self._pool = _new_pool()
         self._thread = threading.Thread(target=self._main, name=f"confirm:{stream}", daemon=True)
 
@@ -188,6 +189,12 @@ class ConfirmLane:
             if self.say is not None:
                 self.say(line)
 
+    def cut(self, deadline: float) -> None:
+        """A stop request (Ctrl-C, SIGTERM) arrived: the drain ends by ``deadline`` (``time.monotonic()``) at the
+        latest, whatever it was given; what is still running then is recorded as skipped, for ``gvt confirm``.
+        Safe from any thread (the drain reads it every 0.2 s)."""
+        self.cut_at = deadline if self.cut_at is None else min(self.cut_at, deadline)
+
     def _drain(self, deadline: float, progress: Callable[[int, int], None] | None, wait: bool) -> None:
         total = len(self._running)
         if not wait:
@@ -198,7 +205,7 @@ class ConfirmLane:
             return
         last = 0.0
         t0 = time.monotonic()
-        while self._running and time.monotonic() < deadline:
+        while self._running and time.monotonic() < min(deadline, self.cut_at or deadline):
             self._collect()
             now = time.monotonic()
             if progress is not None and (now - last >= 0.5 or not self._running):
@@ -207,8 +214,10 @@ class ConfirmLane:
             if self._running:
                 wait_futures([f for _, f in self._running], timeout=0.2, return_when=FIRST_COMPLETED)
         self.abandoned += len(self._running)
+        why = " (a stop request cut the drain)" if self.cut_at is not None and self._running else ""
         for ev, _fut in self._running:
-            self._emit(skipped(ev, f"still running {time.monotonic() - t0:.0f} s after the stream ended"))
+            self._emit(skipped(ev, f"still running {time.monotonic() - t0:.0f} s after the stream ended{why}; run "
+                                   f"'gvt confirm LOG --event {ev.get('id')}'"))  # fmt: skip
         self._running = []
 
     # -- internals -------------------------------------------------------------------------------------
@@ -367,6 +376,9 @@ class DrainingConfirmLane:
 
     def finish(self, deadline: float) -> None:
         self.lane.finish(deadline, self.progress, self.wait)
+
+    def cut(self, deadline: float) -> None:
+        self.lane.cut(deadline)
 
 
 def _new_pool() -> ProcessPoolExecutor:

@@ -111,6 +111,8 @@ class LaneHost:
         self._restart_note: tuple[int, list, int | None] | None = None
         self._analysis_done = threading.Event()
         self._summary = threading.Event()
+        self._cut_at: float | None = None  # a stop request during the drain: it ends by then (:meth:`cut`)
+        self._drain_sent = False
         self.late: list[tuple[int, int]] = []  # ranges the worker skipped after the end (END_CATCH_UP_S)
         self.proc = None
         self._hurry = _context().Event()  # set: the worker skips what it still holds (the end's catch-up is over)
@@ -344,23 +346,42 @@ class LaneHost:
                            "each gap",
             }, None)  # fmt: skip
 
+    def _until(self, deadline: float) -> float:
+        return deadline if self._cut_at is None else min(deadline, self._cut_at)
+
+    def cut(self, deadline: float) -> None:
+        """A stop request (Ctrl-C, SIGTERM) arrived: the drain ends by ``deadline`` at the latest. The worker is told
+        (its confirmation lane records what it then abandons as skipped, for ``gvt confirm``), keeping a second for
+        its last records to come back; a worker that does not answer is killed at ``deadline``."""
+        self._cut_at = self._until(deadline)
+        with self._lock:
+            if self._alive and self._drain_sent:
+                try:
+                    self._tx.send(("cut", max(0.0, self._cut_at - time.monotonic() - 1.0)))
+                except (OSError, ValueError):
+                    pass
+
     def finish_all(self, deadline: float, wait: bool = True) -> None:
-        """The confirmations drain (``wait=False``: none waited for), then the worker is stopped, by ``deadline``."""
+        """The confirmations drain (``wait=False``: none waited for), then the worker is stopped, by ``deadline``
+        (or by an earlier one a stop request gives, :meth:`cut`)."""
         if not self._summary.is_set() and self._lock.acquire(timeout=max(0.0, min(1.0, deadline - time.monotonic()))):
             try:
                 if self._alive:
-                    self._tx.send(("drain", max(0.0, deadline - time.monotonic() - 1.0), wait))
+                    self._tx.send(("drain", max(0.0, self._until(deadline) - time.monotonic() - 1.0), wait))
+                    self._drain_sent = True
             except (OSError, ValueError):
                 pass
             finally:
                 self._lock.release()
-        if not self._summary.wait(max(0.0, deadline - time.monotonic())):
+        while not self._summary.wait(0.1) and time.monotonic() < self._until(deadline):
+            pass
+        if not self._summary.is_set():
             done = {c.get("event", {}).get("id") for c in self.confirmations}
             left = [e.get("id") for e in self.events if e.get("id") not in done] if self.confirm else []
             self._abandon(f"{len(left)} unconfirmed IR events {left}" if left else "its last results")
         proc = self.proc
         if proc is not None:
-            proc.join(max(0.0, min(3.0, deadline - time.monotonic())))
+            proc.join(min(3.0, max(0.5, self._until(deadline) - time.monotonic())))
             if proc.exitcode is None:
                 self.cpu_s += _cpu_of(proc.pid)
         self.kill()
@@ -459,6 +480,9 @@ class HostedConfirm:
 
     def finish(self, deadline: float) -> None:
         self.host.finish_all(deadline, self.wait)
+
+    def cut(self, deadline: float) -> None:
+        self.host.cut(deadline)
 
 
 def start_lane_host(

@@ -11,7 +11,8 @@ goes back to the recorder, whose one log writer owns the file.
 Protocol (tuples through two one-way pipes; the sample data through the ring, :mod:`daq.lanes.shm_ring`):
 
 * recorder → worker: ``("b", first_index, n, n_channels, start, end, t_host)`` a block in the ring;
-  ``("end",)`` the stream ended; ``("drain", seconds, wait)`` finish the confirmations;
+  ``("end",)`` the stream ended; ``("drain", seconds, wait)`` finish the confirmations; during the drain
+  ``("cut", seconds)`` a stop request: end it within ``seconds``;
 * worker → recorder: ``("ready", info)`` | ``("failed", line)`` at start-up; ``("r", topic, obj, log_time_ns)``
   each result; ``("analysis_done",)``; ``("progress", done, total)``; ``("summary", dict)`` last.
 """
@@ -181,10 +182,22 @@ class _Host:
         seconds, wait = (msg[1], msg[2]) if msg[0] == "drain" else (0.0, False)
         if self.confirm is not None:
             self.cfan.close()
+            threading.Thread(target=self._cuts, name="drain-cut", daemon=True).start()
             self.confirm.finish(time.monotonic() + seconds, lambda d, n: self.send(("progress", d, n)), wait)
         op = self.lane.op
         self.send(("summary", {"cpu_s": time.process_time(), "latencies_s": list(op.stats.latencies_s),
                                "error": self.lane.error, "events": len(op.events)}))  # fmt: skip
+
+
+    def _cuts(self) -> None:
+        """During the drain: a stop request's ``("cut", seconds)`` shortens it (the recorder sends nothing else)."""
+        while True:
+            try:
+                msg = self.rx.recv()
+            except (EOFError, OSError):
+                return
+            if msg[0] == "cut" and self.confirm is not None:
+                self.confirm.cut(time.monotonic() + msg[1])
 
 
 def main(spec: HostSpec, rx, tx, hurry=None) -> None:

@@ -13,7 +13,8 @@ Who owns what (docs/session.md): the recorder owns the sources, the lanes and th
 owns its driver (and so the driver's thread); each lane owns its threads, the confirmation lane its
 worker process; the log lane owns the writer thread and the file lock. The stop order is fixed:
 
-1. sources stop reading and close their links (no block can enter after this);
+1. sources stop reading and close their links (no block can enter after this); a device that holds samples it
+   has not sent yet (a Modbus FIFO) delivers them first, within its driver's bound (``stop_drain_s``);
 2. the fan-out closes (every subscriber gets END);
 3. lanes finish in the order given (hit gate, live FRFs, analysis, confirmation, view): each one's last
    results may feed the next (the gate's last hits reach the FRF lane, the analysis' last IR events the

@@ -93,6 +93,7 @@ class DeviceSource:
         self._silent_since: float | None = None
         self._thread: threading.Thread | None = None
         self._opened = False
+        self._finish_by: float | None = None  # a stop's drain of what the device holds ends by then (``stop``)
 
     # --- owner side -----------------------------------------------------------------------------------
     def open(self) -> None:
@@ -106,7 +107,17 @@ class DeviceSource:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop reading and close the link (the driver's own thread ends with it)."""
+        """Stop reading and close the link (the driver's own thread ends with it). A driver whose device holds
+        samples it has not read yet (``finish``: a Modbus FIFO) first delivers them within its own bound, and this
+        thread records them until the driver ends; :meth:`join` waits for that, then closes the link. A source that
+        reached its duration has nothing left to take: closed at once."""
+        finish = getattr(self.driver, "finish", None)
+        if finish is not None and self._opened and self._thread is not None and not self.done.is_set():
+            self._finish_by = time.monotonic() + finish() + 1.0  # its bound, and a second to hand over the last block
+            return
+        self._halt()
+
+    def _halt(self) -> None:
         self._stop.set()
         if self._opened:
             self._opened = False
@@ -116,6 +127,12 @@ class DeviceSource:
                 self.report.error = self.report.error or f"closing the link failed: {type(exc).__name__}: {exc}"
 
     def join(self, timeout: float) -> None:
+        if self._finish_by is not None and self._thread is not None:
+            t_end = time.monotonic() + timeout
+            self._thread.join(max(0.0, min(t_end, self._finish_by) - time.monotonic()))
+            self._finish_by = None
+            self._halt()
+            timeout = max(0.0, t_end - time.monotonic())
         if self._thread is not None:
             self._thread.join(timeout)
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import socket
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -90,6 +91,8 @@ class ModbusConfig(DriverConfig):
     reconnect_s: float = 30.0  # give up after this long without a connection
     capacity_req_s: float | None = None  # measured link capacity; None: TCP default / RTU from the baud rate
     block_samples: int = 1024
+    # at a stop, seconds to read what the device's FIFO still holds (then what is left is a logged gap, not silence)
+    stop_drain_s: float = Field(2.0, ge=0.0, le=60.0)
 
     @model_validator(mode="after")
     def _check(self) -> ModbusConfig:
@@ -141,6 +144,10 @@ class ModbusDriver(Driver):
         self._next: int | None = None  # next device index wanted from the FIFO (None: from the device's head)
         self._chunk = _Chunk()
         self._restart_cause: str | None = None  # the next block starts a new device run, for this reason
+        self._finishing = threading.Event()  # the owner's finish(): deliver what the device holds, then end
+        self._produced: int | None = None  # the device's sample count when the last frame was read (first + buffered)
+        self._device_stopped = False
+        self._finishing_done = False
         if config.mode == "fifo":
             if self.map.fifo is None:
                 raise DriverError(f"register map {config.register_map} has no [fifo]; use mode = 'poll'")
@@ -218,7 +225,7 @@ class ModbusDriver(Driver):
         deadline = time.monotonic() + self.cfg.reconnect_s
         where = f"{self.cfg.host}:{self.cfg.port}" if self.cfg.transport == "tcp" else self.cfg.serial_port
         while not self._open_link():
-            if self.stopping:
+            if self.stopping or self._finishing.is_set():
                 raise _Stopping
             if time.monotonic() > deadline:
                 raise DriverError(f"modbus: no connection to {where} for {self.cfg.reconnect_s:g} s (is the device on?)")
@@ -262,8 +269,8 @@ class ModbusDriver(Driver):
                 self._flags |= BlockStatus.TIMEOUT
                 attempt += 1
                 self._drain()
-                if reconnect and self.stopping:  # a silent device is retried and relinked for ever: stop now
-                    raise _Stopping from None
+                if reconnect and (self.stopping or self._finishing.is_set()):  # a silent device is retried and
+                    raise _Stopping from None  # relinked for ever: stop now (at a stop's drain: the rest is a gap)
                 if attempt <= self.cfg.retries:
                     self.stats.retries += 1
                     continue
@@ -282,7 +289,7 @@ class ModbusDriver(Driver):
                     self._client.close()
                 if not reconnect:
                     raise DriverError(f"modbus: {what}: {exc}") from exc
-                if self.stopping:
+                if self.stopping or self._finishing.is_set():
                     raise _Stopping from None
                 continue
             except ModbusException as exc:
@@ -332,13 +339,22 @@ class ModbusDriver(Driver):
     def _disconnect(self) -> None:
         pass  # the reader thread sends stop and closes the link (it owns the client)
 
+    def finish(self) -> float:
+        """Owner side, at a stop: end the run *after* delivering what the device already holds (its FIFO, and the
+        frames gathered into the block in hand), within ``stop_drain_s``; then the reading thread ends by itself
+        (``alive`` turns False). Returns that bound in seconds. What the drain cannot read in time is a ``gap`` event
+        with its exact range (lost, counted), never silently missing. ``close()`` still ends it at once."""
+        self._finishing.set()
+        return self.cfg.stop_drain_s
+
     def _run(self) -> None:
         try:
             self._loop()
         except _Stopping:
-            pass
+            if self._finishing.is_set() and not self._finishing_done:  # no answer while the stop's drain waited
+                self._held_accounted(None)
         finally:
-            if self.cfg.control and self._client is not None and self._client.connected:
+            if self.cfg.control and not self._device_stopped and self._client is not None and self._client.connected:
                 try:
                     self._write(self.map.control.command, 0, "stop", reconnect=False)
                 except DriverError:
@@ -357,6 +373,10 @@ class ModbusDriver(Driver):
             return poll_t0 + poll_k * poll_period if self._poll_regs else math.inf
 
         while not self.stopping:
+            if self._finishing.is_set():
+                if fifo_mode:
+                    self._drain_held()
+                return
             now = time.monotonic()
             if now >= next_poll():
                 poll_k = max(poll_k, int((now - poll_t0) * c.poll_hz))  # ticks we were too late for are a gap
@@ -373,10 +393,65 @@ class ModbusDriver(Driver):
                 left = self._fifo_step()
             except _Relinked:
                 continue
-            if left < self.spf:  # less than a frame waiting: sleep until one is (or the next poll tick)
+            if left < self.spf and not self._finishing.is_set():  # less than a frame waiting: sleep until one is
                 wait = (self.spf - left) / self.fs
                 self._stop.wait(min(wait, max(0.0, next_poll() - time.monotonic())))
         self._flush_chunk()
+
+    def _drain_held(self) -> None:
+        """The stop's drain: the device is stopped (``control``: it produces no more, its FIFO keeps what it holds),
+        then frames are read until the index wanted reaches the device's count at the first read (one read at
+        least, whatever the bound: it is what says how much the device holds), or ``stop_drain_s`` passes; the block
+        in hand is delivered, and what was not read is one ``gap``."""
+        until = time.monotonic() + self.cfg.stop_drain_s
+        if self.cfg.control:
+            try:
+                self._write(self.map.control.command, 0, "stop", reconnect=False)
+                self._device_stopped = True
+            except DriverError:
+                pass  # the link is down: the drain reads nothing either, and says so below
+        target = None
+        try:
+            while not self.stopping and not self._link_new:  # one read at least: it tells what the device holds
+                self._fifo_step()
+                target = self._produced if target is None else target
+                if target is None or (self._next is not None and self._next >= target) or time.monotonic() >= until:
+                    break
+        except (_Relinked, _Stopping, DriverError):
+            pass  # a reconnect (the device may have restarted), no answer, a dead link: the rest is the gap below
+        self._held_accounted(target)
+
+    def _held_accounted(self, target: int | None) -> None:
+        """The drain's end: the block in hand delivered, and what the device held beyond it one ``gap`` (``target``:
+        the device's count at the drain's first read; None: the last count the driver saw)."""
+        self._finishing_done = True
+        self._flush_chunk()
+        nxt = self._next
+        if target is not None and nxt is not None and target > nxt:
+            self._not_drained(nxt, target, answered=True)
+        elif target is None and self._produced is not None and nxt is not None and self._produced > nxt:
+            self._not_drained(nxt, self._produced, answered=False)
+
+    def _not_drained(self, first: int, end: int, answered: bool) -> None:
+        """What the device held and the drain did not read: a ``gap`` (lost, counted: the device said at the stop
+        that it held them); when it answered nothing at the stop (a stalled or dead link, already a ``silence``
+        or a timeout), a ``held_unread`` event with what its last answer said it held: where the recording ends
+        and why, not a loss the stop caused."""
+        seq = self._sequencers.get(self.cfg.stream)
+        a = seq.next_stream_index if seq is not None else None
+        a = first if a is None else a  # the stream's index where the device's ``first`` would have gone
+        n = end - first
+        if not answered:
+            msg = (f"the device did not answer at the stop: the {n} samples it held at its last answer (its samples "
+                   f"{first}-{end}) and any after them were not read")  # fmt: skip
+            self._event(DriverEvent("held_unread", self.cfg.stream, a, a + n, count=n, message=msg, device_start=first,
+                                    device_end=end))  # fmt: skip
+            return
+        self.stats.gaps.append((a, a + n))
+        self.stats.lost_samples += n
+        msg = (f"{n} samples the device held at the stop (its samples {first}-{end}) were not read within the "
+               f"{self.cfg.stop_drain_s:g} s stop drain: not recorded")  # fmt: skip
+        self._event(DriverEvent("gap", self.cfg.stream, a, a + n, count=n, message=msg, device_start=first, device_end=end))
 
     def _fifo_step(self) -> int:
         """One FC 23 request: ack ``_next``, read a frame, gather it. Returns the samples still buffered."""
@@ -397,6 +472,7 @@ class ModbusDriver(Driver):
         t = time.monotonic()
         regs = rr.registers
         first, n, buffered, _flags = struct.unpack(">QHIH", struct.pack(">4HH2HH", *regs[: fifo.header_registers]))
+        self._produced = first + buffered
         nxt = self._next
         if nxt is not None and first < nxt:
             if first + n <= nxt and first + 2 * self.spf >= nxt:

@@ -108,9 +108,10 @@ class DeviceSource:
 
     def stop(self) -> None:
         """Stop reading and close the link (the driver's own thread ends with it). A driver whose device holds
-        samples it has not read yet (``finish``: a Modbus FIFO) first delivers them within its own bound, and this
-        thread records them until the driver ends; :meth:`join` waits for that, then closes the link. A source that
-        reached its duration has nothing left to take: closed at once."""
+        samples it has not sent yet (``finish``: a Modbus FIFO) first delivers them within its own bound, and this
+        thread records them until the driver's blocks end; :meth:`join` waits for that, then closes the link.
+        Before, this thread stopped at once and they were never written, without a word. A source that reached its
+        duration has nothing left to take: closed at once."""
         finish = getattr(self.driver, "finish", None)
         if finish is not None and self._opened and self._thread is not None and not self.done.is_set():
             self._finish_by = time.monotonic() + finish() + 1.0  # its bound, and a second to hand over the last block
@@ -162,7 +163,10 @@ class DeviceSource:
                 for blk in self.driver.blocks(timeout=self.poll_s):
                     if not self._on_block(blk) or self._stop.is_set():
                         return
-                if not self.driver.alive:
+                if not self.driver.alive:  # ended: what it queued before its end marker is still the recording's
+                    for blk in self.driver.blocks(timeout=0.0):
+                        if not self._on_block(blk):
+                            return
                     return
                 self._watch_silence(time.monotonic())
         except DriverError as exc:

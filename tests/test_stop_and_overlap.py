@@ -8,6 +8,8 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
+import pytest
+
 from daq.cli import run
 
 from .test_probe_cases import _overlapping, _rewrite
@@ -208,7 +210,15 @@ def test_ctrl_c_during_the_confirmation_drain_cuts_it_and_records_what_it_abando
 MODBUS_CH = ["hammer", "a01", "a02"]
 
 
-def _modbus_stop(rigs, **driver):
+@pytest.fixture(scope="module")
+def modbus_device(rigs):
+    from drivers.sim.device import HitSchedule, SimulatedDevice
+
+    # 1.5 s of device time: the stall and the stop come before 0.9 s (the simulation's set-up grows with it)
+    return SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0]), duration=1.5, block_size=256, seed=1)
+
+
+def _modbus_stop(device, **driver):
     """A Modbus TCP session source (sim device on 127.0.0.1, the real driver and DeviceSource) stopped as the recorder
     stops it at Ctrl-C, while the device's FIFO holds a backlog: the device stalls (answers nothing) at 0.2-0.5 s,
     keeps sampling, and the stop comes while the driver reads back what piled up (> 2000 samples behind). Returns
@@ -220,10 +230,8 @@ def _modbus_stop(rigs, **driver):
     from daq.sources import DeviceSource
     from drivers.base import make_driver
     from drivers.modbus.sim_server import ModbusSimServer
-    from drivers.sim.device import HitSchedule, SimulatedDevice
     from drivers.sim.faults import Faults
 
-    device = SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0]), duration=3.0, block_size=256, seed=1)
     srv = ModbusSimServer(device, Faults(stall_at_s=0.2, stall_for_s=0.3), MODBUS_CH)
     srv.start()
     try:
@@ -252,14 +260,14 @@ def _modbus_stop(rigs, **driver):
         srv.stop()
 
 
-def test_a_stop_writes_what_the_modbus_device_holds(rigs):
+def test_a_stop_writes_what_the_modbus_device_holds(modbus_device):
     """At a stop the source's reading thread ended at once: the frames the driver had gathered into its block and
     what the device's FIFO still held (here > 2000 samples) were never written, and nothing said so (the log just
     ended earlier). Now the driver stops the device, reads its FIFO empty (bounded) and the source records it: the
     recording ends exactly where the device's count does, every sample the device's own."""
     import numpy as np
 
-    blocks, events, drv, produced, device = _modbus_stop(rigs)
+    blocks, events, drv, produced, device = _modbus_stop(modbus_device)
     assert blocks and blocks[0].first_index == 0
     assert all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
     assert blocks[-1].end_index == produced, (blocks[-1].end_index, produced)
@@ -270,10 +278,10 @@ def test_a_stop_writes_what_the_modbus_device_holds(rigs):
     assert np.abs(data - ref).max() < 0.01 * np.abs(ref).max() + 1e-3
 
 
-def test_what_the_stop_drain_cannot_read_in_time_is_a_gap_with_its_range(rigs):
+def test_what_the_stop_drain_cannot_read_in_time_is_a_gap_with_its_range(modbus_device):
     """The drain is bounded (``stop_drain_s``); with no time at all what the device holds is not read, and the log
     says which samples: a ``gap`` event from the last sample recorded to the device's count, counted as lost."""
-    blocks, events, drv, produced, _device = _modbus_stop(rigs, stop_drain_s=0.0)
+    blocks, events, drv, produced, _device = _modbus_stop(modbus_device, stop_drain_s=0.0)
     end = blocks[-1].end_index if blocks else 0
     gaps = [e for e in events if e.get("kind") == "gap"]
     assert end < produced and len(gaps) == 1, (end, produced, events)

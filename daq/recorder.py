@@ -76,7 +76,7 @@ class Recorder:
         self.duration_s = duration_s
         self.end_grace_s = end_grace_s
         self.start_servers = start_servers  # simulated devices hold their clocks until the links are open
-        self.stopped_finish_s = {**STOPPED_FINISH_S, **(stopped_finish_s or {})}  # a session's [analysis] stop_drain_s
+        self.stopped_finish_s = {**STOPPED_FINISH_S, **(stopped_finish_s or {})}  # a session's [analysis] confirm_stop_s
         self.t0 = time.monotonic()
 
     # --- running --------------------------------------------------------------------------------------

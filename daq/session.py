@@ -203,7 +203,7 @@ class Session:
         self.recorder = Recorder(
             fan=self.fan, results=self.results, sources=self.sources, lanes=lanes, log=self.log, stop=self.stop,
             duration_s=cfg.duration, end_grace_s=cfg.end_grace_s, start_servers=harness.go,
-            stopped_finish_s={"confirm": cfg.analysis.stop_drain_s},
+            stopped_finish_s={"confirm": cfg.analysis.confirm_stop_s},
         )  # fmt: skip
 
     # --- parts ----------------------------------------------------------------------------------------

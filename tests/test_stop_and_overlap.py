@@ -118,7 +118,7 @@ physics_seconds = 1.8
 seed = 3
 
 [analysis]
-stop_drain_s = 1.0
+confirm_stop_s = 1.0
 """
 
 
@@ -150,7 +150,7 @@ def _hold_confirmation_workers(root: int, held: list[int], done) -> None:
 def test_ctrl_c_during_the_confirmation_drain_cuts_it_and_records_what_it_abandoned(tmp_path):
     """A session ran to its duration and is draining its confirmations (up to 120 s by the lane's own limit, an hour
     by the recorder's): Ctrl-C then waited the drain out, since only a stop before the end shortened it. Now the stop
-    cuts what is left to ``[analysis] stop_drain_s`` (15 s by default; 1 s here), each confirmation still running is
+    cuts what is left to ``[analysis] confirm_stop_s`` (15 s by default; 1 s here), each confirmation still running is
     recorded as skipped naming ``gvt confirm LOG --event ID``, and ``gvt record`` exits. The confirmation workers are
     held stopped (SIGSTOP) so that the drain cannot end by itself."""
     import os

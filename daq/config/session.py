@@ -243,7 +243,7 @@ class AnalysisSpec(_Strict):
     worker_nice: Annotated[int, Field(ge=0, le=19)] = 10  # the worker's nice above the recorder's start (docs/decisions.md D64)
     # seconds the confirmations may still take after a stop request (Ctrl-C, SIGTERM), also one that arrives during the
     # drain after the duration (daq/recorder.py STOPPED_FINISH_S); a service manager's SIGKILL follows its own timeout
-    stop_drain_s: Annotated[float, Field(gt=0, le=3600)] = 15.0
+    confirm_stop_s: Annotated[float, Field(gt=0, le=3600)] = 15.0
 
 
 #: Hit points of a roving-hammer plan and averages per point: a plan is typed by a person (hundreds of points on an

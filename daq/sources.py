@@ -186,7 +186,9 @@ class DeviceSource:
         if self._silent_since is not None or (self._last_t is not None and now - self._last_t > self.silence_s):
             self._close_silence(blk.first_index)
         self._last_t = now
-        blk.extra["t_host"] = now  # arrival: the clock-offset estimate's input, and the analysis' latency origin
+        # arrival: the clock-offset estimate's input, and the analysis' latency origin; a driver that knows when the
+        # block's first byte came (serial: Driver extra "t_arrival", D95) gives that, which does not grow with its length
+        blk.extra["t_host"] = blk.extra.get("t_arrival", now)
         rep = self.report
         if self.need is not None:
             if rep.end_index is None:

@@ -20,6 +20,7 @@ Config (TOML)::
 from __future__ import annotations
 
 import time
+from collections import deque
 from typing import Literal
 
 import numpy as np
@@ -89,6 +90,8 @@ class SerialDriver(Driver):
             )
         self._bad_seen = 0
         self._counted_bad = 0
+        self._fed = 0  # bytes fed to the decoder so far (its stream offsets)
+        self._reads: deque[tuple[int, float]] = deque()  # (stream offset past a read's last byte, its host time)
         self._reconnected = False
         self.wrong_shape = 0
 
@@ -195,6 +198,20 @@ class SerialDriver(Driver):
             self._reconnected = False
         return st, cause
 
+    def _began(self, at: int) -> float:
+        """Host time of the read that brought stream byte ``at`` (a frame's or line's first byte).
+
+        Why the first byte, not the read that completed the block (issue 30 item 4, docs/decisions.md D95): a
+        device sends a block once it is sampled, so its first byte leaves "block sampled + the device's fixed
+        latency" after the block's last sample, whatever the frame's length, while the last byte also carries the
+        frame's transfer time (frame bytes × 10 / baud on a UART; several reads over a pty). Stamping the last
+        byte biased the clock offset between a 14-channel and a 1-channel device by the difference. Offsets only
+        grow, so the reads before ``at`` are forgotten."""
+        reads = self._reads
+        while len(reads) > 1 and reads[0][0] <= at:
+            reads.popleft()
+        return reads[0][1]
+
     def _bad_total(self) -> int:
         d = self.decoder
         return (d.stats.frames_bad if isinstance(d, FrameDecoder) else d.stats.lines_bad) + self.wrong_shape
@@ -202,10 +219,13 @@ class SerialDriver(Driver):
     def _handle(self, data: bytes, now: float | None = None) -> bool:
         """Decode ``data`` (read at host time ``now``) and emit blocks; True if anything valid arrived."""
         now = time.monotonic() if now is None else now
+        self._fed += len(data)
+        self._reads.append((self._fed, now))
         if isinstance(self.decoder, FrameDecoder):
             got = self._handle_frames(data, now)
         else:
             got = self._handle_lines(data, now)
+        self._began(self._fed - self.decoder.buffered)  # forget the reads whose bytes are all decoded or skipped
         total = self._bad_total()
         self.stats.frames_bad += total - self._counted_bad  # the base counts its own (duplicates) too
         self._counted_bad = total
@@ -229,7 +249,8 @@ class SerialDriver(Driver):
                 self._event(DriverEvent("frame_error", c.stream, count=fr.n_samples, message=msg, **dev))
                 continue
             status, cause = self._status()
-            block = SampleBlock(c.stream, fr.first_index, c.sample_rate, self._channels, fr.data, status, {"seq": fr.seq})
+            extra = {"seq": fr.seq, "t_arrival": self._began(fr.at)}
+            block = SampleBlock(c.stream, fr.first_index, c.sample_rate, self._channels, fr.data, status, extra)
             self._emit(block, cause, now=now, produced=prod)
         self.stats.frames_ok = self.decoder.stats.frames_ok
         self.stats.garbage_bytes = self.decoder.stats.garbage_bytes
@@ -253,7 +274,8 @@ class SerialDriver(Driver):
         for (i, j), prod in zip(runs, produced, strict=True):
             block = np.stack([ln.values for ln in lines[i:j]])
             status, cause = self._status()
-            blk = SampleBlock(c.stream, lines[i].index, c.sample_rate, self._channels, block, status)
+            extra = {"t_arrival": self._began(lines[i].at)}
+            blk = SampleBlock(c.stream, lines[i].index, c.sample_rate, self._channels, block, status, extra)
             self._emit(blk, cause, now=now, produced=prod)
         return bool(lines)
 

@@ -113,6 +113,7 @@ class Frame:
     first_index: int
     fmt: str
     data: np.ndarray  # float32 (n_samples, n_channels), raw * scale
+    at: int = 0  # offset in the decoder's byte stream (bytes fed before it) of the frame's sync word
 
     @property
     def n_samples(self) -> int:
@@ -166,9 +167,11 @@ class FrameDecoder:
     _buf: bytearray = field(default_factory=bytearray, repr=False)
     _last_seq: int | None = field(default=None, repr=False)
     _hunting: bool = field(default=False, repr=False)
+    _base: int = field(default=0, repr=False)  # stream offset of _buf[0]: Frame.at, to find the read that began a frame
 
     def reset(self) -> None:
         """Forget buffered bytes (after a reconnect); counters stay."""
+        self._base += len(self._buf)
         self._buf.clear()
         self._last_seq = None
         self._hunting = False
@@ -229,12 +232,13 @@ class FrameDecoder:
             if self._last_seq is not None:
                 st.seq_jumps += (seq - self._last_seq - 1) & 0xFFFFFFFF
             self._last_seq = seq
-            out.append(Frame(sid, seq, first, FORMAT_NAMES[code], data_arr))
+            out.append(Frame(sid, seq, first, FORMAT_NAMES[code], data_arr, self._base + pos))
             st.frames_ok += 1
             self._hunting = False
             pos += total
         if pos:
             del buf[:pos]
+            self._base += pos
         return out
 
     def _skip(self, n: int) -> None:
@@ -251,6 +255,7 @@ class FrameDecoder:
 class Line:
     index: int
     values: np.ndarray  # float32 (n_channels,)
+    at: int = 0  # offset in the decoder's byte stream of the line's first byte (as Frame.at)
 
 
 @dataclass
@@ -280,6 +285,7 @@ class LineDecoder:
     max_line: int = 4096
     stats: LineStats = field(default_factory=LineStats)
     _buf: bytearray = field(default_factory=bytearray, repr=False)
+    _base: int = field(default=0, repr=False)  # stream offset of _buf[0]
 
     def __post_init__(self) -> None:
         n = len(self.columns)
@@ -290,7 +296,12 @@ class LineDecoder:
         self._need = max((*self.columns, self.index_column)) + 1
 
     def reset(self) -> None:
+        self._base += len(self._buf)
         self._buf.clear()
+
+    @property
+    def buffered(self) -> int:
+        return len(self._buf)
 
     def _split(self, text: str) -> list[str]:
         d = self.delimiter
@@ -303,8 +314,8 @@ class LineDecoder:
             return text.split()
         return [s.strip() for s in text.split(d)]
 
-    def parse(self, raw: bytes | bytearray) -> Line | None:
-        """One line without its terminator; None (and counted) if it is a comment or bad."""
+    def parse(self, raw: bytes | bytearray, at: int = 0) -> Line | None:
+        """One line without its terminator (``at``: its stream offset); None (and counted) if it is a comment or bad."""
         st = self.stats
         try:
             text = raw.decode("ascii").strip()
@@ -328,7 +339,7 @@ class LineDecoder:
             st.lines_bad += 1
             return None
         st.lines_ok += 1
-        return Line(int(idx_text), (vals * self._scale + self._offset).astype(np.float32))
+        return Line(int(idx_text), (vals * self._scale + self._offset).astype(np.float32), at)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Line]:
         self.stats.bytes_in += len(data)
@@ -344,14 +355,16 @@ class LineDecoder:
                 self.stats.overlong += 1
                 self.stats.lines_bad += 1
             else:
-                line = self.parse(buf[start:j])
+                line = self.parse(buf[start:j], self._base + start)
                 if line is not None:
                     out.append(line)
             start = j + 1
         del buf[:start]
+        self._base += start
         if len(buf) > self.max_line:  # no terminator in sight: drop it as one bad line
             self.stats.overlong += 1
             self.stats.lines_bad += 1
+            self._base += len(buf)
             buf.clear()
         return out
 

@@ -156,13 +156,21 @@ class SerialSimServer:
             self._dis = (int(np.ceil(f.disconnect_at_s * self.fs)), int(np.ceil(t1 * self.fs)))
         self._dis_recorded = False
         self._seq = 0
+        ahead: tuple[int, bytes] | None = None  # (first index, bytes) of the next frame, encoded before it is due
         while not self._stop.is_set():
             if self._restart_lo is not None and self.next_index + fsz > self._restart_lo:
                 if not self._restart():
                     return
+                ahead = None
                 continue
             end = self.next_index + fsz
             if self.pace:
+                # Encode the frame before it is due and write it when it is: a real device sends a block a fixed
+                # latency after its last sample, whatever its channel count. Encoding after the wait put a
+                # 14-channel device's frames 20-55 µs later than a 1-channel device's: a clock-offset bias of
+                # 0.4-0.9 samples between the two that no link has (D95).
+                if ahead is None or ahead[0] != self.next_index:
+                    ahead = (self.next_index, self._frames(self.next_index, 1, wild=False))
                 delay = self._due_time(end) - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     return
@@ -174,7 +182,11 @@ class SerialSimServer:
             n_frames = max(1, (avail - self.next_index) // fsz)
             if self._restart_lo is not None:
                 n_frames = max(1, min(n_frames, (self._restart_lo - self.next_index) // fsz))
-            data = self._frames(self.next_index, n_frames)
+            if ahead is not None and ahead[0] == self.next_index:
+                data = ahead[1] + (self._frames(end, n_frames - 1) if n_frames > 1 or self._wild else b"")
+            else:
+                data = self._frames(self.next_index, n_frames)
+            ahead = None
             self.next_index += n_frames * fsz
             self._write_all(data)
             self.frames_out += n_frames
@@ -196,11 +208,12 @@ class SerialSimServer:
         self._dis = None  # a disconnect window is in the old run's index space
         return True
 
-    def _frames(self, lo: int, n_frames: int) -> bytes:
-        """Frames ``lo // fsz …`` encoded with the per-frame faults applied, plus any wild frame now due."""
+    def _frames(self, lo: int, n_frames: int, wild: bool = True) -> bytes:
+        """Frames ``lo // fsz …`` (none if ``n_frames`` is 0) encoded with the per-frame faults applied, plus any
+        wild frame now due (``wild``)."""
         f = self.faults
         fsz = self.frame_samples
-        hi = lo + n_frames * fsz
+        hi = lo + max(n_frames, 1) * fsz  # the wild frames take the values of one frame
         vals = self.device.samples(lo * self.decimate, hi * self.decimate)[:: self.decimate][:, self.channels]
         chunks = []
         for j in range(n_frames):
@@ -222,7 +235,7 @@ class SerialSimServer:
                 fr = encode_frame(a, v, self.fmt, self.scales, seq=self._seq - 1, stream_id=self.stream_id)
                 chunks.append(self._corrupt(fr, a, b))
         dev_t = time.monotonic() - self._epoch
-        while self._wild and self._wild[0][0] <= dev_t:
+        while wild and self._wild and self._wild[0][0] <= dev_t:
             _, index = self._wild.pop(0)
             v = vals[:fsz]
             if self.fmt == "ascii":

@@ -168,8 +168,13 @@ class SerialSimServer:
                 # Encode the frame before it is due and write it when it is: a real device sends a block a fixed
                 # latency after its last sample, whatever its channel count. Encoding after the wait put a
                 # 14-channel device's frames 20-55 µs later than a 1-channel device's: a clock-offset bias of
-                # 0.4-0.9 samples between the two that no link has (D95).
+                # 0.4-0.9 samples between the two that no link has (D95). Encoded half a frame before it is due,
+                # not at once after the last write: the reader that write woke needs the GIL this encoding holds
+                # (a device in the recorder's process; a real one is not), longer for more channels.
                 if ahead is None or ahead[0] != self.next_index:
+                    half = 0.5 * fsz * self.decimate / self.device.fs
+                    if self._stop.wait(max(0.0, self._due_time(end) - half - time.monotonic())):
+                        return
                     ahead = (self.next_index, self._frames(self.next_index, 1, wild=False))
                 delay = self._due_time(end) - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):

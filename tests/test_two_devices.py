@@ -343,7 +343,12 @@ def test_two_device_log_holds_both_streams_whole_and_the_timeline(two):
         assert d.gaps == [] and d.index[0] == 0 and len(d.index) == n and np.all(np.diff(d.index) == 1)
     assert h.channels == ["hammer"] and a.channels == [f"a{k:02d}" for k in range(1, 15)]
     tl = r.json_messages("/daq/timeline")
-    assert tl[0]["kind"] == "fixed" and tl[-1]["kind"] == "final" and sum(m["kind"] == "periodic" for m in tl) >= 3
+    assert tl[0]["kind"] == "fixed" and tl[-1]["kind"] == "final"
+    # a periodic report every report_s (1 s) of the reference's data after the fix: 4 when fixed after settle_s, 2 when a
+    # busy host held the estimate until the 2.5 s deadline (the fixed message's settled_s says which; the accelerometer
+    # stream starts 0.2371 s after the reference); one may fall past the end
+    after_fix = cfg.duration - tl[0]["settled_s"] - 0.2371
+    assert sum(m["kind"] == "periodic" for m in tl) >= max(1, int(after_fix) - 1), (tl[0], [m["kind"] for m in tl])
     meta = r.metadata()["gvtlink.timeline"]
     assert meta["reference"] == "hammer_daq" and json.loads(meta["final"])["acc_daq"] == res.timeline["acc_daq"]
     # oracle: the logged streams merged with the TRUE offset, through an independent hit gate

@@ -37,7 +37,7 @@ from daq.log.rig import channel_infos
 from daq.log.writer import ChannelInfo
 from daq.recorder import Outcome, Recorder
 from daq.sim_devices import SimHarness, start_simulation
-from daq.sources import DeviceSource
+from daq.sources import JOIN_S, DeviceSource
 from drivers.base import Driver, available_drivers
 
 #: samples per block each driver delivers, for queue sizes (a serial frame, the Modbus block, a CAN block)
@@ -265,7 +265,7 @@ class Session:
             silence = self.cfg.silence_s or max(2.0, 4 * block_s)
             held = self.cfg.multi and d.name != self.result.reference and d.name not in offsets  # waits for its offset
             out.append(DeviceSource(d.name, self.drivers[d.name], self.log, self.fan, self.results.emit, need_samples=need,
-                                    silence_s=silence, held=held))  # fmt: skip
+                                    silence_s=silence, held=held, join_s=0.0 if self.cfg.multi else JOIN_S))  # fmt: skip
         return out
 
     def _ranges(self) -> dict[str, float]:

@@ -13,10 +13,20 @@ then to the fan-out. When it ends is the session's business, and it ends only fo
 A quiet link never ends it: silence longer than ``silence_s`` is a ``silence`` event with its range
 (the sample index where the data stopped and where it resumed, and how long on the host clock), and the
 driver reconnects as it already can.
+
+**Joined blocks** (``join_s``, issue 30 item 5): the reading thread takes what the driver queued, joins the
+contiguous flag-free runs (:func:`drivers.blocks.join_runs`: nothing moves, nothing is lost), records them, then
+waits ``join_s`` before it takes the next batch. A serial device's 64-sample frames (256 a second at 16384 Hz)
+then cost the writer, the hit gate and the lanes ~20 blocks a second instead of 256: each block costs every
+consumer a fixed Python overhead, most of the recording process's CPU at that rate. The first block is taken
+the moment it arrives (its arrival stamp gives the session's UTC origin); later stamps are late by up to
+``join_s``, which is why a session with a second device, whose clock offset is estimated from the arrival
+stamps of every block, does not join (``join_s = 0``: block by block, as the driver delivers them).
 """
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from dataclasses import dataclass, field
@@ -29,7 +39,7 @@ from daq.lanes import Sink
 from daq.lanes.log import LogLane
 from daq.log import layout
 from drivers.base import Driver, DriverError
-from drivers.blocks import SampleBlock
+from drivers.blocks import SampleBlock, join_runs
 
 
 class Source(Protocol):
@@ -62,12 +72,21 @@ class SourceReport:
     silences: list[tuple[int, int, float]] = field(default_factory=list)  # (last index before, first after, seconds)
 
 
+#: a joined batch takes at most this many queued blocks, and joins blocks up to this many samples (a larger block
+#: from the driver is never split): 4096 samples of 64 channels are 1 MB, a backlog burst after a stall stays bounded
+JOIN_MAX_BLOCKS = 256
+JOIN_MAX_SAMPLES = 4096
+#: the wait between joined batches of a single-device session (module docstring): ~13 serial frames at 16384 Hz; the
+#: hit gate and the lanes see the data this much later, the log's crash bound grows by as much
+JOIN_S = 0.05
+
+
 class DeviceSource:
     """One device: its driver, opened and closed here, and the thread that reads it."""
 
     def __init__(
         self, name: str, driver: Driver, log: LogLane | None, fan: FanOut, sink: Sink, *, need_samples: int | None,
-        silence_s: float, poll_s: float = 0.1, held: bool = False,
+        silence_s: float, poll_s: float = 0.1, held: bool = False, join_s: float = 0.0,
     ) -> None:  # fmt: skip
         self.name = name
         self.driver = driver
@@ -77,6 +96,7 @@ class DeviceSource:
         self.need = need_samples
         self.silence_s = silence_s
         self.poll_s = poll_s
+        self.join_s = join_s
         self.report = SourceReport(name)
         #: a second device's streams wait in the writer for the timeline's clock offset: each one's first index
         #: is logged at once (a ``stream_held`` event), so a recorder killed before the offset is fixed leaves
@@ -160,9 +180,13 @@ class DeviceSource:
     def _main(self) -> None:
         try:
             while not self._stop.is_set():
-                for blk in self.driver.blocks(timeout=self.poll_s):
-                    if not self._on_block(blk) or self._stop.is_set():
+                if self.join_s > 0:
+                    if not self._joined_batch():
                         return
+                else:
+                    for blk in self.driver.blocks(timeout=self.poll_s):
+                        if not self._on_block(blk) or self._stop.is_set():
+                            return
                 if not self.driver.alive:  # ended: what it queued before its end marker is still the recording's
                     for blk in self.driver.blocks(timeout=0.0):
                         if not self._on_block(blk):
@@ -179,6 +203,24 @@ class DeviceSource:
             self._close_silence(None)
             self.drain_events()
             self.done.set()
+
+    def _joined_batch(self) -> bool:
+        """The first block (waiting up to ``poll_s``) and whatever queued behind it, joined and recorded; then wait
+        ``join_s`` while the next batch queues up. False once the session's duration is reached or a stop came."""
+        first = next(iter(self.driver.blocks(timeout=self.poll_s)), None)
+        if first is None:
+            return True  # nothing within poll_s (silence, or the driver ended: the caller looks)
+        batch, failed = [first], None
+        try:
+            batch.extend(itertools.islice(self.driver.blocks(timeout=0.0), JOIN_MAX_BLOCKS))
+        except DriverError as exc:  # the driver died behind these blocks: record them first
+            failed = exc
+        for blk in join_runs(batch, max(first.n_samples, JOIN_MAX_SAMPLES)):
+            if not self._on_block(blk) or self._stop.is_set():
+                return False
+        if failed is not None:
+            raise failed
+        return not self._stop.wait(self.join_s)
 
     def _on_block(self, blk: SampleBlock) -> bool:
         """Record one block; False once the session's duration is reached."""

@@ -18,7 +18,8 @@ driver reconnects as it already can.
 contiguous flag-free runs (:func:`drivers.blocks.join_runs`: nothing moves, nothing is lost), records them, then
 waits ``join_s`` before it takes the next batch. A serial device's 64-sample frames (256 a second at 16384 Hz)
 then cost the writer, the hit gate and the lanes ~20 blocks a second instead of 256: each block costs every
-consumer a fixed Python overhead, most of the recording process's CPU at that rate. The first block is taken
+consumer a fixed Python overhead, most of the recording process's CPU at that rate; the driver may let its input
+gather too (``Driver.gather_s``: the serial driver reads every 20 ms instead of at every frame). The first block is taken
 the moment it arrives (its arrival stamp gives the session's UTC origin); later stamps are late by up to
 ``join_s``, which is why a session with a second device, whose clock offset is estimated from the arrival
 stamps of every block, does not join (``join_s = 0``: block by block, as the driver delivers them).
@@ -79,6 +80,8 @@ JOIN_MAX_SAMPLES = 4096
 #: the wait between joined batches of a single-device session (module docstring): ~13 serial frames at 16384 Hz; the
 #: hit gate and the lanes see the data this much later, the log's crash bound grows by as much
 JOIN_S = 0.05
+#: ... and how long the driver may let input gather before it reads (``Driver.gather_s``)
+GATHER_S = 0.02
 
 
 class DeviceSource:
@@ -97,6 +100,8 @@ class DeviceSource:
         self.silence_s = silence_s
         self.poll_s = poll_s
         self.join_s = join_s
+        if join_s > 0:  # the driver may gather input too (a serial port: reads per 20 ms instead of per frame)
+            driver.gather_s = min(join_s, GATHER_S)
         self.report = SourceReport(name)
         #: a second device's streams wait in the writer for the timeline's clock offset: each one's first index
         #: is logged at once (a ``stream_held`` event), so a recorder killed before the offset is fixed leaves

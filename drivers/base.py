@@ -166,6 +166,10 @@ class Driver(ABC):
 
     name: ClassVar[str] = "base"
     config_model: ClassVar[type[DriverConfig]] = DriverConfig
+    #: seconds a driver that reads a byte stream may let input gather after the first byte before it reads and
+    #: decodes it (fewer wake-ups and reads); set by the owner, who knows what latency it can afford (the device
+    #: source of a single-device session, daq/sources.py); 0: read at once. Drivers without such a loop ignore it.
+    gather_s: float = 0.0
 
     @property
     def realtime(self) -> bool:

@@ -12,6 +12,11 @@
    result) p50 / p99 / max.
 
     python bench/bench_session.py [--seconds 20] [--pairs 5] [--base 3ccae7c] [--quick]
+    python bench/bench_session.py --isolation [--base REV --pairs 3 --seconds 20]
+
+3. ``--isolation``: the lanes in a worker process against in the recorder's own process, quiet and with 4 hogs
+   (issue 30 item 1). With ``--base REV`` instead: the quiet worker session from this tree and from REV, alternating
+   A/B (issue 30 item 5: the recording process <= 0.1 core, the lanes <= 0.5 core), per thread in the JSON.
 
 Each case first runs once per tree unrecorded (page cache, numba cache), then the counted pairs.
 
@@ -301,11 +306,46 @@ def _isolated_session(mode: str, seconds: float, hogs: int, tmp: Path, nice: int
     label = mode if mode == "thread" else f"worker+{nice}"
     return {"mode": label, "hogs": hogs, "seconds": seconds, "data_s": data_s, "recorder_cpu_per_s": rec / data_s,
             "lanes_cpu_per_s": lanes / data_s, "threads_cpu_per_s": threads, "frf_cpu_per_s": threads.get("frf", 0.0),
+            "worker_cpu_per_s": res.analysis_cpu_s / data_s if mode == "worker" else None,  # its process, not the pool
             "lost_samples": res.lost_samples, "writer_overrun_samples": res.writer_overrun_samples,
             "analysis_shed_samples": res.analysis_dropped_samples, "windows": len(res.analysis_latencies_s),
             "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)),
             "events": len(res.analysis_events), "confirmations": len(res.confirmations),
             "skipped": sum(c.get("status") != "confirmed" for c in res.confirmations), "exit": res.outcome.exit_code}  # fmt: skip
+
+
+def isolation_ab(base_tree: Path, seconds: float, pairs: int) -> list[dict]:
+    """Issue 30 item 5: the quiet worker session (nice +10) from this tree and from ``base_tree``, alternating A/B in
+    the same run, each in its own process (``--one-isolated``: that tree's daq/ first on the path)."""
+    rows = []
+    for k in range(pairs):
+        order = [("new", ROOT), ("base", base_tree)] if k % 2 == 0 else [("base", base_tree), ("new", ROOT)]
+        for tag, tree in order:
+            env = {**os.environ, "PYTHONPATH": str(tree)}
+            out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--one-isolated", "--seconds", f"{seconds:g}"],
+                                 cwd=tree, env=env, capture_output=True, text=True, check=True).stdout  # fmt: skip
+            r = json.loads(out[out.index("{") :])
+            r["tree"] = tag
+            rows.append(r)
+            print(f"  pair {k + 1} {tag}: recorder {r['recorder_cpu_per_s']:.3f} core, lanes {r['lanes_cpu_per_s']:.3f}, "
+                  f"lost {r['lost_samples']}, events {r['events']}", flush=True)  # fmt: skip
+    return rows
+
+
+def print_isolation_ab(rows: list[dict]) -> None:
+    print(f"{'tree':5s} {'recorder core (median, range)':>30s} {'lanes core (median, range)':>28s} {'lost':>5s}")
+    for tag in ("base", "new"):
+        rs = [r for r in rows if r["tree"] == tag]
+        rec, lanes = [r["recorder_cpu_per_s"] for r in rs], [r["lanes_cpu_per_s"] for r in rs]
+        lost = sum(r["lost_samples"] + r["writer_overrun_samples"] for r in rs)
+        print(f"{tag:5s} {statistics.median(rec):14.3f} ({min(rec):.3f}-{max(rec):.3f}) {statistics.median(lanes):14.3f} "
+              f"({min(lanes):.3f}-{max(lanes):.3f}) {lost:5d}")  # fmt: skip
+    for tag in ("base", "new"):
+        th: dict[str, list[float]] = {}
+        for r in (r for r in rows if r["tree"] == tag):
+            for k, v in r["threads_cpu_per_s"].items():
+                th.setdefault(k, []).append(v)
+        print(f"  {tag} per thread (median core): " + ", ".join(f"{k} {statistics.median(v):.4f}" for k, v in th.items()))
 
 
 def print_isolation(rows: list[dict]) -> None:
@@ -329,8 +369,19 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="6 s sessions, 1 pair")
     ap.add_argument("--isolation", action="store_true", help="only the lane-host comparison (worker vs thread)")
     ap.add_argument("--hog-seconds", type=float, default=30.0, help="the session with 4 busy-loop hogs")
+    ap.add_argument("--one-isolated", action="store_true", help=argparse.SUPPRESS)  # one quiet worker session: JSON out
     args = ap.parse_args()
     seconds, pairs = (6.0, 1) if args.quick else (args.seconds, args.pairs)
+    if args.one_isolated:
+        with tempfile.TemporaryDirectory() as d:
+            print(json.dumps(_isolated_session("worker", seconds, 0, Path(d), 10)))
+        return
+    if args.isolation and args.base != BASE_DEFAULT:  # this tree against a given commit, quiet worker sessions
+        rows = isolation_ab(worktree(args.base), seconds, pairs)
+        print()
+        print_isolation_ab(rows)
+        _save({"base": args.base, "seconds": seconds, "pairs": pairs, "isolation_ab": rows}, "bench_session_isolation_ab.json")
+        return
     if args.isolation:
         with tempfile.TemporaryDirectory() as d:
             rows = isolation(seconds, 8.0 if args.quick else args.hog_seconds, Path(d))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 import subprocess
@@ -65,6 +66,10 @@ def test_the_session_log_holds_hits_events_and_every_sample(session20):
     d = r.read_stream("dev0")
     assert d.gaps == [] and len(d.index) == res.samples and d.index[0] == 0
     assert "gvtlink.config" in r.metadata() and any(a.startswith("rig/") for a in r.attachments())
+    # the device source joined the 64-sample frames (daq/sources.py, JOIN_S = 50 ms: ~13 frames a block when quiet,
+    # more when the reading thread runs late); at least 4 a block on average whatever the load
+    blocks = json.loads(r.metadata()["gvtlink.streams"]["dev0"])["blocks"]
+    assert blocks <= res.samples / (4 * 64), blocks
 
 
 def _record(tmp_path: Path, duration: str) -> tuple[subprocess.Popen, Path]:

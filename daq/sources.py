@@ -80,6 +80,8 @@ JOIN_MAX_SAMPLES = 4096
 #: the wait between joined batches of a single-device session (module docstring): ~13 serial frames at 16384 Hz; the
 #: hit gate and the lanes see the data this much later, the log's crash bound grows by as much
 JOIN_S = 0.05
+#: ... cut short when the driver holds this many blocks (a quarter of its default queue)
+JOIN_WAKE_BLOCKS = 64
 #: ... and how long the driver may let input gather before it reads (``Driver.gather_s``)
 GATHER_S = 0.02
 
@@ -225,7 +227,22 @@ class DeviceSource:
                 return False
         if failed is not None:
             raise failed
-        return not self._stop.wait(self.join_s)
+        return not self._wait_for_batch(len(batch))
+
+    def _wait_for_batch(self, taken: int) -> bool:
+        """Wait ``join_s`` for the next batch, in 10 ms steps, and stop waiting as soon as the driver holds
+        ``JOIN_WAKE_BLOCKS`` (a backlog arriving: a device that delivers what it held when the link opened, or
+        after a stall, decodes thousands of frames a second and would fill the driver's queue of 256 within one
+        50 ms wait: measured, 216-283 blocks dropped a session). True if a stop came."""
+        if taken >= JOIN_WAKE_BLOCKS:
+            return self._stop.is_set()  # behind: take the next batch at once
+        until = time.monotonic() + self.join_s
+        while (left := until - time.monotonic()) > 0:
+            if self._stop.wait(min(left, 0.01)):
+                return True
+            if self.driver.queued() >= JOIN_WAKE_BLOCKS:
+                return False
+        return False
 
     def _on_block(self, blk: SampleBlock) -> bool:
         """Record one block; False once the session's duration is reached."""

@@ -232,6 +232,11 @@ class Driver(ABC):
                 return
             yield item
 
+    def queued(self) -> int:
+        """Blocks waiting for the owner now (an owner that reads in batches looks before it waits: see
+        ``daq/sources.py``)."""
+        return self._blocks.qsize()
+
     def drain_events(self) -> list[DriverEvent]:
         out = []
         while True:

@@ -31,6 +31,11 @@ from drivers.base import Driver, DriverConfig, DriverError, DriverEvent, LinkBud
 from drivers.blocks import BlockStatus, SampleBlock
 from drivers.serial.protocol import FORMATS, WIDTH, FrameDecoder, LineDecoder, frame_overhead
 
+#: bytes one turn of the reading loop takes at most: a device delivering a backlog (what it held when the link opened)
+#: keeps the port full, and reading it all in one turn decoded seconds of frames at once, faster than the owner takes
+#: blocks (its queue overran); 64 kB is what a tty buffers, ~22 frames of 15 ch x 64 samples int24
+READ_MAX_BYTES = 1 << 16
+
 
 class SerialConfig(DriverConfig):
     port: str
@@ -197,7 +202,7 @@ class SerialDriver(Driver):
             return data
         if self.gather_s > 0 and self._stop.wait(self.gather_s):
             return data
-        while n := port.in_waiting:  # a tty hands out at most 4 kB a read
+        while len(data) < READ_MAX_BYTES and (n := port.in_waiting):  # a tty hands out at most 4 kB a read
             data += port.read(n)
         return data
 

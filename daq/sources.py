@@ -188,8 +188,11 @@ class DeviceSource:
         try:
             while not self._stop.is_set():
                 if self.join_s > 0:
-                    if not self._joined_batch():
+                    took = self._joined_batch()
+                    if took is None:
                         return
+                    if took:
+                        continue  # more may be queued behind an ended driver: look only after an empty poll
                 else:
                     for blk in self.driver.blocks(timeout=self.poll_s):
                         if not self._on_block(blk) or self._stop.is_set():
@@ -211,12 +214,13 @@ class DeviceSource:
             self.drain_events()
             self.done.set()
 
-    def _joined_batch(self) -> bool:
+    def _joined_batch(self) -> bool | None:
         """The first block (waiting up to ``poll_s``) and whatever queued behind it, joined and recorded; then wait
-        ``join_s`` while the next batch queues up. False once the session's duration is reached or a stop came."""
+        ``join_s`` while the next batch queues up. True if it took blocks, False if none came within ``poll_s``
+        (silence, or the driver ended: the caller looks), None once the duration is reached or a stop came."""
         first = next(iter(self.driver.blocks(timeout=self.poll_s)), None)
         if first is None:
-            return True  # nothing within poll_s (silence, or the driver ended: the caller looks)
+            return False
         batch, failed = [first], None
         try:
             batch.extend(itertools.islice(self.driver.blocks(timeout=0.0), JOIN_MAX_BLOCKS))
@@ -224,10 +228,10 @@ class DeviceSource:
             failed = exc
         for blk in join_runs(batch, max(first.n_samples, JOIN_MAX_SAMPLES)):
             if not self._on_block(blk) or self._stop.is_set():
-                return False
+                return None
         if failed is not None:
             raise failed
-        return not self._wait_for_batch(len(batch))
+        return None if self._wait_for_batch(len(batch)) else True
 
     def _wait_for_batch(self, taken: int) -> bool:
         """Wait ``join_s`` for the next batch, in 10 ms steps, and stop waiting as soon as the driver holds

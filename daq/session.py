@@ -491,14 +491,14 @@ class Session:
         for s in self.sources:
             st = s.driver.stats
             res.streams[s.name] = s.report.samples
-            res.stream_gaps[s.name] = list(st.gaps)
+            res.stream_gaps[s.name] = sorted([*st.gaps, *s.queue_lost])  # a block the driver's queue dropped: a gap
             for k, v in s.events.items():
                 res.events[k] = res.events.get(k, 0) + v
             res.restarts += st.restarts
             res.rejected_blocks += st.rejected_blocks
             res.estimated_lost_samples += st.estimated_lost_samples
         res.samples = sum(res.streams.values())
-        res.lost_samples = sum(s.driver.stats.lost_samples for s in self.sources)
+        res.lost_samples = sum(s.driver.stats.lost_samples + sum(b - a for a, b in s.queue_lost) for s in self.sources)
         res.gaps = [g for gs in res.stream_gaps.values() for g in gs]
         errors = [s for s in self.sources if s.report.error]
         if errors:

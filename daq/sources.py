@@ -114,6 +114,9 @@ class DeviceSource:
         self._levels: dict[str, tuple[tuple[str, ...], np.ndarray]] = {}
         self.levels_lock = threading.Lock()
         self.events: dict[str, int] = {}
+        #: sample ranges (start, end) the driver's full queue dropped inside the session: never written, so lost like
+        #: a gap on the wire (the session adds them to its lost samples and exit code 3; before, only an event said so)
+        self.queue_lost: list[tuple[int, int]] = []
         self.done = threading.Event()
         self._stop = threading.Event()
         self._last_t: float | None = None
@@ -293,7 +296,9 @@ class DeviceSource:
         return True
 
     def drain_events(self) -> None:
-        end = self.report.end_index
+        end, last = self.report.end_index, self.report.last_index
+        if self._stop.is_set() and last is not None:  # a stop request ends the recording where it stands
+            end = last if end is None else min(end, last)
         for ev in self.driver.drain_events():
             d = ev.as_dict()
             if ev.kind == "overrun" and end is not None and (d.get("start_index") or 0) >= end:
@@ -301,6 +306,11 @@ class DeviceSource:
                 # of the recording, so not a loss (issue 30 item 6; a loaded host left 371 such "overrun" events)
                 self.events["overrun_after_end"] = self.events.get("overrun_after_end", 0) + 1
                 continue
+            if ev.kind == "overrun" and d.get("start_index") is not None and d.get("end_index") is not None:
+                a, b = int(d["start_index"]), int(d["end_index"])
+                b = b if end is None else min(b, end)  # a block the end cuts: only its part inside the session is lost
+                if b > a:
+                    self.queue_lost.append((a, b))
             self.events[ev.kind] = self.events.get(ev.kind, 0) + 1
             self.sink(layout.EVENTS_TOPIC, d, None)
 

@@ -469,6 +469,44 @@ def test_an_export_carries_a_damaged_first_chunk_as_a_gap(tmp_path, capsys, fmt)
         assert len(rows) == 1 + 2048 - 256 and rows[1].split(",")[1] == "256"
 
 
+def test_blocks_a_full_driver_queue_drops_inside_the_session_are_lost_samples_not_only_an_event():
+    """A reading thread held up (a busy host) while a paced device runs on: its driver's 2-block queue drops blocks
+    inside the session. They were never written, so they are lost like a gap on the wire: the source lists their
+    ranges and the session counts them in its lost samples (exit 3). Before, only an ``overrun`` event said so, with
+    the session's lost samples at 0 and exit 0 (found by the joined-blocks work, docs/session.md)."""
+    import time
+
+    from daq.fanout import FanOut
+    from daq.sources import DeviceSource
+    from drivers.sim.driver import SimConfig, SimDriver
+
+    class HeldUpWriter:  # the log writer's place: records what it is given, and holds the thread 0.5 s once
+        def __init__(self) -> None:
+            self.ranges: list[tuple[int, int]] = []
+
+        def write_block(self, blk, wait: bool = True) -> None:
+            if blk.first_index >= 4096 and len(self.ranges) == 16:
+                time.sleep(0.5)  # 32 blocks of 256 samples arrive meanwhile; the driver's queue holds 2
+            self.ranges.append((blk.first_index, blk.end_index))
+
+    need = 16384
+    drv = SimDriver(SimConfig(stream="dev0", queue_blocks=2, block_size=256, duration=3.0, physics_seconds=0.5, paced=True))
+    w = HeldUpWriter()
+    got: list[dict] = []
+    src = DeviceSource("dev0", drv, w, FanOut(), lambda topic, d, t: got.append(d), need_samples=need, silence_s=5.0)
+    src.open()
+    src.start()
+    assert src.done.wait(60)
+    src.stop()
+    overruns = [d for d in got if d.get("kind") == "overrun"]
+    assert overruns, "the driver's queue never overflowed inside the session: the case did not happen"
+    dropped = sum(min(d["end_index"], need) - d["start_index"] for d in overruns if d["start_index"] < need)
+    assert sum(b - a for a, b in src.queue_lost) == dropped > 0
+    written = sum(b - a for a, b in w.ranges)
+    assert written + dropped == need == src.report.samples + dropped  # every sample of the session written or lost
+    assert sorted(src.queue_lost + w.ranges)[0][0] == 0
+
+
 def test_blocks_past_the_session_end_that_a_full_driver_queue_drops_are_not_reported_lost():
     """Issue 30 item 6: a source stops reading at the session's end while its driver runs on until the session
     closes it; the blocks the driver's full queue then drops were never part of the recording. A loaded host wrote

@@ -216,6 +216,10 @@ def test_finish_never_waits_past_its_deadline_on_a_hung_worker():
             os.kill(pid, signal.SIGKILL)
     msgs = [obj["message"] for _t, obj, _n in got if obj.get("kind") == "lane_abandoned"]
     assert msgs and "did not finish by its deadline" in msgs[0]
+    # every block the hung worker never read is counted in the analysis_overrun event, as the session's figure is
+    # (the load matrix at 8 hogs found the event written before the killed worker's in-flight blocks were counted)
+    over = [obj for _t, obj, _n in got if obj.get("kind") == "analysis_overrun"]
+    assert over and over[0]["count"] == host.shed.samples + host.sub.dropped_samples == 8 * 1024, over
     assert host.shm is None and not os.path.exists(f"/dev/shm/{host.spec.shm_name.lstrip('/')}")  # the ring is freed
 
 

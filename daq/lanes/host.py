@@ -326,6 +326,12 @@ class LaneHost:
             self._hurry.set()  # the worker skips the rest and says which ranges
             if not self._analysis_done.wait(max(0.0, deadline - time.monotonic())):
                 self._abandon("the analysis of the stream's last blocks")
+                self._recv.join(3.0)  # the killed worker's EOF: its in-flight blocks become shed ranges (``_died``)
+                with self._lock:  # and what is still listed, were the receiver slower, before the count is written
+                    self._prune()
+                    left, self._inflight = list(self._inflight), deque()
+                for _end, a, b in left:
+                    self.shed.add(self.stream, a, b)
         if self.late:
             n = sum(b - a for a, b in self.late)
             line = (f"analysis: the last {n / self.fs:.1f} s of {self.stream} were not analysed: the lane was that far behind "

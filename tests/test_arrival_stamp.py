@@ -92,14 +92,14 @@ def _check(out: dict[str, dict]) -> None:
     for s, r in out.items():
         assert list(r["end"]) == [N * (k + 1) for k in range(FRAMES)], (s, r["end"])  # one block per frame, in order
         delay = r["stamp"] - r["sent"]
-        # never before the first byte was written; the lowest within 2 ms of it (the pty's latency is ~0.05 ms quiet,
-        # a loaded host adds ms to some reads but not to all twelve), far below GAP_S (20 ms)
-        assert np.all(delay >= 0) and delay.min() < 2e-3, (s, delay)
+        # never before the first byte was written; the lowest within 10 ms of it (the pty's latency is ~0.05 ms quiet,
+        # a loaded host adds ms to some reads but not to all twelve), half GAP_S (20 ms): the old stamp fails it
+        assert np.all(delay >= 0) and delay.min() < 10e-3, (s, delay)
         for t, e in zip(r["stamp"], r["end"], strict=True):
             est.add(s, float(t), int(e), FS)
     # both devices sampled frame k at the same instant: the true relative offset is 0 (the old stamp: GAP_S)
     rel = est.relative("long", "short")
-    assert abs(rel.offset_s) < 2e-3, rel
+    assert abs(rel.offset_s) < 10e-3, rel  # 7.6 ms seen with two test suites running at once; the old stamp: 20 ms
 
 
 def test_a_long_frame_is_stamped_at_its_first_byte_so_the_offset_does_not_carry_its_transfer_time():

@@ -185,6 +185,11 @@ class Cell:
             fail.append(f"{len(late)} overrun events ({n_late} samples) after the session's end, "
                         f"e.g. {late[0]['stream']} {late[0]['start_index']}..{late[0]['end_index']}: {late[0]['message']}")
         errors = [e["message"] for e in events if e["kind"] == "analysis_error"]
+        abandoned = any(e["kind"] == "lane_abandoned" for e in events)
+        if abandoned and self.res.analysis_dropped_samples >= want:
+            # a worker at nice +10 starved for the whole short cell (8 hogs): abandoned at its deadline and killed, every
+            # sample counted as shed -- the bar ("every shed analysis window counted"); the kill is its error line
+            errors = [m for m in errors if "while finishing" not in m]
         if errors:
             fail.append(f"analysis error: {errors[0]}")
         cover = self._coverage(r, want)
@@ -240,8 +245,10 @@ class Cell:
         shed = self.res.analysis_dropped_samples
         out = {"windows": len(spans), "window_samples": length, "written": written, "shed": shed, "runs": runs,
                "uncovered": want - written - shed, "problem": None}  # fmt: skip
-        if not spans:
+        if not spans and shed < want:  # nothing analysed is a failure unless all of it was shed and counted
             out["problem"] = "no analysis window written"
+        elif not spans:
+            pass
         elif any(b0 < a1 for (_, a1), (b0, _) in pairwise(spans)) or spans[0][0] < 0 or spans[-1][1] > want:
             out["problem"] = "analysis windows overlap or leave the stream"
         elif len(self.res.streams) == 1 and not 0 <= want - written - shed < runs * length:

@@ -6,7 +6,7 @@ Time of sample i of a block = stream t0 + (first_index + i) / sample_rate.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import IntFlag
 
@@ -63,17 +63,26 @@ def coalesce(blocks: Iterable[SampleBlock], max_samples: int) -> Iterator[Sample
     Fewer, larger blocks cost per-call consumers less: ``gvt analyze`` feeds 0.5 s chunks, the live view
     draws what queued up since its last turn in one go.
     """
+    for run in _runs(blocks, max_samples, lambda _run, b: bool(b.status & BlockStatus.RESTART)):
+        yield _join(run)
+
+
+def _runs(
+    blocks: Iterable[SampleBlock], max_samples: int, breaks: Callable[[list[SampleBlock], SampleBlock], bool]
+) -> Iterator[list[SampleBlock]]:
+    """Consecutive, contiguous blocks of one stream, up to ``max_samples`` a run; ``breaks(run, block)`` ends a run
+    before ``block`` for the caller's own reasons (:func:`coalesce`, :func:`join_runs`)."""
     pending: list[SampleBlock] = []
     n = 0
     for b in blocks:
         if pending and (b.stream != pending[-1].stream or b.first_index != pending[-1].end_index
-                        or n + b.n_samples > max_samples or b.status & BlockStatus.RESTART):  # fmt: skip
-            yield _join(pending)
+                        or n + b.n_samples > max_samples or breaks(pending, b)):  # fmt: skip
+            yield pending
             pending, n = [], 0
         pending.append(b)
         n += b.n_samples
     if pending:
-        yield _join(pending)
+        yield pending
 
 
 def _join(parts: list[SampleBlock]) -> SampleBlock:
@@ -101,18 +110,12 @@ def join_runs(blocks: Iterable[SampleBlock], max_samples: int) -> Iterator[Sampl
     gate; the ring to the lane worker) a fixed Python overhead: the device source joins what queued up over
     a few tens of milliseconds. The first block's ``extra`` is kept (the source stamps the arrival after).
     """
-    pending: list[SampleBlock] = []
-    n = 0
-    for b in blocks:
-        if pending and (b.stream != pending[-1].stream or b.first_index != pending[-1].end_index or b.status
-                        or pending[0].status & ~_BEFORE or n + b.n_samples > max_samples
-                        or b.channels != pending[0].channels or b.sample_rate != pending[0].sample_rate):  # fmt: skip
-            yield _join_same(pending)
-            pending, n = [], 0
-        pending.append(b)
-        n += b.n_samples
-    if pending:
-        yield _join_same(pending)
+    def breaks(run: list[SampleBlock], b: SampleBlock) -> bool:
+        p0 = run[0]
+        return bool(b.status or p0.status & ~_BEFORE or b.channels != p0.channels or b.sample_rate != p0.sample_rate)
+
+    for run in _runs(blocks, max_samples, breaks):
+        yield _join_same(run)
 
 
 def _join_same(parts: list[SampleBlock]) -> SampleBlock:

@@ -17,16 +17,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
-from analysis.model.rig import Rig
 from analysis.records import confirmation_status
 from daq.lanes.confirm import CONFIRM_TOPIC, skipped
 from daq.log import layout
 from daq.log.reader import LogReader
-from daq.studies.analyze.batch import AnalyzeError, analyze_log, open_for_analysis
+
+if TYPE_CHECKING:
+    from analysis.confirm import ConfirmSettings
+    from analysis.model.rig import Rig
 
 META_CONFIRM = "gvtlink.confirm"
 
@@ -61,7 +61,14 @@ def confirm_log(
     path: str | Path, rig: Rig | None = None, event_id: int | None = None, settings: ConfirmSettings | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> ConfirmRun:  # fmt: skip
-    """Confirm every IR event of the log (or the one with ``event_id``)."""
+    """Confirm every IR event of the log (or the one with ``event_id``). The confirmation kernels (scipy.signal,
+    numba) and the batch analysis load here, not with the module: ``gvt replay`` and ``gvt report`` import this
+    module for the companion's path, table and reader only (docs/decisions.md D108)."""
+    import numpy as np
+
+    from analysis.confirm import ConfirmContext, ConfirmSettings, confirm_segment
+    from daq.studies.analyze.batch import AnalyzeError, analyze_log, open_for_analysis
+
     settings = settings if settings is not None else ConfirmSettings()
     reader, rig, model, stream = open_for_analysis(path, rig, None)
     events = reader.json_messages(layout.IR_EVENTS_TOPIC)

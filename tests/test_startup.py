@@ -16,14 +16,19 @@ DRIVER_LIBS = {"can", "cantools", "pymodbus"}
 LOG = ROOT / "replay_logs" / "two_dof_3hits.mcap"
 
 
-def imported(*args: str, env: dict | None = None) -> set[str]:
-    """Top-level packages ``python -X importtime ARGS`` imports (it must exit 0)."""
+def modules(*args: str, env: dict | None = None) -> set[str]:
+    """Every module ``python -X importtime ARGS`` imports, dotted names (it must exit 0)."""
     p = subprocess.run([sys.executable, "-X", "importtime", *args], capture_output=True, text=True, cwd=ROOT, timeout=120,
                        env=env)  # fmt: skip
     assert p.returncode == 0, p.stderr[-2000:]
     lines = [line for line in p.stderr.splitlines() if line.startswith("import time:") and "cumulative" not in line]
     assert lines, "no -X importtime output"
-    return {line.rsplit("|", 1)[1].strip().split(".")[0] for line in lines}
+    return {line.rsplit("|", 1)[1].strip() for line in lines}
+
+
+def imported(*args: str, env: dict | None = None) -> set[str]:
+    """Top-level packages ``python -X importtime ARGS`` imports (it must exit 0)."""
+    return {m.split(".")[0] for m in modules(*args, env=env)}
 
 
 def test_help_imports_nothing_heavy():
@@ -67,3 +72,31 @@ def test_one_blas_thread_default_still_set_before_numpy():
     )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120, env=env)
     assert p.returncode == 0 and p.stdout.strip() == "1", p.stderr
+
+
+#: what a verb that runs no near-live analysis, confirmation or view must not load (docs/decisions.md D108): the
+#: signal-processing package (0.5-1.3 s with the scipy.stats it pulls in), the JIT, the confirmation and detection
+#: kernels, the viewer
+ANALYSIS_ONLY = {"scipy.signal", "scipy.stats", "numba", "rerun", "PyEMD", "analysis.confirm", "analysis.operator"}
+
+
+def test_log_export_imports_nothing_heavy(tmp_path):
+    mods = imported("-m", "daq.cli", "log", "export", str(LOG), "--out", str(tmp_path / "x.npz"))
+    assert (tmp_path / "x.npz").is_file()
+    assert not mods & (HEAVY | DRIVER_LIBS)
+
+
+def test_replay_without_analysis_loads_no_analysis_kernels():
+    """``gvt replay --no-analysis`` runs the fan-out, the log lane and the live FRFs (scipy.linalg for the rig's modes,
+    scipy.fft): it loaded the confirmation kernels (scipy.signal, scipy.stats, numba: 1.6 s) only for the companion
+    log's file name."""
+    mods = modules("-m", "daq.cli", "replay", "--no-analysis", str(LOG))
+    assert "daq.replay_session" in mods and "daq.studies.confirm" in mods  # the path really ran
+    assert not mods & ANALYSIS_ONLY, sorted(mods & ANALYSIS_ONLY)
+
+
+def test_study_modules_load_their_kernels_only_when_called():
+    """The confirmation study and the .rrd builder are imported by the report and the replay for a path, a table
+    and the log's results; their kernels and rerun load inside the functions that use them."""
+    mods = modules("-c", "import daq.studies.confirm, daq.studies.analyze.rrd")
+    assert not mods & ANALYSIS_ONLY, sorted(mods & ANALYSIS_ONLY)

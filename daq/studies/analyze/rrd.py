@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from daq.log import layout
 from daq.log.reader import LogReader
-from daq.replay import iter_log_blocks
-from daq.view import recording as R
-from daq.view.logger import ViewLogger, ViewSetup
+
+if TYPE_CHECKING:
+    from daq.view.logger import ViewLogger
 
 RESULT_TOPICS = layout.RESULT_TOPICS
 
@@ -64,8 +65,12 @@ def log_results(reader: LogReader, rig=None, results: dict[str, list[dict]] | No
 def build_rrd(
     log: str | Path, out: str | Path, rig=None, results: dict[str, list[dict]] | None = None, wavelet_channel: str | None = None,
 ) -> BuildSummary:  # fmt: skip
-    """Write ``out`` (.rrd, blueprint included) from the session log ``log``; ``rig`` defaults to the log's."""
+    """Write ``out`` (.rrd, blueprint included) from the session log ``log``; ``rig`` defaults to the log's.
+    rerun and the view load here, not with the module: ``gvt report`` imports it for :func:`log_results` only."""
     from daq.log.rig import AnalyzeError, rig_from_log
+    from daq.replay import iter_log_blocks
+    from daq.view import recording as R
+    from daq.view.logger import ViewLogger, ViewSetup
 
     reader = LogReader(log)
     infos = reader.streams()

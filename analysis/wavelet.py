@@ -31,7 +31,6 @@ from typing import Literal
 import numpy as np
 import scipy.fft
 from numpy.typing import ArrayLike, NDArray
-from scipy import signal
 
 Normalization = Literal["amplitude", "literal", "l2"]
 
@@ -149,6 +148,8 @@ def analytic(c: ArrayLike, fs: float, lowpass_hz: float | None = 1.0, order: int
     stays unfiltered so that phase variables Φ = mθ̂_a − nθ̂_b keep their slow content exactly.
     ``lowpass_hz=None`` skips the filter.
     """
+    from scipy import signal  # here, not with the module: the CWT alone (gvt report, the view) needs no scipy.signal (D108)
+
     c = np.asarray(c, dtype=np.float64)
     if c.ndim != 1 or c.size < 4:
         raise ValueError(f"analytic: need a 1-D component of at least 4 samples, got shape {c.shape}")

@@ -95,8 +95,16 @@ def test_replay_without_analysis_loads_no_analysis_kernels():
     assert not mods & ANALYSIS_ONLY, sorted(mods & ANALYSIS_ONLY)
 
 
-def test_study_modules_load_their_kernels_only_when_called():
-    """The confirmation study and the .rrd builder are imported by the report and the replay for a path, a table
-    and the log's results; their kernels and rerun load inside the functions that use them."""
-    mods = modules("-c", "import daq.studies.confirm, daq.studies.analyze.rrd")
+def test_report_setup_and_study_modules_load_no_analysis_kernels():
+    """What ``gvt report`` needs of a log that carries its analysis: the report's sections, the confirmation study and
+    the .rrd builder (for a path, a table and the log's results), the view's setup of a rig (its sensors in model
+    order and first mode) and the CWT. The kernels, their JIT and rerun load inside the functions that use them."""
+    code = (
+        "import daq.studies.report.build, daq.studies.confirm, daq.studies.analyze.rrd, analysis.wavelet\n"
+        "from analysis.model.rigs import open_rig\n"
+        "from daq.view.setup import ViewSetup\n"
+        "s = ViewSetup.from_rig(open_rig('beam_ch4_exp'), {'dev0': ('a01',)}, 16384.0)\n"
+        "assert len(s.sensors) == 14 and 5 < s.f_min_hz < 15, s  # half the FE NNM1 (20.8 Hz): the model really ran\n"
+    )
+    mods = modules("-c", code)
     assert not mods & ANALYSIS_ONLY, sorted(mods & ANALYSIS_ONLY)

@@ -22,51 +22,8 @@ from analysis.wavelet import morlet_cwt
 from daq.lanes.frf import FRF_CURVES
 from daq.log import layout
 from daq.view import recording as R
+from daq.view.setup import ViewSetup  # also re-exported: the view lane and the .rrd builder take it from here
 from drivers.blocks import SampleBlock
-
-
-@dataclass(frozen=True)
-class ViewSetup:
-    """What the view needs to know of the session: streams, the rig's sensors in model order and their
-    positions along the structure, the hammer channel and the channel to show as a wavelet spectrum."""
-
-    streams: dict[str, tuple[str, ...]]
-    sample_rate: float
-    sensors: tuple[str, ...] = ()
-    sensor_x: tuple[float, ...] = ()
-    hammer: str | None = None
-    wavelet_channel: str | None = None
-    n_nnm: int = 4
-    n_modes: int = 4
-    f_min_hz: float = 5.0  # wavelet frequency range
-    f_max_hz: float = 1000.0
-
-    @classmethod
-    def from_rig(
-        cls, rig, streams: dict[str, tuple[str, ...]], sample_rate: float, wavelet_channel: str | None = None
-    ) -> ViewSetup:
-        from analysis.modal_filter import modal_basis
-        from analysis.operator import RigModel
-
-        try:
-            m = RigModel.from_rig(rig)
-            sensors, x = m.sensors, tuple(float(v) for v in (m.x if m.x is not None else np.arange(len(m.sensors))))
-            f1 = float(modal_basis(m.M, m.K, 1).freqs_hz[0])  # the model's first mode (the analysis' own eq. 2.15 basis)
-        except (ValueError, np.linalg.LinAlgError):
-            sensors, x, f1 = tuple(p.name for p in rig.sensors), tuple(range(len(rig.sensors))), 10.0
-        chosen = wavelet_channel or _driving_point(rig, sensors)
-        return cls(
-            streams=streams, sample_rate=sample_rate, sensors=sensors, sensor_x=x, hammer=rig.hammer.name,
-            wavelet_channel=chosen, f_min_hz=max(1.0, 0.5 * f1), f_max_hz=min(0.25 * sample_rate, 2000.0),
-        )  # fmt: skip
-
-
-def _driving_point(rig, sensors: tuple[str, ...]) -> str | None:
-    """The sensor on the hammer's DOF (the driving point), else the first sensor."""
-    for p in rig.sensors:
-        if p.dof == rig.hammer.dof:
-            return p.name
-    return sensors[0] if sensors else None
 
 
 @dataclass

@@ -24,6 +24,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from daq.view.scores import MODAL_EXCHANGE, ROBUST_RQ_SPIKES, score_note
+from daq.view.setup import rqfep_points  # noqa: F401 (re-exported: the view logger draws with it)
 
 TIMELINE = "time"
 APP_ID = "gvtlink"
@@ -203,21 +204,6 @@ def log_modal(rec: rr.RecordingStream, rows: Sequence[dict]) -> None:
     f = np.array([r["modal_freq_hz"] for r in rows], float)
     _series(rec, MODAL_ENERGY, t, e)
     _series(rec, MODAL_FREQ, t, f)
-
-
-def rqfep_points(rq_rows: Sequence[dict], modal_t: np.ndarray, modal_e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """RQ-FEP pairs (seed Ch. 4: RQ frequency against energy): each RQ window's frequencies against the total
-    windowed modal energy of the modal window ending nearest to it. Returns t (n,), log10 E (n,), f (n, k)."""
-    if not rq_rows or modal_t.size == 0:
-        return np.zeros(0), np.zeros(0), np.zeros((0, 0))
-    t = np.array([r["t_end_s"] for r in rq_rows], float)
-    f = np.array([r["rq_hz"] for r in rq_rows], float)
-    i = np.clip(np.searchsorted(modal_t, t), 0, modal_t.size - 1)
-    j = np.clip(i - 1, 0, modal_t.size - 1)
-    nearest = np.where(np.abs(modal_t[j] - t) < np.abs(modal_t[i] - t), j, i)
-    e = modal_e[nearest]
-    ok = e > 0
-    return t[ok], np.log10(e[ok]), f[ok]
 
 
 def log_rqfep(rec: rr.RecordingStream, t: np.ndarray, log_e: np.ndarray, f: np.ndarray) -> None:

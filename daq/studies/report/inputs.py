@@ -16,7 +16,7 @@ from daq.log.tools import log_info
 
 if TYPE_CHECKING:
     from analysis.model.rig import Rig
-    from daq.view.logger import ViewSetup
+    from daq.view.setup import ViewSetup
 
 
 @dataclass
@@ -41,7 +41,7 @@ def read_inputs(log: str | Path, rig: Rig | None = None) -> ReportInputs:
     usable one is drawn without it (``rig_note`` says why) rather than refused."""
     from daq.log.rig import AnalyzeError, rig_from_log
     from daq.studies.analyze.rrd import log_results
-    from daq.view.logger import ViewSetup
+    from daq.view.setup import ViewSetup
 
     reader = LogReader(log)
     reader.require_log()  # an MCAP file of another tool is one line, not an empty report (issue 30)

@@ -14,7 +14,7 @@ from daq.studies.report.page import png
 
 if TYPE_CHECKING:
     from daq.log.reader import LogReader
-    from daq.view.logger import ViewSetup
+    from daq.view.setup import ViewSetup
 
 TITLE = "POM shapes over IR events (acceleration POD)"
 MAX_EVENTS = 6

@@ -58,7 +58,7 @@ def rqfep_figure(rq: list[dict], modal: list[dict]) -> tuple[str, str] | None:
         return None
     import matplotlib.pyplot as plt
 
-    from daq.view.recording import rqfep_points
+    from daq.view.setup import rqfep_points
 
     tm = np.array([m["t_end_s"] for m in modal])
     et = np.array([np.nansum(m["modal_energy_J"]) for m in modal])

@@ -15,7 +15,7 @@ from daq.studies.report.page import png
 
 if TYPE_CHECKING:
     from daq.log.reader import LogReader
-    from daq.view.logger import ViewSetup
+    from daq.view.setup import ViewSetup
 
 TITLE = "signals"
 VERDICT_COLORS = {"accepted": "tab:green", "overload": "tab:red", "double_hit": "tab:orange"}

@@ -12,7 +12,7 @@ from daq.studies.report.page import png
 
 if TYPE_CHECKING:
     from daq.log.reader import LogReader
-    from daq.view.logger import ViewSetup
+    from daq.view.setup import ViewSetup
 
 TITLE = "wavelet spectrum"
 

@@ -5,8 +5,11 @@ Each case runs in a fresh interpreter, for this tree and for the previous commit
 worktree, default /tmp/gvt-base) with the same venv's python and ``PYTHONPATH`` at the tree — so the figures
 are ratios measured in one run on one machine (machines here are noisy, bench/README.md):
 
-* ``gvt --help``, ``gvt log info LOG``, ``gvt analyze LOG`` (small logs from replay_logs/), ``gvt record
-  --help`` and the import of the record path (``import daq.cli.record, daq.session``, a rig, every driver
+* ``gvt --help``, ``gvt log info LOG``, ``gvt log export LOG``, ``gvt replay --no-analysis LOG``, ``gvt analyze
+  LOG``, ``gvt report LOG`` (small logs from replay_logs/, recorded without the analysis, so the report analyses),
+  ``gvt report`` of a log that carries its near-live analysis (a 1.5 s ``gvt record`` of a simulated serial session,
+  made once per run with this tree; not with ``--no-record``), ``gvt record --help`` and the import of the record
+  path (``import daq.cli.record, daq.session``, a rig, every driver
   class): warm wall time to the first byte of output, median of ``--repeats`` runs after one warm-up run
   (hyperfine-style; for the import, the whole run), peak RSS from ``/usr/bin/time -v`` and the
   ``-X importtime`` total and top-10 cumulative modules;
@@ -203,12 +206,33 @@ def measure_simulate(tree: Path, tmp: Path, seconds: float) -> dict:
             **({"error": f"exit {rc}"} if rc else {})}  # fmt: skip
 
 
+def analysed_log(tmp: Path) -> Path | None:
+    """A small log that carries its near-live analysis (``/analysis/*``): 1.5 s of the simulated 20-hit serial
+    session recorded by this tree (the replay_logs were simulated, without the analysis). None if it failed."""
+    cfg_text = (ROOT / "configs" / "sessions" / "sim_serial_20hits.toml").read_text()
+    out = tmp / "analysed.mcap"
+    cfg = tmp / "analysed.toml"
+    cfg.write_text(re.sub(r'(?m)^output = .*$', f'output = "{out}"', re.sub(r"(?m)^duration = .*$", "duration = 1.5", cfg_text)))
+    p = subprocess.run([PY, "-m", "daq.cli", "record", str(cfg)], capture_output=True, text=True, cwd=ROOT, env=env_for(ROOT))
+    return out if p.returncode == 0 and out.exists() else None
+
+
 def run_tree(tree: Path, args, tmp: Path) -> list[dict]:
     cli = [PY, "-m", "daq.cli"]
+    html = ["--out", str(tmp / f"report_{tree.name}.html"), "--overwrite"]
+    export = [*cli, "log", "export", str(LOG), "--out", str(tmp / "x.npz"), "--overwrite"]
     rows = [
         measure_cli("gvt --help", [*cli, "--help"], tree, args.repeats),
         measure_cli("gvt log info", [*cli, "log", "info", str(LOG)], tree, args.repeats),
+        measure_cli("gvt log export", export, tree, args.repeats),
+        measure_cli("gvt replay --no-analysis", [*cli, "replay", "--no-analysis", str(LOG)], tree, args.repeats),
         measure_cli("gvt analyze", [*cli, "analyze", str(ANALYZE_LOG)], tree, args.repeats),
+        measure_cli("gvt report", [*cli, "report", str(ANALYZE_LOG), *html], tree, max(1, args.repeats // 3)),
+    ]
+    if args.analysed_log is not None:
+        report = [*cli, "report", str(args.analysed_log), *html]
+        rows.append(measure_cli("gvt report (analysed log)", report, tree, args.repeats))
+    rows += [
         measure_cli("gvt record --help", [*cli, "record", "--help"], tree, args.repeats),
         measure_cli("import record path", [PY, "-c", RECORD_IMPORT], tree, args.repeats),
     ]
@@ -259,6 +283,7 @@ def main() -> None:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
+        args.analysed_log = None if args.no_record else analysed_log(tmp)
         for tree in trees:
             print(f"measuring {tree} ...", flush=True)
             rows += run_tree(tree, args, tmp)

@@ -7,10 +7,14 @@ here, below both, rather than in a study the service would have to import.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from analysis.errors import BadInput
-from analysis.model.rig import Rig
 from daq.log.reader import LogReader
-from daq.log.writer import ChannelInfo
+
+if TYPE_CHECKING:  # a reader of a log (report, frf, export, replay) loads neither the writer nor the rig's model here
+    from analysis.model.rig import Rig
+    from daq.log.writer import ChannelInfo
 
 
 class AnalyzeError(BadInput):
@@ -19,6 +23,8 @@ class AnalyzeError(BadInput):
 
 def channel_infos(rig: Rig) -> list[ChannelInfo]:
     """The log's channel table of a rig: the hammer, then each sensor, with unit, sensitivity, place and DOF."""
+    from daq.log.writer import ChannelInfo
+
     return [
         ChannelInfo(
             name=p.name,

@@ -2,8 +2,9 @@
 bench/results/bench_startup.json.
 
 Each case runs in a fresh interpreter, for this tree and for the previous commit (HEAD, checked out as a git
-worktree, default /tmp/gvt-base) with the same venv's python and ``PYTHONPATH`` at the tree — so the figures
-are ratios measured in one run on one machine (machines here are noisy, bench/README.md):
+worktree, default /tmp/gvt-base; ``--base`` another) with the same venv's python and ``PYTHONPATH`` at the tree,
+the runs of the two trees interleaved (A B, B A, ...) — so the figures are ratios measured in one run on one
+machine (machines here are noisy, bench/README.md):
 
 * ``gvt --help``, ``gvt log info LOG``, ``gvt log export LOG``, ``gvt replay --no-analysis LOG``, ``gvt analyze
   LOG``, ``gvt report LOG`` (small logs from replay_logs/, recorded without the analysis, so the report analyses),
@@ -119,20 +120,34 @@ def import_profile(cmd: list[str], tree: Path) -> dict:
     }
 
 
-def measure_cli(case: str, cmd: list[str], tree: Path, repeats: int) -> dict:
-    first_output(cmd, tree)  # warm-up: file cache, bytecode, numba cache
-    firsts, walls = [], []
-    for _ in range(repeats):
-        f, w, rc = first_output(cmd, tree)
-        if rc != 0:
-            return {"case": case, "error": f"exit {rc}"}
-        firsts.append(f if f is not None else w)
-        walls.append(w)
-    rss, _, _ = peak_rss_mb(cmd, tree)
-    return {
-        "case": case, "first_output_s": statistics.median(firsts), "first_output_min_s": min(firsts),
-        "wall_s": statistics.median(walls), "peak_rss_mb": rss, **import_profile(cmd, tree),
-    }  # fmt: skip
+def measure_cli(case: str, cmds: dict[Path, list[str]], repeats: int) -> list[dict]:
+    """One case on every tree, interleaved: a warm-up run of each, then ``repeats`` rounds of one run per tree,
+    alternating the order (A B, B A, ...), so that a change of the host's load falls on both trees alike."""
+    trees = list(cmds)
+    for tree in trees:
+        first_output(cmds[tree], tree)  # warm-up: file cache, bytecode, numba cache
+    firsts: dict[Path, list[float]] = {t: [] for t in trees}
+    walls: dict[Path, list[float]] = {t: [] for t in trees}
+    errors: dict[Path, str] = {}
+    for k in range(repeats):
+        for tree in trees if k % 2 == 0 else trees[::-1]:
+            f, w, rc = first_output(cmds[tree], tree)
+            if rc != 0:
+                errors[tree] = f"exit {rc}"
+            firsts[tree].append(f if f is not None else w)
+            walls[tree].append(w)
+    rows = []
+    for tree in trees:
+        if tree in errors:
+            rows.append({"case": case, "tree_path": tree, "error": errors[tree]})
+            continue
+        rss, _, _ = peak_rss_mb(cmds[tree], tree)
+        rows.append({
+            "case": case, "tree_path": tree, "first_output_s": statistics.median(firsts[tree]),
+            "first_output_min_s": min(firsts[tree]), "first_output_max_s": max(firsts[tree]),
+            "wall_s": statistics.median(walls[tree]), "peak_rss_mb": rss, **import_profile(cmds[tree], tree),
+        })  # fmt: skip
+    return rows
 
 
 SESSION_TOML = """name = "bench-real-serial"
@@ -217,35 +232,48 @@ def analysed_log(tmp: Path) -> Path | None:
     return out if p.returncode == 0 and out.exists() else None
 
 
-def run_tree(tree: Path, args, tmp: Path) -> list[dict]:
+def cli_cases(tree: Path, args, tmp: Path) -> list[tuple[str, list[str], int]]:
+    """(case, command line, repeats) of the verbs measured in ``tree``."""
     cli = [PY, "-m", "daq.cli"]
     html = ["--out", str(tmp / f"report_{tree.name}.html"), "--overwrite"]
-    export = [*cli, "log", "export", str(LOG), "--out", str(tmp / "x.npz"), "--overwrite"]
-    rows = [
-        measure_cli("gvt --help", [*cli, "--help"], tree, args.repeats),
-        measure_cli("gvt log info", [*cli, "log", "info", str(LOG)], tree, args.repeats),
-        measure_cli("gvt log export", export, tree, args.repeats),
-        measure_cli("gvt replay --no-analysis", [*cli, "replay", "--no-analysis", str(LOG)], tree, args.repeats),
-        measure_cli("gvt analyze", [*cli, "analyze", str(ANALYZE_LOG)], tree, args.repeats),
-        measure_cli("gvt report", [*cli, "report", str(ANALYZE_LOG), *html], tree, max(1, args.repeats // 3)),
-    ]
+    cases = [
+        ("gvt --help", [*cli, "--help"], args.repeats),
+        ("gvt log info", [*cli, "log", "info", str(LOG)], args.repeats),
+        ("gvt log export", [*cli, "log", "export", str(LOG), "--out", str(tmp / f"x_{tree.name}.npz"), "--overwrite"],
+         args.repeats),
+        ("gvt replay --no-analysis", [*cli, "replay", "--no-analysis", str(LOG)], args.repeats),
+        ("gvt analyze", [*cli, "analyze", str(ANALYZE_LOG)], args.repeats),
+        ("gvt report", [*cli, "report", str(ANALYZE_LOG), *html], max(1, args.repeats // 3)),
+    ]  # fmt: skip
     if args.analysed_log is not None:
-        report = [*cli, "report", str(args.analysed_log), *html]
-        rows.append(measure_cli("gvt report (analysed log)", report, tree, args.repeats))
-    rows += [
-        measure_cli("gvt record --help", [*cli, "record", "--help"], tree, args.repeats),
-        measure_cli("import record path", [PY, "-c", RECORD_IMPORT], tree, args.repeats),
+        cases.append(("gvt report (analysed log)", [*cli, "report", str(args.analysed_log), *html], args.repeats))
+    cases += [
+        ("gvt record --help", [*cli, "record", "--help"], args.repeats),
+        ("import record path", [PY, "-c", RECORD_IMPORT], args.repeats),
     ]
-    if not args.no_record:  # a fresh device for each tree: both read the same hits
-        dev, port = start_device(tmp)
-        try:
-            rows.append(measure_record(tree, port, tmp, args.record_seconds, max(1, args.repeats // 3)))
-        finally:
-            dev.terminate()
-            dev.wait(10)
-    for seconds in args.simulate:
-        rows.append(measure_simulate(tree, tmp, seconds))
+    return cases
+
+
+def run_trees(trees: list[Path], args, tmp: Path) -> list[dict]:
+    rows: list[dict] = []
+    per_tree = {tree: cli_cases(tree, args, tmp) for tree in trees}
+    for k, (case, _cmd, repeats) in enumerate(per_tree[trees[0]]):
+        print(f"  {case} ...", flush=True)
+        rows += measure_cli(case, {tree: per_tree[tree][k][1] for tree in trees}, repeats)
+    for tree in trees:
+        print(f"  record and simulate in {tree} ...", flush=True)
+        if not args.no_record:  # a fresh device for each tree: both read the same hits
+            dev, port = start_device(tmp)
+            try:
+                rows.append({**measure_record(tree, port, tmp, args.record_seconds, max(1, args.repeats // 3)),
+                             "tree_path": tree})  # fmt: skip
+            finally:
+                dev.terminate()
+                dev.wait(10)
+        for seconds in args.simulate:
+            rows.append({**measure_simulate(tree, tmp, seconds), "tree_path": tree})
     for r in rows:
+        tree = r.pop("tree_path")
         r["tree"] = tree.name if tree != ROOT else "this tree"
     return rows
 
@@ -284,9 +312,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         args.analysed_log = None if args.no_record else analysed_log(tmp)
-        for tree in trees:
-            print(f"measuring {tree} ...", flush=True)
-            rows += run_tree(tree, args, tmp)
+        print(f"measuring {', '.join(map(str, trees))}, each case interleaved ...", flush=True)
+        rows += run_trees(trees, args, tmp)
     by = {(r["tree"], r["case"]): r for r in rows}
     cases = list(dict.fromkeys(r["case"] for r in rows))
     base = None if args.no_base else args.base.name

@@ -152,9 +152,12 @@ def test_a_slow_view_never_holds_up_the_recording(tmp_path):
     res = run_session(session_config(), open_rig("beam_ch4_exp"), out, view=target)
     wall = time.monotonic() - t0
     target.close()
-    assert res.lost_samples == 0 and res.writer_overrun_samples == 0 and res.analysis_dropped_samples == 0
+    assert res.lost_samples == 0 and res.writer_overrun_samples == 0
     assert wall < 30.0, wall  # waiting on the view: >= 71 s
     r = LogReader(out)
+    # the analysis may shed on a loaded host (it runs below the recorder, by design), but only what it counts
+    shed = sum(int(e["count"]) for e in r.json_messages("/daq/events") if e["kind"] == "analysis_overrun")
+    assert shed == res.analysis_dropped_samples
     data = r.read_stream("dev0")
     assert data.data.shape[0] == round(2.2 * 16384) and not data.gaps  # every sample recorded
     assert res.view_dropped_samples > 0

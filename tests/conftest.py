@@ -39,18 +39,20 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "browser: renders in headless Chromium (/usr/bin/chromium); skips when it is absent")
 
 
-#: Test files by their time on 2 cores, longest first (make test's durations, issues 28 and 31). ``make test`` hands
+#: Test files by their time on 2 cores, longest first (make test's durations, issues 28, 30 and 31). ``make test`` hands
 #: whole files to its workers (``--dist loadfile``: a module's fixtures are set up once, not on both workers)
 #: and the longest start first, so the two workers end together instead of one waiting on a late soak.
 LONGEST_FIRST = (
-    "test_record_matrix.py", "test_log_integrity.py", "test_session.py", "test_soak.py", "test_lane_host.py",
-    "test_confirm_lane.py", "test_sweep_cmd.py", "test_roving.py", "test_record_failures.py", "test_can.py",
-    "test_probe_cases.py", "test_device_serve_stop.py", "test_model_update.py", "test_device_serve.py",
-    "test_serial.py", "test_analysis_session.py", "test_identify_validate.py", "test_emd_stop.py", "test_confirm.py",
-    "test_modbus.py", "test_report.py", "test_log_preview.py", "test_simulator.py", "test_beam_ch3_confirm.py",
-    "test_rfs.py", "test_campaign.py", "test_store.py", "test_cli.py", "test_frf_quality.py", "test_sequence.py",
-    "test_sim_session.py", "test_time_base.py", "test_nsi_log.py", "test_modal_cmd.py", "test_nsi_quality.py",
-    "test_modal_quality.py", "test_antialias.py", "test_frf.py", "test_nsi_sweep.py", "test_frf_lab.py",
+    "test_record_matrix.py", "test_log_integrity.py", "test_session.py", "test_roving.py", "test_record_failures.py",
+    "test_frf_lab.py", "test_modbus.py", "test_sweep_cmd.py", "test_can.py", "test_serial.py",
+    "test_model_update.py", "test_probe_cases.py", "test_cli.py", "test_confirm.py", "test_modal_cmd.py",
+    "test_analysis_session.py", "test_store.py", "test_log.py", "test_rfs.py", "test_frf.py", "test_report.py",
+    "test_beam_ch3_confirm.py", "test_log_preview.py", "test_identify_validate.py", "test_simulator.py",
+    "test_load_matrix.py", "test_nsi_sweep.py", "test_two_devices.py", "test_soak.py", "test_sim_session.py",
+    "test_nsi_log.py", "test_view.py", "test_time_base.py", "test_campaign.py", "test_confirm_lane.py",
+    "test_device_serve.py", "test_stop_and_overlap.py", "test_lane_host.py", "test_nsi.py", "test_config.py",
+    "test_device_serve_stop.py", "test_modbus_rtu.py", "test_config_errors.py", "test_sweep.py",
+    "test_modes_view.py",
 )  # fmt: skip
 
 

@@ -37,8 +37,8 @@ from numpy.typing import NDArray
 
 from analysis.preprocess import PreprocessSettings, acc_to_disp
 from analysis.records import OTHER_RATIO, Confirmation
-from analysis.slowflow import DetectorParams, candidate_ratios, mean_frequency_hz, test_ratios, trajectory
-from analysis.wavelet import analytic
+from analysis.slowflow import Component, DetectorParams, candidate_ratios, mean_frequency_hz, memo, test_ratios, trajectory
+from analysis.wavelet import AnalyticMemo
 
 if TYPE_CHECKING:  # the decomposition (PyEMD, ~30 MB) is imported where it runs: in the confirmation worker
     from analysis.wbemd import WbemdParams
@@ -126,7 +126,7 @@ class SlowAngle:
     passed: bool
 
 
-def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s: float, end_s: float, m: int, n: int,
+def slow_angle_test(low: Component, high: Component, fs: float, t0_s: float, start_s: float, end_s: float, m: int, n: int,
                     s: ConfirmSettings) -> SlowAngle:  # fmt: skip
     """Is Φ_{m:n} a slow angle while the higher component gains energy (the exchange the detector flagged)?
 
@@ -136,10 +136,12 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
     (L1298) in its integral form: the neighbours drift faster on either side; (3) that angle moves less
     than ``max_turn`` over the event (the averaged energy flow ∝ sin Φ keeps its direction for a half
     turn; one turn allows for the ramp in and out). Captured loops (non-time-like, :mod:`analysis.slowflow`)
-    are the stronger evidence and reported separately.
+    are the stronger evidence and reported separately. ``low``/``high`` may be the caller's
+    :class:`~analysis.wavelet.AnalyticMemo` of the two IMFs (shared with :func:`analysis.slowflow.test_ratios`).
     """
+    low, high = memo(low, fs), memo(high, fs)
     lp = 0.25 * mean_frequency_hz(low, fs)
-    t = t0_s + np.arange(low.size) / fs
+    t = t0_s + np.arange(low.c.size) / fs
     sel = (t >= start_s) & (t <= end_s)
     if sel.sum() < 4:
         raise ValueError(f"event {start_s:.3f}–{end_s:.3f} s has fewer than 4 samples in its segment")
@@ -148,7 +150,7 @@ def slow_angle_test(low: NDArray, high: NDArray, fs: float, t0_s: float, start_s
         tr = trajectory(low, high, fs, r[0], r[1], lowpass_hz=lp, t0=t0_s)
         ranges[r] = float(np.ptp(tr.phi[sel]))
     best = min(ranges, key=ranges.get)
-    amp = analytic(high, fs, lowpass_hz=None).amplitude
+    amp = high(None).amplitude
     sos = scipy.signal.butter(3, min(0.25 * mean_frequency_hz(high, fs), 0.4 * fs), fs=fs, output="sos")
     amp = scipy.signal.sosfiltfilt(sos, amp)
     a = amp[sel]
@@ -206,7 +208,8 @@ def confirm_segment(seg: NDArray, fs: float, t0_s: float, event: Mapping[str, An
     if i_lo == i_hi:
         return Confirmation(**examined, status="not_confirmed", reason="the two event frequencies fell on one IMF",
                             elapsed_s=time.perf_counter() - t_start).to_json()  # fmt: skip
-    lo_imf, hi_imf = dec.imfs[i_lo], dec.imfs[i_hi]
+    # one Hilbert transform of each IMF for the ten slow-flow trajectories and the slow-angle test (AnalyticMemo)
+    lo_imf, hi_imf = AnalyticMemo(dec.imfs[i_lo], fs), AnalyticMemo(dec.imfs[i_hi], fs)
     params = s.detector or DetectorParams()
     c = test_ratios(lo_imf, hi_imf, fs, m, n, span=s.span, lowpass_hz=s.lowpass_hz, params=params, t0=t0_s)
     sa = slow_angle_test(lo_imf, hi_imf, fs, t0_s, float(event["start_s"]), float(event["end_s"]), m, n, s)

@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
 from analysis.runs import true_runs
-from analysis.wavelet import analytic
+from analysis.wavelet import AnalyticMemo
 
 FloatArray = NDArray[np.float64]
 
@@ -199,13 +199,26 @@ def phase_variable(
     return phi, np.gradient(phi) * fs
 
 
-def mean_frequency_hz(c: ArrayLike, fs: float) -> float:
+Component = ArrayLike | AnalyticMemo
+"""A component as an array, or as its :class:`~analysis.wavelet.AnalyticMemo` (the caller asks for it again)."""
+
+
+def memo(c: Component, fs: float) -> AnalyticMemo:
+    """``c``'s analytic-signal memo: ``c`` itself when it is one (at the same ``fs``), else a new one."""
+    if isinstance(c, AnalyticMemo):
+        if c.fs != fs:
+            raise ValueError(f"slowflow: a component analysed at fs = {c.fs} Hz was given with fs = {fs} Hz")
+        return c
+    return AnalyticMemo(c, fs)
+
+
+def mean_frequency_hz(c: Component, fs: float) -> float:
     """Mean frequency of a component: the slope of its unwrapped Hilbert phase over the record."""
-    ph = analytic(c, fs, lowpass_hz=None).phase
+    ph = memo(c, fs)(None).phase
     return abs(ph[-1] - ph[0]) / (2.0 * math.pi) * fs / max(ph.size - 1, 1)
 
 
-def default_lowpass_hz(comp_low: ArrayLike, fs: float) -> float:
+def default_lowpass_hz(comp_low: Component, fs: float) -> float:
     """``LOWPASS_FRACTION`` × the mean frequency of the lower component (unwrapped-phase slope)."""
     f_mean = mean_frequency_hz(comp_low, fs)
     if not f_mean > 0:
@@ -214,8 +227,8 @@ def default_lowpass_hz(comp_low: ArrayLike, fs: float) -> float:
 
 
 def trajectory(
-    comp_low: ArrayLike,
-    comp_high: ArrayLike,
+    comp_low: Component,
+    comp_high: Component,
     fs: float,
     m: int,
     n: int,
@@ -223,15 +236,19 @@ def trajectory(
     params: DetectorParams = DetectorParams(),
     t0: float = 0.0,
 ) -> Trajectory:
-    """Phase trajectory (Φ, Φ̇) of Φ_{m:n} between two components sampled at ``fs`` (method-wbemd-slowflow §5 steps 3–5)."""
+    """Phase trajectory (Φ, Φ̇) of Φ_{m:n} between two components sampled at ``fs`` (method-wbemd-slowflow §5 steps 3–5).
+
+    The components may be given as :class:`~analysis.wavelet.AnalyticMemo` (several trajectories of the same
+    two: their Hilbert transforms are computed once; the numbers are the same)."""
     _check_ratio(m, n, "trajectory")
-    a = np.asarray(comp_low, dtype=np.float64)
-    b = np.asarray(comp_high, dtype=np.float64)
+    a, b = (c.c if isinstance(c, AnalyticMemo) else np.asarray(c, dtype=np.float64) for c in (comp_low, comp_high))
     if a.shape != b.shape or a.ndim != 1:
         raise ValueError(f"trajectory: components must be 1-D of equal length, got {a.shape} and {b.shape}")
-    lp = default_lowpass_hz(a, fs) if lowpass_hz is None else float(lowpass_hz)
-    ia = analytic(a, fs, lowpass_hz=lp)
-    ib = analytic(b, fs, lowpass_hz=lp)
+    ma = memo(comp_low, fs) if isinstance(comp_low, AnalyticMemo) else AnalyticMemo(a, fs)
+    mb = memo(comp_high, fs) if isinstance(comp_high, AnalyticMemo) else AnalyticMemo(b, fs)
+    lp = default_lowpass_hz(ma, fs) if lowpass_hz is None else float(lowpass_hz)
+    ia = ma(lp)
+    ib = mb(lp)
     two_pi = 2.0 * math.pi
     phi, phi_dot = phase_variable(ia.phase, ib.phase, m, n, two_pi * ia.frequency_hz, two_pi * ib.frequency_hz)
     sos = signal.butter(3, lp, btype="low", fs=fs, output="sos")
@@ -388,8 +405,8 @@ def candidate_ratios(m: int, n: int, span: int = 2) -> list[tuple[int, int]]:
 
 
 def test_ratios(
-    comp_low: ArrayLike,
-    comp_high: ArrayLike,
+    comp_low: Component,
+    comp_high: Component,
     fs: float,
     m: int,
     n: int,
@@ -406,8 +423,10 @@ def test_ratios(
     (m*+1):n with Φ̇ > 0, i.e. the ratio really sits between them. Returns a :class:`Confirmation` whose
     trajectory arrays are those of the best candidate (or of the label when nothing was captured).
     ``trajectories``: k:n → :func:`trajectory` of these same inputs, already computed by the caller (who also
-    reads them); any candidate missing from it is computed here.
+    reads them); any candidate missing from it is computed here, all on one Hilbert transform of each component
+    (:class:`~analysis.wavelet.AnalyticMemo`; pass memos to share them with the caller).
     """
+    comp_low, comp_high = memo(comp_low, fs), memo(comp_high, fs)
     lp = default_lowpass_hz(comp_low, fs) if lowpass_hz is None else float(lowpass_hz)
     given = trajectories or {}
     trajs = {

@@ -146,21 +146,46 @@ def analytic(c: ArrayLike, fs: float, lowpass_hz: float | None = 1.0, order: int
     the instantaneous frequency (L451–L452; 1 Hz in the beam case, L961–L962). The filter type is not
     stated: this uses a zero-phase Butterworth (``order``, default 3) on the frequency only; the phase
     stays unfiltered so that phase variables Φ = mθ̂_a − nθ̂_b keep their slow content exactly.
-    ``lowpass_hz=None`` skips the filter.
+    ``lowpass_hz=None`` skips the filter. :class:`AnalyticMemo` gives the same at several cut-offs.
     """
-    from scipy import signal  # here, not with the module: the CWT alone (gvt report, the view) needs no scipy.signal (D108)
+    return AnalyticMemo(c, fs)(lowpass_hz, order)
 
-    c = np.asarray(c, dtype=np.float64)
-    if c.ndim != 1 or c.size < 4:
-        raise ValueError(f"analytic: need a 1-D component of at least 4 samples, got shape {c.shape}")
-    z = signal.hilbert(c)
-    amplitude = np.abs(z)
-    phase = np.unwrap(np.angle(z))
-    frequency = np.gradient(phase) * fs / (2.0 * np.pi)
-    if lowpass_hz is not None:
+
+class AnalyticMemo:
+    """:func:`analytic` of one component, asked for again and again: the Hilbert transform, amplitude, unwrapped
+    phase and raw frequency are computed once, the low-passed frequency once per (cut-off, order).
+
+    Why: one confirmation reads the same two IMFs' analytic signals 24 times (each of the ten slow-flow
+    trajectories of :func:`analysis.slowflow.test_ratios` and the slow-angle test, and the mean frequencies),
+    although only the frequency's low-pass differs between them (issue 30, item 5). The numbers are those of
+    :func:`analytic`, which is this class asked once. The arrays handed out are shared: callers must not write
+    into them.
+    """
+
+    def __init__(self, c: ArrayLike, fs: float) -> None:
+        c = np.asarray(c, dtype=np.float64)
+        if c.ndim != 1 or c.size < 4:
+            raise ValueError(f"analytic: need a 1-D component of at least 4 samples, got shape {c.shape}")
+        self.c, self.fs = c, fs
+        self._raw: Instantaneous | None = None
+        self._low: dict[tuple[float, int], NDArray[np.float64]] = {}
+
+    def __call__(self, lowpass_hz: float | None = 1.0, order: int = 3) -> Instantaneous:
+        from scipy import signal  # here, not with the module: the CWT alone (gvt report, the view) needs no scipy.signal (D108)
+
+        fs = self.fs
+        if self._raw is None:
+            z = signal.hilbert(self.c)
+            phase = np.unwrap(np.angle(z))
+            self._raw = Instantaneous(amplitude=np.abs(z), phase=phase, frequency_hz=np.gradient(phase) * fs / (2.0 * np.pi))
+        raw = self._raw
+        if lowpass_hz is None:
+            return raw
         if not 0 < lowpass_hz < fs / 2:
             raise ValueError(f"analytic: lowpass_hz must lie in (0, fs/2 = {fs / 2}), got {lowpass_hz}")
-        sos = signal.butter(order, lowpass_hz, btype="low", fs=fs, output="sos")
-        padlen = min(c.size - 1, 3 * (2 * sos.shape[0] + 1))
-        frequency = signal.sosfiltfilt(sos, frequency, padlen=padlen)
-    return Instantaneous(amplitude=amplitude, phase=phase, frequency_hz=frequency)
+        key = (float(lowpass_hz), int(order))
+        if key not in self._low:
+            sos = signal.butter(order, lowpass_hz, btype="low", fs=fs, output="sos")
+            padlen = min(self.c.size - 1, 3 * (2 * sos.shape[0] + 1))
+            self._low[key] = signal.sosfiltfilt(sos, raw.frequency_hz, padlen=padlen)
+        return Instantaneous(amplitude=raw.amplitude, phase=raw.phase, frequency_hz=self._low[key])

@@ -94,9 +94,10 @@ def test_a_memo_at_another_sample_rate_is_refused():
         sf.trajectory(AnalyticMemo(LOW, FS), HIGH, 2 * FS, 3, 1)
 
 
-def test_the_sifts_envelope_is_scipys_cubic_spline_bit_for_bit():
+def test_the_sifts_envelope_is_scipys_cubic_spline_bit_for_bit(monkeypatch):
     """The sifts' envelopes (analysis.emd.not_a_knot_spline) against scipy's CubicSpline on random extrema (4 to
-    400 points, values over nine decades), and a whole first-IMF sift against one with PyEMD's own envelope."""
+    400 points, values over nine decades), and a whole first-IMF sift against PyEMD's own (its envelope, and its
+    extrema searched at every ask, not remembered)."""
     from scipy.interpolate import CubicSpline
 
     import analysis.emd as emd
@@ -110,13 +111,19 @@ def test_the_sifts_envelope_is_scipys_cubic_spline_bit_for_bit():
         tt = grid[(grid >= x[0]) & (grid <= x[-1])]
         assert np.array_equal(emd.not_a_knot_spline(x, y, tt), CubicSpline(x, y)(tt))
 
-    class PyEmdEnvelope(emd._RillingEMD):
+    class PyEmdSift(emd._RillingEMD):
         spline_points = emd.EMD.spline_points  # PyEMD's, through scipy's CubicSpline
+        find_extrema = emd.EMD.find_extrema  # PyEMD's, every time
 
+    searches: list[int] = []
+    real = emd.EMD._find_extrema_simple
+    monkeypatch.setattr(emd.EMD, "_find_extrema_simple", staticmethod(lambda T, S: searches.append(1) or real(T, S)))
     sig = LOW + HIGH + 0.01 * np.random.default_rng(3).standard_normal(t.size)
     mine = emd._RillingEMD(emd.RILLING_STOP, emd.NO_END_THRESHOLDS).emd(sig, max_imf=1)
-    theirs = PyEmdEnvelope(emd.RILLING_STOP, emd.NO_END_THRESHOLDS).emd(sig, max_imf=1)
+    n_mine = len(searches)
+    theirs = PyEmdSift(emd.RILLING_STOP, emd.NO_END_THRESHOLDS).emd(sig, max_imf=1)
     assert np.array_equal(mine, theirs)
+    assert 3 * n_mine < 2 * (len(searches) - n_mine)  # PyEMD searched 3 times an iteration, this sift once (+1)
     # input CubicSpline refuses (repeated positions) is still refused, by PyEMD's own path
     with pytest.raises(ValueError):
         emd._RillingEMD().spline_points(grid, np.array([[0.0, 1.0, 1.0, 2.0, 3.0], [0.0, 1.0, 2.0, 1.0, 0.0]]))

@@ -187,6 +187,7 @@ class Session:
         self.results = Results()
         self.log = self._log_lane()
         self.results.log = self.log.sink
+        self.results.log_encoded = self.log.sink_encoded
         if priority_line is not None:  # said once per session: in the log and on the console
             self.results.emit(layout.EVENTS_TOPIC, {"kind": "priority_not_raised", "message": priority_line}, None)
             if (say := self.opts.line or self.opts.frf_line) is not None:
@@ -393,7 +394,7 @@ class Session:
                 self.host = start_lane_host(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,
                                             frame, confirm=spec.confirm, say=self.opts.line or self.opts.frf_line,
                                             base_nice=self.base_nice, room=self._writer_room(),
-                                            nice_step=spec.worker_nice)  # fmt: skip
+                                            nice_step=spec.worker_nice, sink_encoded=self.results.emit_encoded)  # fmt: skip
                 lane = self.host.analysis_lane()
             else:
                 lane = start_analysis_lane(self.fan, self.rig, self.streams, self.fs, self.results.emit, settings, maxsize,

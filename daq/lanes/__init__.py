@@ -13,6 +13,7 @@ falls behind drops its own input and says so, and nothing a lane does can stop t
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -48,6 +49,8 @@ class Results:
     log: Sink | None = None
     routes: list[Route] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+    #: the log's path for records already JSON-encoded (``LogLane.sink_encoded``); None: decoded and given to ``log``
+    log_encoded: Callable[[list[tuple[str, bytes, int | None]]], None] | None = None
 
     def route(self, lane: Lane, topics: Iterable[str] | None = None) -> None:
         self.routes.append(Route(lane, None if topics is None else frozenset(topics)))
@@ -59,6 +62,23 @@ class Results:
         for r in self.routes:
             if r.topics is None or topic in r.topics:
                 r.lane.offer(topic, obj)
+
+    def emit_encoded(self, batch: list[tuple[str, bytes, int | None]]) -> None:
+        """Records a lane worker encoded as JSON (``(topic, bytes, log_time_ns)``, daq/lanes/host.py): the bytes to the
+        log as they are; a lane that asked for the topic gets the decoded dict (what a replay of the log gives it)."""
+        for topic, _raw, _t in batch:
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+        if self.log_encoded is not None:
+            self.log_encoded(batch)
+        elif self.log is not None:
+            for topic, raw, t in batch:
+                self.log(topic, json.loads(raw), t)
+        for topic, raw, _t in batch:
+            wants = [r.lane for r in self.routes if r.topics is None or topic in r.topics]
+            if wants:
+                obj = json.loads(raw)
+                for lane in wants:
+                    lane.offer(topic, obj)
 
 
 class NullLane:

@@ -10,7 +10,8 @@ overruns. :class:`LaneHost` moves the analysis and confirmation lanes to a worke
   descriptor. When the ring is full (the worker fell behind) the block is shed and its range counted: the lane
   loses its own input, never the recording's; the ranges are the ``analysis_overrun`` event, as before;
 * a **receiver thread** that hands every result record to the session's :class:`~daq.lanes.Results` (so the one
-  log writer owns the file, and the view still sees the analysis' records);
+  log writer owns the file, and the view still sees the analysis' records). The window records (~140 a second at
+  15 ch x 16384 Hz) come JSON-encoded, in batches (``sink_encoded``, D107): the bytes go to the log as they are;
 * two facades in the recorder's stop order (:class:`HostedAnalysis` "analysis", :class:`HostedConfirm`
   "confirm"), each bounded by its deadline: a dead or hung worker is killed at the deadline and what was
   abandoned is said.
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import atexit
 import dataclasses
+import json
 import multiprocessing
 import os
 import select
@@ -43,6 +45,8 @@ from daq.log import layout
 from drivers.blocks import SampleBlock
 
 Sink = Callable[[str, Any, int | None], None]
+#: ``sink_encoded([(topic, json bytes, log_time_ns), ...])``: a batch of the worker's records, encoded there
+EncodedSink = Callable[[list[tuple[str, bytes, int | None]]], None]
 READY_TIMEOUT_S = 120.0  # a cold numba cache compiles ~5 s of kernels on a quiet machine; a loaded one, more
 #: the ring holds this much of the analysed stream (at most RING_MAX_BYTES): at nice +10 on a loaded machine the
 #: worker is starved for seconds at a time (a 3.2 s session at load 9 shed 1536 samples with a 2 s ring) and catches up
@@ -80,9 +84,10 @@ class LaneHost:
         self, fan: FanOut, model, stream: str, channels: tuple[str, ...], fs: float, sink: Sink, settings=None,
         maxsize: int = 512, frame: dict | None = None, confirm: bool = True, ring_s: float = RING_S,
         say: Callable[[str], None] | None = None, base_nice: int = 0, room: Callable[[], bool] | None = None,
-        nice_step: int = 10,
+        nice_step: int = 10, sink_encoded: EncodedSink | None = None,
     ) -> None:  # fmt: skip
         self.stream, self.channels, self.fs, self.sink, self.say = stream, tuple(channels), fs, sink, say
+        self.sink_encoded = sink_encoded  # the worker's JSON-encoded batches (None: decoded and given to ``sink``)
         self.room = room  # False while the log writer's queue is too full for a burst of results (see _receive)
         self.confirm = confirm
         frame_bytes = len(self.channels) * 4
@@ -227,7 +232,14 @@ class LaneHost:
                     continue
                 return
             kind = msg[0]
-            if kind == "r":
+            if kind == "rj":  # a batch of window records, JSON-encoded in the worker (host_worker.Batcher, D107)
+                self._wait_for_room()
+                if self.sink_encoded is not None:
+                    self.sink_encoded(msg[1])
+                else:
+                    for topic, raw, t in msg[1]:
+                        self.sink(topic, json.loads(raw), t)
+            elif kind == "r":
                 _, topic, obj, t = msg
                 self._wait_for_room()
                 if topic == layout.IR_EVENTS_TOPIC:
@@ -494,7 +506,7 @@ class HostedConfirm:
 def start_lane_host(
     fan: FanOut, rig, streams: dict[str, tuple[str, ...]], fs: float, sink: Sink, settings=None, maxsize: int = 512,
     frame: dict | None = None, confirm: bool = True, say: Callable[[str], None] | None = None, base_nice: int = 0,
-    room: Callable[[], bool] | None = None, nice_step: int = 10,
+    room: Callable[[], bool] | None = None, nice_step: int = 10, sink_encoded: EncodedSink | None = None,
 ) -> LaneHost:  # fmt: skip
     """The analysis (and confirmation) lanes of ``rig`` in a worker; :class:`~daq.lanes.analysis.LaneUnavailable`
     (one line) when the rig does not fit the streams or the worker does not start."""
@@ -503,6 +515,6 @@ def start_lane_host(
     model, name = rig_stream(rig, streams)
     try:
         return LaneHost(fan, model, name, streams[name], fs, sink, settings, maxsize, frame, confirm, say=say,
-                        base_nice=base_nice, room=room, nice_step=nice_step)  # fmt: skip
+                        base_nice=base_nice, room=room, nice_step=nice_step, sink_encoded=sink_encoded)  # fmt: skip
     except HostFailed as exc:
         raise LaneUnavailable(f"rig {rig.name}: {exc}") from None

@@ -105,6 +105,17 @@ class LogLane:
             clock = next((s for prefix, s in self.clocks.items() if topic.startswith(prefix)), None)
             self.writer.write_json(topic, obj, log_time_ns=log_time_ns, clock=clock)
 
+    def sink_encoded(self, batch: Sequence[tuple[str, bytes, int | None]]) -> None:
+        """Records already JSON-encoded (the lane worker's, ``daq/lanes/host.py``), as ``(topic, bytes, log_time_ns)``:
+        written as :meth:`sink` writes them (the same bytes, the same times), queued as one item."""
+        if self.failure is not None:
+            self.dropped_results += len(batch)
+            return
+        clocks = self.clocks.items()
+        self.writer.write_json_encoded(
+            [(topic, raw, t, next((s for prefix, s in clocks if topic.startswith(prefix)), None)) for topic, raw, t in batch]
+        )
+
     # --- state ---------------------------------------------------------------------------------------
     @property
     def failure(self) -> str | None:

@@ -117,6 +117,8 @@ def bucket_stats(first_index: int, data: np.ndarray, bucket: int = BUCKET) -> Bu
     d = np.asarray(data, dtype=np.float32)
     n, n_c = d.shape
     head = min((-int(first_index)) % bucket, n)
+    if 0 < n_c < REDUCEAT_BELOW and n:
+        return _by_reduceat(int(first_index), d, head, bucket)
     n_full = (n - head) // bucket
     tail = n - head - n_full * bucket
     if head == 0 and tail == 0 and n_full:  # a block on the grid (the usual case): one reshape, no concatenation
@@ -138,6 +140,25 @@ def bucket_stats(first_index: int, data: np.ndarray, bucket: int = BUCKET) -> Bu
         counts.append([tail])
         parts.append(_reduce(d[None, n - tail :]))
     return Buckets(np.concatenate(firsts).astype(np.int64), np.concatenate(counts).astype(np.int64), np.concatenate(parts))
+
+
+#: below this many channels a block's buckets are reduced by ``ufunc.reduceat`` (one call per statistic, any alignment);
+#: from it on by :func:`_tree` (thread CPU per block of 1408 samples off the grid, min and max: 15 ch 44 us against
+#: 111, 4 ch 20 against 99, 64 ch 210 against 130 — a wide row favours the tree's elementwise halving)
+REDUCEAT_BELOW = 32
+
+
+def _by_reduceat(first_index: int, d: np.ndarray, head: int, bucket: int) -> Buckets:
+    """:func:`bucket_stats` for a narrow block: the buckets' starts (a short head first when the block begins off the
+    grid; the last bucket ends with the block) and a ``reduceat`` per statistic. Exact: min and max are samples."""
+    n = d.shape[0]
+    starts = np.arange(head, n, bucket, dtype=np.int64)
+    if head:
+        starts = np.concatenate(([0], starts))
+    out = np.empty((len(starts), d.shape[1], len(STATS)), np.float32)
+    for j, s in enumerate(STATS):
+        out[:, :, j] = _OPS[s].reduceat(d, starts, axis=0)
+    return Buckets(first_index + starts, np.diff(starts, append=n), out)
 
 
 class PreviewEncoder:

@@ -152,6 +152,26 @@ def _decode_payload(buf: bytes | bytearray, off: int, n: int, ch: int, code: int
     return (raw.reshape(n, ch).astype(np.float32)) * scales
 
 
+def _decode_run(buf: bytes | bytearray, off: int, k: int, stride: int, n: int, ch: int, code: int) -> np.ndarray:
+    """The payloads of ``k`` frames of one shape lying back to back (``stride`` bytes apart, the first payload at
+    ``off``) as float32 (k, n, ch): :func:`_decode_payload`'s arithmetic, element for element, on strided views, so a
+    read of several frames costs one set of array operations instead of one per frame (issue 30 item 5: 256 frames a
+    second at 15 ch x 16384 Hz, ~8 numpy calls each, were a third of the serial driver's CPU)."""
+    if code == 3:
+        return np.ndarray((k, n, ch), "<f4", buf, off, (stride, 4 * ch, 4)).astype(np.float32)
+    scales = np.ndarray((k, 1, ch), "<f4", buf, off, (stride, 0, 4)).copy()
+    off += 4 * ch
+    if code in (0, 2):
+        w = WIDTH[code]
+        raw = np.ndarray((k, n, ch), "<i2" if code == 0 else "<i4", buf, off, (stride, w * ch, w))
+    else:
+        b = np.ndarray((k, n * ch, 3), np.uint8, buf, off, (stride, 3, 1))
+        wide = np.zeros((k, n * ch, 4), np.uint8)
+        wide[:, :, 1:] = b
+        raw = (wide.view("<i4") >> 8).reshape(k, n, ch)  # arithmetic shift sign-extends the 24-bit code
+    return raw.astype(np.float32) * scales
+
+
 @dataclass
 class FrameDecoder:
     """Incremental binary frame decoder: ``feed(bytes) -> [Frame]``; counters in :attr:`stats`.
@@ -185,7 +205,7 @@ class FrameDecoder:
         st.bytes_in += len(data)
         buf = self._buf
         buf += data
-        out: list[Frame] = []
+        good: list[tuple[int, int, int, int, int, int, int, int]] = []  # (pos, total, n, ch, code, sid, seq, first)
         pos = 0
         n_buf = len(buf)
         while True:
@@ -228,17 +248,33 @@ class FrameDecoder:
                 self._skip(1)
                 pos += 1
                 continue
-            data_arr = _decode_payload(buf, pos + HEADER_LEN, n, ch, code)
             if self._last_seq is not None:
                 st.seq_jumps += (seq - self._last_seq - 1) & 0xFFFFFFFF
             self._last_seq = seq
-            out.append(Frame(sid, seq, first, FORMAT_NAMES[code], data_arr, self._base + pos))
+            good.append((pos, total, n, ch, code, sid, seq, first))
             st.frames_ok += 1
             self._hunting = False
             pos += total
+        out = self._frames(buf, good)
         if pos:
             del buf[:pos]
             self._base += pos
+        return out
+
+    def _frames(self, buf: bytearray, good: list[tuple[int, int, int, int, int, int, int, int]]) -> list[Frame]:
+        """The checked frames of one feed, their payloads decoded run by run (frames of one shape, back to back)."""
+        out: list[Frame] = []
+        i = 0
+        while i < len(good):
+            pos, total, n, ch, code = good[i][:5]
+            j = i + 1
+            while j < len(good) and good[j][:5] == (pos + (j - i) * total, total, n, ch, code):
+                j += 1
+            data = _decode_run(buf, pos + HEADER_LEN, j - i, total, n, ch, code)
+            for k in range(i, j):
+                p, _t, _n, _c, _code, sid, seq, first = good[k]
+                out.append(Frame(sid, seq, first, FORMAT_NAMES[code], data[k - i], self._base + p))
+            i = j
         return out
 
     def _skip(self, n: int) -> None:

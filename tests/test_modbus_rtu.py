@@ -188,3 +188,41 @@ def test_rtu_stall_loses_nothing(device, rtu):
     assert drv.stats.lost_samples == 0 and drv.stats.gaps == [] and drv.stats.restarts == 0
     assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
     _check_device(device, srv, drv, blocks)
+
+
+class _LateAnswerServer(ModbusRtuSimServer):
+    """A device that answered a FIFO read after the driver gave up on it: that answer reaches the line just before
+    the answer to the driver's next request (what a busy host sees when it reads the port late)."""
+
+    late_before_next = False
+    last_fifo = b""
+
+    def _write(self, data: bytes) -> None:
+        if self.late_before_next:
+            self.late_before_next = False
+            data = self.last_fifo + data
+        elif data[1] == 23:
+            self.last_fifo = data
+        super()._write(data)
+
+
+def test_a_late_fifo_answer_is_not_taken_for_the_status_after_a_reconnect(device):
+    """Issue 30, the modbus-rtu disconnect cell under load: a FIFO frame that arrived late was taken by pymodbus for
+    the answer to the status read of the reconnect's check (RTU has no transaction id); its first register (the
+    index's high word, 0) read as "stopped", and a device that never stopped got a new segment 1-3 samples on."""
+    srv = _LateAnswerServer(device, None, ["hammer"])
+    srv.start()
+    try:
+        drv = _rtu_driver(srv)
+        drv._connect()  # on this thread, no reading thread: the exchange below is the whole test
+        time.sleep(0.05)
+        for _ in range(3):
+            drv._fifo_step()
+        assert drv._next and srv.last_fifo
+        srv.late_before_next = True
+        drv._check_device()  # what the reading thread does after every reconnect, before its first ack
+        assert drv._restart_cause is None and drv._next is not None  # still the same run
+        assert drv.stale_responses == 1 and srv.running
+    finally:
+        drv._client.close()
+        srv.stop()

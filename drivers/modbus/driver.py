@@ -52,6 +52,29 @@ class _Stopping(Exception):
     pass
 
 
+def answers(rr: Any, function_code: int, registers: int | None = None, address: int | None = None) -> bool:
+    """Is ``rr`` the answer to a request of ``function_code`` reading ``registers`` / writing at ``address``?
+
+    Why: Modbus RTU has no transaction id, and pymodbus pairs whatever complete frame comes next with the request
+    in hand, whatever its function code. A device that answers after the driver's timeout (a busy host reads it
+    late) has its answer taken for the *retry's*, and the retry's answer for the next request's: a FIFO frame
+    read as the status register said "stopped" (its first register, the index's high word, is 0), and the driver
+    began a new segment, a false restart with an estimated gap, on a device that never stopped (issue 30, the
+    ``modbus-rtu`` disconnect cell under load). The function code (an exception answer carries it + 0x80), the
+    count of registers read and the address written (FC 16 echoes it) tell such an answer from the right one.
+    A late answer *of the same kind* is harmless: the FIFO is addressed by sample index (a late frame is a
+    duplicate, dropped by index), a late counter or head is older and lower, which no restart test can mistake
+    (the device's count and head never fall while it runs)."""
+    fc = getattr(rr, "function_code", None)
+    if rr.isError():
+        return fc is not None and fc & 0x7F == function_code
+    if fc != function_code:
+        return False
+    if registers is not None and len(getattr(rr, "registers", None) or []) != registers:
+        return False
+    return address is None or getattr(rr, "address", address) == address
+
+
 class _Relinked(Exception):
     """The link was re-opened inside a FIFO call: the device must be checked before the next ack."""
 
@@ -148,6 +171,7 @@ class ModbusDriver(Driver):
         self._produced: int | None = None  # the device's sample count when the last frame was read (first + buffered)
         self._device_stopped = False
         self._finishing_done = False
+        self.stale_responses = 0  # answers to earlier requests that came instead of the one asked (RTU, a busy host)
         if config.mode == "fifo":
             if self.map.fifo is None:
                 raise DriverError(f"register map {config.register_map} has no [fifo]; use mode = 'poll'")
@@ -247,11 +271,15 @@ class ModbusDriver(Driver):
         except OSError:
             pass
 
-    def _call(self, what: str, fn: Any, *, reconnect: bool = True, relink: bool = False) -> Any:
+    def _call(
+        self, what: str, fn: Any, expect: tuple[int, int | None, int | None], *, reconnect: bool = True, relink: bool = False
+    ) -> Any:
         """One Modbus transaction with counted timeouts/retries and reconnects; returns the response.
 
-        ``relink``: if the link had to be re-opened, raise :class:`_Relinked` instead of sending ``fn`` on it
-        (the FIFO read: its ack must not reach a device that may have restarted before it is checked)."""
+        ``expect``: (function code, registers read or None, address written or None) of the request, which the
+        response must match (:func:`answers`): else it is the late answer to an earlier request and the request is
+        sent again. ``relink``: if the link had to be re-opened, raise :class:`_Relinked` instead of sending ``fn``
+        on it (the FIFO read: its ack must not reach a device that may have restarted before it is checked)."""
         from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
         attempt = 0
@@ -264,6 +292,9 @@ class ModbusDriver(Driver):
                     raise _Relinked
             try:
                 rr = fn(self._client)
+                if not answers(rr, *expect):
+                    self.stale_responses += 1  # a late answer to an earlier request: not this one's (below)
+                    raise ModbusIOException(f"{what}: the answer to an earlier request came instead")
             except ModbusIOException:
                 self.stats.timeouts += 1
                 self._flags |= BlockStatus.TIMEOUT
@@ -303,10 +334,19 @@ class ModbusDriver(Driver):
 
     def _write(self, reg: Any, raw: int, what: str, reconnect: bool = True) -> None:
         regs = reg.raw_to_regs(raw, self.wo)
-        self._call(what, lambda c: c.write_registers(reg.address, regs, device_id=self.unit), reconnect=reconnect)
+        self._call(
+            what,
+            lambda c: c.write_registers(reg.address, regs, device_id=self.unit),
+            (16, None, reg.address),
+            reconnect=reconnect,
+        )
 
     def _read(self, reg: Any, what: str) -> int | float:
-        rr = self._call(what, lambda c: c.read_holding_registers(reg.address, count=reg.n_registers, device_id=self.unit))
+        rr = self._call(
+            what,
+            lambda c: c.read_holding_registers(reg.address, count=reg.n_registers, device_id=self.unit),
+            (3, reg.n_registers, None),
+        )
         return reg.regs_to_raw(rr.registers, self.wo)
 
     # --- Driver hooks ---------------------------------------------------------------------
@@ -467,6 +507,7 @@ class ModbusDriver(Driver):
                 values=ack_regs,
                 device_id=self.unit,
             ),
+            (23, fifo.window_registers, None),
             relink=True,
         )
         t = time.monotonic()
@@ -528,6 +569,7 @@ class ModbusDriver(Driver):
         rr = self._call(
             "peek FIFO head",
             lambda cl: cl.read_holding_registers(fifo.window_address, count=fifo.header_registers, device_id=self.unit),
+            (3, fifo.header_registers, None),
         )
         (head,) = struct.unpack(">Q", struct.pack(">4H", *rr.registers[:4]))
         why = None
@@ -544,7 +586,7 @@ class ModbusDriver(Driver):
     def _poll_once(self, k: int) -> None:
         lo, n = self._poll_lo, self._poll_n
         try:
-            rr = self._call("poll read", lambda cl: cl.read_holding_registers(lo, count=n, device_id=self.unit))
+            rr = self._call("poll read", lambda cl: cl.read_holding_registers(lo, count=n, device_id=self.unit), (3, n, None))
         except _Stopping:
             raise
         regs = rr.registers

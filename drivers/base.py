@@ -352,6 +352,15 @@ class Driver(ABC):
         stats.estimated_lost_samples += gap
         stats.segments.append(Segment(stream, rs.segment, rs.stream_first, rs.device_first, gap))
         why = cause if rs.by_transport else "its index went back or jumped, and the next block continued it"
+        late_ms = round(rs.old_late_s * 1e3)
+        # the new run's first block may have waited behind the same backlog: that is the estimate's uncertainty
+        shorter = min(gap - 1, round(rs.old_late_s * acc.item[0].sample_rate))
+        backlog = (
+            f"; the host read the old run's end {late_ms} ms behind that clock: if it was still behind when the new "
+            f"run began, the gap is up to {shorter} samples shorter"
+            if late_ms and shorter > 0
+            else ""
+        )
         self._event(
             DriverEvent(
                 "restart",
@@ -361,7 +370,7 @@ class Driver(ABC):
                 gap,
                 f"device restarted ({why}): its index went to {rs.device_first}; segment {rs.segment} starts at stream "
                 f"index {rs.stream_first}, after an estimated {gap} missing samples (gap length estimated from the "
-                "host clock)",
+                f"host clock: the device's clock as its earliest blocks showed it{backlog})",
                 device_start=rs.device_first,
                 device_end=rs.device_first + acc.n,
             )

@@ -20,6 +20,14 @@ Stream index = device index + segment offset, continuous and monotonic across se
 of a new segment is placed after the old segment's end by the gap the host clock implies (an *estimate*:
 the device's own clock restarted, so nothing exact is left to count), at least one sample so that no
 reader can join the two runs as if they were contiguous.
+
+The host time at which the old run's end existed is not the arrival of its last block: on a busy host that
+block may be read a backlog late (0.33 s seen at load 7-9 on 2 cores), and the restart gap then shrank to 1
+sample (issue 30). It is the device's clock as its *earliest* blocks showed it: each block bounds the time its
+last sample existed from above (arrival minus what the device held beyond it), so the smallest bound over the
+run, carried forward at the sample rate, is the one a backlog does not move (a minimum of arrival times, the
+usual estimator of a one-way delay's fixed part). Carried forward with a slack of ``CLOCK_SLACK`` (1000 ppm,
+above a crystal's 100 ppm and NTP's 500 ppm slew), so that a device clock slower than the host's is followed.
 """
 
 from __future__ import annotations
@@ -30,6 +38,10 @@ from typing import Any
 #: Stream time must stay far inside int64 nanoseconds (2^63 ns = 292 years) even after a log adds its
 #: wall-clock t0 (~1.7e18 ns): stream indices end below 2^62 ns of stream time (146 years).
 MAX_STREAM_NS = 2**62
+#: the device-clock estimate (the earliest arrival bound, carried forward) may run this much faster than the
+#: samples it counts: 1000 ppm, above crystal tolerance (~100 ppm) and NTP slew (<= 500 ppm), so a slow device
+#: clock is followed; a backlog older than ``lateness / CLOCK_SLACK`` (0.3 s late: 300 s) is forgotten
+CLOCK_SLACK = 1e-3
 
 
 @dataclass(frozen=True)
@@ -41,6 +53,7 @@ class Restart:
     prev_end: int  # stream index one past the old segment's last sample
     stream_first: int  # stream index given to the new segment's first sample
     by_transport: bool = False  # the transport confirmed it (else: the next block continued the suspect)
+    old_late_s: float = 0.0  # how late the old run's last block arrived behind the device clock (a backlog, not counted)
 
     @property
     def estimated_gap(self) -> int:
@@ -131,7 +144,8 @@ class StreamSequencer:
         self._seg_first = expect_first  # device index the current segment started at
         self._offset = 0  # stream index - device index in the current segment
         self._t_ref = start_time  # host time of the last accepted block (plausibility reference)
-        self._t_end: float | None = None  # host time at which device sample ``_expected`` exists
+        self._t_end: float | None = None  # host time at which device sample ``_expected`` existed (device clock)
+        self._late_s = 0.0  # how far behind that clock the last accepted block arrived
         self._last_n = 0
         self._held: _Block | None = None
         self._started = False
@@ -202,7 +216,7 @@ class StreamSequencer:
         gap = max(1, round((t_first - self._t_end) * self.fs))
         prev_end = self.next_stream_index
         assert prev_end is not None
-        rs = Restart(self.segment + 1, blk.first, prev_end, prev_end + gap, by_transport)
+        rs = Restart(self.segment + 1, blk.first, prev_end, prev_end + gap, by_transport, self._late_s)
         if rs.stream_first + blk.n > self.max_index:
             return self._reject(blk, "the new segment would end beyond the log's time range")
         self.segment += 1
@@ -221,9 +235,15 @@ class StreamSequencer:
         self._started = True
         if self._expected is None:
             self._seg_first = blk.first
-        self._expected = blk.first + blk.n
+        end, old_end = blk.first + blk.n, self._expected
         self._t_ref = blk.now
-        self._t_end = blk.now + (self._expected - blk.produced) / self.fs
+        bound = blk.now + (end - blk.produced) / self.fs  # sample ``end`` existed no later than this
+        if restart is None and self._t_end is not None and old_end is not None:  # same run: the device clock so far
+            carried = self._t_end + (end - old_end) / self.fs * (1.0 + CLOCK_SLACK)
+            self._t_end, self._late_s = min(bound, carried), max(0.0, bound - carried)
+        else:
+            self._t_end, self._late_s = bound, 0.0
+        self._expected = end
         self._last_n = blk.n
         self.counts.accepted_samples += blk.n
         if gap is not None:

@@ -218,3 +218,35 @@ def test_property_every_good_sample_once_monotonic_segments_counts(sc: Script):
     assert seq.counts.restarts == len(sc.restarts)
     assert seq.counts.accepted_samples == sum(a.n for a in acc)
     assert seq.counts.gap_samples == sum(a.gap[1] - a.gap[0] for a in acc if a.gap is not None)
+
+
+def test_a_backlog_before_a_restart_does_not_shorten_the_estimated_gap():
+    """Issue 30, the serial restart cell under load: the old run's last 0.35 s were read 0.33 s late, in a burst
+    (a busy host), and the new run arrived on time 0.5 s after the old one went down. The gap is taken from the
+    device clock as the old run's prompt blocks showed it, not from its late last block (that gave 0.17 s)."""
+    fs = 16384.0
+    seq = StreamSequencer(fs)
+    late = 0.33
+    for k in range(16):  # 0 .. 1.0 s, each 1024-sample block on time (+1 ms)
+        seq.feed(1024 * k, 1024, (1024 * (k + 1)) / fs + 0.001)
+    for k in range(16, 24):  # 1.0 .. 1.5 s: read as one burst, 0.33 s behind
+        seq.feed(1024 * k, 1024, 1.5 + late)
+    (acc,) = seq.feed(0, 1024, 2.0 + 1024 / fs + 0.001, restart=True)  # new run: sample 0 at 2.0 s, on time
+    rs = acc.restart
+    assert rs is not None and rs.prev_end == 24 * 1024
+    # truth 0.5 s = 8192 samples; both runs' blocks came 1 ms after their last sample, so the estimate is exact
+    # to the rounding of the clock slack (1000 ppm x 0.5 s of the burst's samples = 8 samples)
+    assert abs(rs.estimated_gap - 0.5 * fs) <= 10, rs.estimated_gap
+    assert abs(rs.old_late_s - late) < 0.002  # said in the restart event, left out of the estimate
+
+
+def test_the_device_clock_estimate_follows_a_slow_device():
+    """A device clock 200 ppm slower than the host's: its blocks come later and later on the host clock; the
+    estimate, carried forward 1000 ppm fast, follows them (a pure minimum would lag by 200 ppm of the run)."""
+    fs = 1000.0
+    seq = StreamSequencer(fs)
+    for k in range(600):  # 600 s of 1000-sample blocks, each on time on the slow device's clock
+        seq.feed(1000 * k, 1000, (k + 1) * 1.0002)
+    (acc,) = seq.feed(0, 1000, 600 * 1.0002 + 1.0 + 1.0, restart=True)  # down 1 s, then a prompt first block
+    # the device clock at the old end is 600.12 s; the estimate can lag a block's worth of slack (1 ms) at most
+    assert abs(acc.restart.estimated_gap - 1.0 * fs) <= 2, acc.restart.estimated_gap

@@ -28,10 +28,18 @@ last sample existed from above (arrival minus what the device held beyond it), s
 run, carried forward at the sample rate, is the one a backlog does not move (a minimum of arrival times, the
 usual estimator of a one-way delay's fixed part). Carried forward with a slack of ``CLOCK_SLACK`` (1000 ppm,
 above a crystal's 100 ppm and NTP's 500 ppm slew), so that a device clock slower than the host's is followed.
+
+The new run's start has no such envelope yet: its first block is all there is when its index must be given, and
+that block came as late as blocks usually do behind the envelope (a serial driver reads in turns every 20 ms:
++17 ms at 2048 Hz, systematically, on an otherwise quiet host). So the new run's start is moved back by the
+*median* lateness of the old run's recent blocks (``LATE_WINDOW`` of them): the usual delay, which a backlog at the
+old run's end (a minority of the window) does not move.
 """
 
 from __future__ import annotations
 
+import statistics
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +50,8 @@ MAX_STREAM_NS = 2**62
 #: samples it counts: 1000 ppm, above crystal tolerance (~100 ppm) and NTP slew (<= 500 ppm), so a slow device
 #: clock is followed; a backlog older than ``lateness / CLOCK_SLACK`` (0.3 s late: 300 s) is forgotten
 CLOCK_SLACK = 1e-3
+#: blocks whose lateness behind the device clock gives the usual delay a restart's first block is corrected by
+LATE_WINDOW = 2048
 
 
 @dataclass(frozen=True)
@@ -146,6 +156,7 @@ class StreamSequencer:
         self._t_ref = start_time  # host time of the last accepted block (plausibility reference)
         self._t_end: float | None = None  # host time at which device sample ``_expected`` existed (device clock)
         self._late_s = 0.0  # how far behind that clock the last accepted block arrived
+        self._lates: deque[float] = deque(maxlen=LATE_WINDOW)  # the same, for the run's recent blocks
         self._last_n = 0
         self._held: _Block | None = None
         self._started = False
@@ -213,7 +224,8 @@ class StreamSequencer:
             self._expected = self._seg_first = None
             return self._accept(blk, None, None)
         t_first = blk.now - (blk.produced - blk.first) / self.fs  # host time device sample blk.first existed
-        gap = max(1, round((t_first - self._t_end) * self.fs))
+        usual = statistics.median(self._lates) if self._lates else 0.0  # its usual lateness (module docstring)
+        gap = max(1, round((t_first - usual - self._t_end) * self.fs))
         prev_end = self.next_stream_index
         assert prev_end is not None
         rs = Restart(self.segment + 1, blk.first, prev_end, prev_end + gap, by_transport, self._late_s)
@@ -243,6 +255,8 @@ class StreamSequencer:
             self._t_end, self._late_s = min(bound, carried), max(0.0, bound - carried)
         else:
             self._t_end, self._late_s = bound, 0.0
+            self._lates.clear()
+        self._lates.append(self._late_s)
         self._expected = end
         self._last_n = blk.n
         self.counts.accepted_samples += blk.n

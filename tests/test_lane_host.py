@@ -122,10 +122,18 @@ def _run(session: Session):
 
 @pytest.fixture(scope="module")
 def both_modes(tmp_path_factory):
+    import daq.lanes.host as host_module
+
     d = tmp_path_factory.mktemp("host")
     worker = _session(_cfg("worker"), d / "worker.mcap")
     pid, nice = worker.host.pids[0], os.getpriority(os.PRIO_PROCESS, worker.host.pids[0])
-    res_w = _run(worker)
+    # the same results as the thread mode need every sample analysed: the worker at nice +10 may take longer than the
+    # recorder's 5 s to catch up after the data on a loaded host (4 hogs beside make test: it skipped the last 922)
+    catch_up, host_module.END_CATCH_UP_S = host_module.END_CATCH_UP_S, 120.0
+    try:
+        res_w = _run(worker)
+    finally:
+        host_module.END_CATCH_UP_S = catch_up
     res_t = _run(_session(_cfg("thread"), d / "thread.mcap"))
     return (d / "worker.mcap", res_w, pid, nice), (d / "thread.mcap", res_t)
 
@@ -170,7 +178,9 @@ def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(t
     restarted = [e for e in events if e["kind"] == "lane_restarted"]
     off = [e for e in events if e["kind"] == "analysis_error"]
     assert len(restarted) == 1 and restarted[0]["from_index"] < restarted[0]["to_index"]
-    assert len(off) == 1 and "died a second time" in off[0]["message"] and lines == [off[0]["message"]]
+    # the second kill lands mid-session, or (a loaded host: the restarted worker's start took seconds) while it finishes
+    msg = off[0]["message"] if len(off) == 1 else ""
+    assert ("died a second time" in msg or "died while finishing" in msg) and lines == [msg], off
     overrun = next(e for e in events if e["kind"] == "analysis_overrun")
     r = restarted[0]
     assert [r["from_index"], r["to_index"]] in [list(x) for x in overrun["ranges"]]  # the lost range, counted exactly

@@ -24,8 +24,9 @@ run: $(VENV)/.installed
 
 # numba's cache built first, one group a core (tests/warm_numba.py says why); then two phases: everything else on
 # two workers more than the cores (much of the suite waits on real-time sessions, and a recording must hold on a busy
-# host: issue 30; on 2 cores 4 workers took 353 s where 3 took 437 s, quiet, and kept the cores 89 % busy), then
-# the host_timing tests alone (pyproject.toml's markers say why).
+# host: issue 30; on 2 cores 4 workers kept the cores 89 % busy; 353 s against 437 s for 3, but in runs an hour apart
+# on a machine whose speed drifted by 30 %, so the gain is not proven), then the host_timing tests alone
+# (pyproject.toml's markers say why).
 HOST_TIMING_FILES := tests/test_two_devices.py tests/test_load_matrix.py
 test: $(VENV)/.installed-dev
 	$(BIN)/python tests/warm_numba.py sweep & p=$$!; $(BIN)/python tests/warm_numba.py analysis && wait $$p

@@ -30,8 +30,8 @@ run: $(VENV)/.installed
 HOST_TIMING_FILES := tests/test_two_devices.py tests/test_load_matrix.py
 test: $(VENV)/.installed-dev
 	$(BIN)/python tests/warm_numba.py sweep & p=$$!; $(BIN)/python tests/warm_numba.py analysis && wait $$p
-	$(BIN)/python -m pytest -n $$(( $$(nproc) + 2 )) --dist loadfile -m "not host_timing"
-	$(BIN)/python -m pytest -m host_timing $(HOST_TIMING_FILES)
+	$(BIN)/python -m pytest -n $$(( $$(nproc) + 2 )) --dist loadfile --durations=25 -m "not host_timing"
+	$(BIN)/python -m pytest --durations=15 -m host_timing $(HOST_TIMING_FILES)
 
 # make test with 4 CPU hogs running beside it (issue 30); GVT_HOGS=n for another count
 test-loaded: $(VENV)/.installed-dev

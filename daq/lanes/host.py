@@ -332,10 +332,16 @@ class LaneHost:
 
     # --- finishing (the recorder's stop order) ----------------------------------------------------------
     def finish_analysis(self, deadline: float) -> None:
-        """After the fan-out closed: the forwarder sends the end, the worker's last windows and events come back."""
-        self._fwd.join(max(0.0, deadline - time.monotonic()))
-        if not self._analysis_done.wait(max(0.0, min(END_CATCH_UP_S, deadline - time.monotonic()))):
+        """After the fan-out closed: the forwarder sends the end, the worker's last windows and events come back.
+
+        The catch-up time covers the forwarder too: on a loaded host it waits on a pipe the worker at nice +10 does not
+        read, and joining it up to the whole deadline held the session 60 s after its data (the load matrix at 8 hogs).
+        Once the catch-up time is over, the worker is hurried: it skips what it still holds, which frees the pipe."""
+        catch_up = time.monotonic() + max(0.0, min(END_CATCH_UP_S, deadline - time.monotonic()))
+        self._fwd.join(max(0.0, catch_up - time.monotonic()))
+        if not self._analysis_done.wait(max(0.0, catch_up - time.monotonic())):
             self._hurry.set()  # the worker skips the rest and says which ranges
+            self._fwd.join(max(0.0, deadline - time.monotonic()))
             if not self._analysis_done.wait(max(0.0, deadline - time.monotonic())):
                 self._abandon("the analysis of the stream's last blocks")
                 self._recv.join(3.0)  # the killed worker's EOF: its in-flight blocks become shed ranges (``_died``)

@@ -244,8 +244,7 @@ def trajectory(
     a, b = (c.c if isinstance(c, AnalyticMemo) else np.asarray(c, dtype=np.float64) for c in (comp_low, comp_high))
     if a.shape != b.shape or a.ndim != 1:
         raise ValueError(f"trajectory: components must be 1-D of equal length, got {a.shape} and {b.shape}")
-    ma = memo(comp_low, fs) if isinstance(comp_low, AnalyticMemo) else AnalyticMemo(a, fs)
-    mb = memo(comp_high, fs) if isinstance(comp_high, AnalyticMemo) else AnalyticMemo(b, fs)
+    ma, mb = memo(comp_low, fs), memo(comp_high, fs)
     lp = default_lowpass_hz(ma, fs) if lowpass_hz is None else float(lowpass_hz)
     ia = ma(lp)
     ib = mb(lp)

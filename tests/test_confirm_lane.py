@@ -247,13 +247,21 @@ def _kill_first_pool_worker(killed: list, stop: threading.Event) -> None:
         time.sleep(0.02)
 
 
-def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms_the_rest_and_exits_on_time(tmp_path):
+def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms_the_rest_and_exits_on_time(
+    tmp_path, monkeypatch
+):
     """Issue 30, "Must show": the worker killed mid-session (SIGKILL, as the OOM killer would). The recorder restarts
     it, the event it held is `error` "worker restarted", the later ones are confirmed, and the session ends."""
     from analysis.model.rigs import open_rig
     from daq.config.session import DeviceSpec, SessionConfig, TriggerSpec
+    from daq.lanes import host as host_module
     from daq.log.reader import LogReader
     from daq.session import run_session
+
+    # the lane worker at nice +10 must reach the IR events for a confirmation worker to exist at all: in CI (2 cores,
+    # 4 test workers) it was starved past the 5 s catch-up after the data, skipped what it held, and no confirmation
+    # worker was ever started, so there was nothing to kill (killed == [], exit 0)
+    monkeypatch.setattr(host_module, "END_CATCH_UP_S", 120.0)
 
     cfg = SessionConfig(name="killed-worker", rig="beam_ch4_exp", duration=1.6, trigger=TriggerSpec(level=20.0),
                         device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 256, "forces": [1583.0],
@@ -267,8 +275,9 @@ def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms
         stop.set()
     wall = time.monotonic() - t0
     # ~6 s on a quiet machine (set-up, 1.6 s of data, three confirmations); the bound leaves room for a loaded CI
-    # machine, and is far below the 120 s drain limit a wait on the dead worker would run into
-    assert wall < 40.0 and res.outcome.exit_code == 0 and len(killed) == 1
+    # machine, and is half the 120 s drain limit a wait on the dead worker would run into
+    assert len(killed) == 1, f"no confirmation worker appeared in {wall:.1f} s (IR events: {len(res.analysis_events)})"
+    assert wall < 60.0 and res.outcome.exit_code == 0, (wall, res.outcome)
     recs = res.confirmations
     marked = [r for r in recs if r["status"] == "error"]
     assert marked and all(r["reason"] == RESTARTED for r in marked)

@@ -218,6 +218,7 @@ def _coloured(png: bytes, box: tuple[int, int, int, int]) -> tuple[int, int]:
 
 
 @pytest.mark.browser
+@pytest.mark.alone
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (Debian: apt-get install chromium)")
 def test_rerun_web_viewer_plots_the_preview_in_headless_chromium(logs, tmp_path):
     from daq.view.preview import preview_blueprint

@@ -11,12 +11,17 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# The project's packages go in with uv: the same versions pip resolves (all 113 compared on this machine), in 25 s
+# against pip's 2-4 minutes on a cold 2-core machine, and the install counts in make test's 10 minutes on CI. pip
+# installs them if uv cannot be had or fails.
+UV_INSTALL = $(BIN)/python -m pip install --quiet uv && $(BIN)/uv pip install --quiet --python $(BIN)/python
+
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e .
+	$(UV_INSTALL) -e . || $(BIN)/python -m pip install --quiet -e .
 	touch $@
 
 $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(UV_INSTALL) -e ".[dev]" || $(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $@ $(VENV)/.installed
 
 run: $(VENV)/.installed

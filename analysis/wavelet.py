@@ -151,6 +151,11 @@ def analytic(c: ArrayLike, fs: float, lowpass_hz: float | None = 1.0, order: int
     return AnalyticMemo(c, fs)(lowpass_hz, order)
 
 
+def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    a.flags.writeable = False
+    return a
+
+
 class AnalyticMemo:
     """:func:`analytic` of one component, asked for again and again: the Hilbert transform, amplitude, unwrapped
     phase and raw frequency are computed once, the low-passed frequency once per (cut-off, order).
@@ -158,8 +163,8 @@ class AnalyticMemo:
     Why: one confirmation reads the same two IMFs' analytic signals 24 times (each of the ten slow-flow
     trajectories of :func:`analysis.slowflow.test_ratios` and the slow-angle test, and the mean frequencies),
     although only the frequency's low-pass differs between them (issue 30, item 5). The numbers are those of
-    :func:`analytic`, which is this class asked once. The arrays handed out are shared: callers must not write
-    into them.
+    :func:`analytic`, which is this class asked once. The arrays handed out are shared between callers, so they
+    are read-only: a caller that wrote into one would change every later answer (numpy raises instead).
     """
 
     def __init__(self, c: ArrayLike, fs: float) -> None:
@@ -177,7 +182,8 @@ class AnalyticMemo:
         if self._raw is None:
             z = signal.hilbert(self.c)
             phase = np.unwrap(np.angle(z))
-            self._raw = Instantaneous(amplitude=np.abs(z), phase=phase, frequency_hz=np.gradient(phase) * fs / (2.0 * np.pi))
+            self._raw = Instantaneous(amplitude=_frozen(np.abs(z)), phase=_frozen(phase),
+                                      frequency_hz=_frozen(np.gradient(phase) * fs / (2.0 * np.pi)))  # fmt: skip
         raw = self._raw
         if lowpass_hz is None:
             return raw
@@ -187,5 +193,5 @@ class AnalyticMemo:
         if key not in self._low:
             sos = signal.butter(order, lowpass_hz, btype="low", fs=fs, output="sos")
             padlen = min(self.c.size - 1, 3 * (2 * sos.shape[0] + 1))
-            self._low[key] = signal.sosfiltfilt(sos, raw.frequency_hz, padlen=padlen)
+            self._low[key] = _frozen(signal.sosfiltfilt(sos, raw.frequency_hz, padlen=padlen))
         return Instantaneous(amplitude=raw.amplitude, phase=raw.phase, frequency_hz=self._low[key])

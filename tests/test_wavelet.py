@@ -97,3 +97,18 @@ def test_shorter_padding_for_display_stays_within_1e_4_of_the_exact_transform():
     short = np.abs(morlet_cwt(x, fs, f, pad_sigmas=4.0))
     assert np.abs(short - exact).max() <= 1e-4 * exact.max()
     assert np.abs(np.abs(morlet_cwt(x, fs, f, pad_sigmas=1.0)) - exact).max() > 1e-3 * exact.max()
+
+
+def test_analytic_memo_hands_out_read_only_arrays():
+    """The memo's arrays are shared by every caller that asks again: writing into one must fail, not change the
+    next answer."""
+    from analysis.wavelet import AnalyticMemo
+
+    fs = 1000.0
+    t = np.arange(2000) / fs
+    memo = AnalyticMemo(np.sin(2 * np.pi * 12.0 * t), fs)
+    first = memo(1.0)
+    for arr in (first.amplitude, first.phase, first.frequency_hz, memo(None).frequency_hz):
+        with pytest.raises(ValueError):
+            arr[0] = 0.0
+    assert memo(1.0).frequency_hz is first.frequency_hz  # the same array, unchanged

@@ -186,7 +186,7 @@ def test_fuzz_truncation_recovers_exactly_a_prefix(any_clean, tmp_path):
     assert any(lost_flags) and not all(lost_flags)
 
 
-def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
+def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path, gvt_fork):
     src, data = clean
     raw = bytearray(src.read_bytes())
     with open(src, "rb") as f:
@@ -201,15 +201,16 @@ def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
     assert plain["named_events"]["suspect channels"] == ["c2: channel c2 clipped"] and plain["events"] == {"suspect_channel": 1}
     info = log_info(p, verify=True)
     s = info["streams"][0]
-    v = subprocess.run([*gvt_command(), "log", "info", "--verify", str(p)], capture_output=True, text=True, timeout=60)
+    v = gvt_fork(["log", "info", "--verify", str(p)])[2]
     assert v.returncode == 3 and "DAMAGED: samples" in v.stdout
-    assert subprocess.run([*gvt_command(), "log", "info", "--verify", str(src)], capture_output=True, timeout=60).returncode == 0
+    assert gvt_fork(["log", "info", "--verify", str(src)])[2].returncode == 0
     assert info["health"].startswith("damaged") and len(s["damaged"]) == 1
     a, b, _why = s["damaged"][0]
     d = LogReader(p).read_stream("dev0", on_damage="skip")
     missing = sorted(set(range(len(data))) - set(d.index.tolist()))
     assert missing == list(range(a, b))  # exactly the samples that are not there
     assert d.data.tobytes() == data[d.index].tobytes()
+    # a real ``gvt`` process (the others here are forked): its exit code and its whole stderr as a shell sees them
     proc = subprocess.run([*gvt_command(), "log", "export", str(p), "--out", str(tmp_path / "x.npz")],
                           capture_output=True, text=True, timeout=60)  # fmt: skip
     assert proc.returncode == 3 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
@@ -220,24 +221,79 @@ def test_a_flipped_chunk_is_named_with_its_samples(clean, tmp_path):
     assert "suspect channels: c2" in __import__("daq.log.tools", fromlist=["x"]).info_text(info)
 
 
-def _rss_run(args: list[str]) -> tuple[int, float, subprocess.CompletedProcess]:
-    """(peak resident kB, CPU seconds, the process) of one ``gvt`` run. The time bound is on CPU time (user +
-    system of the child), the work the input made it do: wall time also counts whatever else the machine is
-    running (under the suite's own two workers and a busy host, ``gvt report`` took 14 s of wall; on a quiet machine
-    every verb here costs at most 2.5 s of CPU)."""
-    code = (
-        "import resource,subprocess,sys;"
-        "p=subprocess.run(sys.argv[1:],capture_output=True,text=True);"
-        "u=resource.getrusage(resource.RUSAGE_CHILDREN);"
-        "print(u.ru_maxrss, u.ru_utime+u.ru_stime, p.returncode);"
-        "sys.stderr.write(p.stderr)"
-    )
-    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120)
-    kb, secs, _rc = proc.stdout.split()
-    return int(kb), float(secs), proc
+#: The modules the ``gvt`` verbs run here import lazily (``python -X importtime``): the fork server loads them once.
+_PRELOAD = ("daq.log.tools", "daq.log.export", "daq.replay_session", "daq.outputs", "daq.studies.analyze.batch",
+            "daq.studies.confirm", "daq.studies.report.build", "analysis.confirm", "analysis.model.config")  # fmt: skip
+
+#: A fork server: it imports ``daq.cli`` and the verbs' modules once, then for each command line read from stdin
+#: forks a child that runs it (``daq.cli.run``, the console script's body) with stdin from /dev/null and
+#: stdout/stderr into files, and exits with its code. ``os.wait4`` gives that child's own exit status, peak
+#: RSS and CPU (its waited-for children included, as RUSAGE_CHILDREN did for a ``gvt`` subprocess); an
+#: uncaught exception prints its traceback to the child's stderr; a child still running after 120 s is
+#: ended by its own SIGALRM (exit -14).
+_FORK_GVT = """
+import importlib, json, os, signal, sys, tempfile, traceback
+import matplotlib
+matplotlib.use("Agg")
+import matplotlib.pyplot
+from daq.cli import run
+for m in sys.argv[1:]:
+    importlib.import_module(m)
+for line in sys.stdin:
+    argv = json.loads(line)
+    out, err = tempfile.TemporaryFile(), tempfile.TemporaryFile()
+    sys.stdout.flush(); sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:
+        signal.alarm(120)
+        os.dup2(os.open(os.devnull, os.O_RDONLY), 0); os.dup2(out.fileno(), 1); os.dup2(err.fileno(), 2)
+        try:
+            rc = run(argv)
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else 1
+        except BaseException:
+            traceback.print_exc(); rc = 1
+        sys.stdout.flush(); sys.stderr.flush()
+        os._exit(rc)
+    _pid, status, ru = os.wait4(pid, 0)
+    out.seek(0); err.seek(0)
+    print(json.dumps([ru.ru_maxrss, ru.ru_utime + ru.ru_stime, os.waitstatus_to_exitcode(status),
+                      out.read().decode(errors="replace"), err.read().decode(errors="replace")]), flush=True)
+"""
 
 
-def test_decompression_bombs_stay_bounded(clean, tmp_path):
+@pytest.fixture(scope="module")
+def gvt_fork(tmp_path_factory):
+    """``run(argv) -> (peak resident kB, CPU seconds, the process)``: each ``gvt`` command line its own process,
+    forked from one that has paid the imports (1-2.5 CPU-s a fresh ``gvt``; 14 + 4 + 6 runs here). The time
+    bound below is on CPU time (user + system of the child), the work the input made it do: wall time also
+    counts whatever else the machine is running (under the suite's own two workers and a busy host, ``gvt
+    report`` took 14 s of wall). The child's CPU is the verb's work alone (each ~0.1 s here), and its peak RSS
+    counts the parent's pages it started with (~130 MB of libraries), so the 500 MB bound is stricter than for
+    a fresh ``gvt`` (which needed at most ~210 MB)."""
+    import json
+
+    log = (tmp_path_factory.mktemp("fork") / "server.err").open("w+")
+    server = subprocess.Popen([sys.executable, "-c", _FORK_GVT, *_PRELOAD], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, stderr=log, text=True)  # fmt: skip
+
+    def run(argv: list[str]) -> tuple[int, float, subprocess.CompletedProcess]:
+        server.stdin.write(json.dumps(argv) + "\n")
+        server.stdin.flush()
+        line = server.stdout.readline()
+        log.seek(0)
+        assert line, f"the fork server died: {log.read()}"
+        kb, secs, rc, out, err = json.loads(line)
+        return int(kb), float(secs), subprocess.CompletedProcess(argv, rc, out, err)
+
+    yield run
+    server.stdin.close()
+    assert server.wait(timeout=60) == 0
+    log.seek(0)
+    assert "Traceback" not in log.read()
+
+
+def test_decompression_bombs_stay_bounded(clean, tmp_path, gvt_fork):
     """A chunk declaring 3 GB, and a 1 GB zstd frame in an unindexed log: damage, under 500 MB and 10 s of CPU."""
     src, _data = clean
     raw = bytearray(src.read_bytes())
@@ -252,18 +308,19 @@ def test_decompression_bombs_stay_bounded(clean, tmp_path):
     first = src.read_bytes()[: ci.chunk_start_offset]
     bomb = tmp_path / "bomb.mcap"
     bomb.write_bytes(first + bytes([6]) + struct.pack("<Q", len(body)) + body)
-    for p in (declared, bomb):
-        for verb in (["log", "info", "--verify", str(p)], ["log", "info", str(p)],
-                     ["log", "recover", str(p), str(tmp_path / "r.mcap"), "--overwrite"],
-                     ["log", "export", str(p), "--out", str(tmp_path / "x.npz"), "--overwrite"],
-                     ["replay", str(p), "--no-analysis"], ["analyze", str(p)],
-                     ["report", str(p), "--out", str(tmp_path / "r.html"), "--overwrite"]):  # fmt: skip
-            kb, secs, proc = _rss_run([*gvt_command(), *verb])
-            assert kb < 500 * 1024 and secs < 10, (verb, kb, secs)
-            assert "Traceback" not in proc.stderr, proc.stderr
+    verbs = [v for p in (declared, bomb)
+             for v in (["log", "info", "--verify", str(p)], ["log", "info", str(p)],
+                       ["log", "recover", str(p), str(tmp_path / "r.mcap"), "--overwrite"],
+                       ["log", "export", str(p), "--out", str(tmp_path / "x.npz"), "--overwrite"],
+                       ["replay", str(p), "--no-analysis"], ["analyze", str(p)],
+                       ["report", str(p), "--out", str(tmp_path / "r.html"), "--overwrite"])]  # fmt: skip
+    for verb in verbs:
+        kb, secs, proc = gvt_fork(verb)
+        assert kb < 500 * 1024 and secs < 10, (verb, kb, secs)
+        assert "Traceback" not in proc.stderr, proc.stderr
 
 
-def test_hostile_rig_attachment_is_refused_before_allocating(tmp_path):
+def test_hostile_rig_attachment_is_refused_before_allocating(tmp_path, gvt_fork):
     p = tmp_path / "rig.mcap"
     text = (Path(__file__).resolve().parents[1] / "configs" / "rigs").glob("*.toml")
     rig = next(iter(sorted(text))).read_text()
@@ -275,9 +332,10 @@ def test_hostile_rig_attachment_is_refused_before_allocating(tmp_path):
         w.add_stream("dev0", chans, 2048.0, t0_ns=0)
         w.add_attachment("rig/hostile.toml", hostile.encode(), "application/toml")
         w.write_block(SampleBlock("dev0", 0, 2048.0, ("c0",), np.zeros((256, 1), np.float32)), wait=True)
-    for verb in (["analyze", str(p)], ["confirm", str(p), "--out", str(tmp_path / "c.mcap")],
-                 ["report", str(p), "--out", str(tmp_path / "r.html")], ["replay", str(p)]):  # fmt: skip
-        kb, secs, proc = _rss_run([*gvt_command(), *verb])
+    verbs = [["analyze", str(p)], ["confirm", str(p), "--out", str(tmp_path / "c.mcap")],
+             ["report", str(p), "--out", str(tmp_path / "r.html")], ["replay", str(p)]]  # fmt: skip
+    for verb in verbs:
+        kb, secs, proc = gvt_fork(verb)
         assert kb < 500 * 1024 and secs < 10 and "Traceback" not in proc.stderr, (verb, kb, secs, proc.stderr)
         assert "elements" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, (verb, proc.stderr)
 
@@ -297,7 +355,7 @@ def _chunk_spans(raw: bytes) -> list[tuple[int, int]]:
 
 
 @pytest.mark.parametrize("case", ["duplicated", "missing", "duplicated_no_summary", "missing_no_summary"])
-def test_recover_duplicated_and_missing_chunks(clean, tmp_path, case):
+def test_recover_duplicated_and_missing_chunks(clean, tmp_path, case, gvt_fork):
     """A chunk written twice keeps its samples once (nothing lost: exit 0); a chunk that is gone is data lost
     (exit 3) and exactly its samples are missing — with the summary (which then points at wrong offsets) and
     without it (a copy cut before its summary)."""
@@ -310,8 +368,7 @@ def test_recover_duplicated_and_missing_chunks(clean, tmp_path, case):
         body = body[: next(r for r in _record_map(body) if r[2] == "data_end")[0]]
     p = tmp_path / "in.mcap"
     p.write_bytes(body)
-    proc = subprocess.run([*gvt_command(), "log", "recover", str(p), str(tmp_path / "out.mcap")],
-                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    proc = gvt_fork(["log", "recover", str(p), str(tmp_path / "out.mcap")])[2]
     assert "Traceback" not in proc.stderr
     d = LogReader(tmp_path / "out.mcap").read_stream("dev0")
     assert d.data.tobytes() == data[d.index].tobytes() and len(set(d.index.tolist())) == len(d.index)

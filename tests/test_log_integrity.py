@@ -1,8 +1,9 @@
 """Verified reads (issue 19): bit flips, truncation, decompression bombs — no garbage passed on, no crash.
 
-``make test`` runs seeded subsets (60 offsets a width, every 16th byte of the last 4 KB, 50 cuts); ``make fuzz``
-(GVT_FUZZ_EXAMPLES set) more than the issue's counts: 2000 offsets × flips of 1, 8 and 64 bytes, every byte of the
-last 4 KB and 500 random cuts.
+``make test`` runs seeded subsets (60 offsets a width, every 16th byte of the last 4 KB, 50 cuts) of a 40-chunk log;
+``make fuzz`` (GVT_FUZZ_EXAMPLES set) more than the issue's counts on a 120-chunk log: 2000 offsets × flips of 1, 8
+and 64 bytes, every byte of the last 4 KB and 500 random cuts. The ``gvt`` verbs run as processes forked from one
+server that has loaded their libraries (``gvt_fork``); one ``gvt log export`` is a fresh process.
 """
 
 from __future__ import annotations

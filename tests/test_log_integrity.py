@@ -271,7 +271,7 @@ for line in sys.stdin:
 @pytest.fixture(scope="module")
 def gvt_fork(tmp_path_factory):
     """``run(argv) -> (peak resident kB, CPU seconds, the process)``: each ``gvt`` command line its own process,
-    forked from one that has paid the imports (1-2.5 CPU-s a fresh ``gvt``; 14 + 4 + 6 runs here). The time
+    forked from one that has paid the imports (0.4-2.5 CPU-s a fresh ``gvt``; 14 + 4 + 6 runs here). The time
     bound below is on CPU time (user + system of the child), the work the input made it do: wall time also
     counts whatever else the machine is running (under the suite's own two workers and a busy host, ``gvt
     report`` took 14 s of wall). The child's CPU is the verb's work alone (each ~0.1 s here), and its peak RSS

@@ -1,4 +1,6 @@
-"""The gvt command line, run as a user runs it (a subprocess of the installed console script)."""
+"""The gvt command line. The verbs' work runs in this process (``daq.cli.run``, which maps every error to the
+line and exit code the console script gives: the imports of a child process cost 1-2 CPU-s each); the console
+script itself, as a shell runs it, is under test in the usage and help tests at the end."""
 
 from __future__ import annotations
 
@@ -8,40 +10,56 @@ import subprocess
 import numpy as np
 import pytest
 
+from daq.cli import run as gvt_run
+
 from .conftest import gvt_command
 
 TABLE_3_1 = [3.794, 23.78, 66.60, 130.6, 216.2, 323.9, 454.5, 608.9, 787.3, 978.7]
 
 
 def run(*args, timeout=300):
+    """The installed console script in a child process, as a shell runs it."""
     return subprocess.run([*gvt_command(), *args], capture_output=True, text=True, timeout=timeout)
 
 
-def test_model_modes_json_prints_the_table_3_1_numbers():
-    p = run("model", "modes", "beam_ch3", "--json")
+@pytest.fixture
+def gvt(capsys):
+    """``gvt`` in this process: a completed process's fields (returncode, stdout, stderr)."""
+
+    def call(*args: str) -> subprocess.CompletedProcess:
+        capsys.readouterr()
+        code = gvt_run(list(args))
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(list(args), code, out, err)
+
+    return call
+
+
+def test_model_modes_json_prints_the_table_3_1_numbers(gvt):
+    p = gvt("model", "modes", "beam_ch3", "--json")
     assert p.returncode == 0, p.stderr
     rep = json.loads(p.stdout)
     f = np.array([m["frequency_hz"] for m in rep["modes"]])
     assert np.all(np.abs(f / TABLE_3_1 - 1) < 1e-3)
 
 
-def test_model_modes_high_limit():
-    p = run("model", "modes", "configs/rigs/beam_ch4_sim.toml", "--json", "--limit", "high", "--count", "4")
+def test_model_modes_high_limit(gvt):
+    p = gvt("model", "modes", "configs/rigs/beam_ch4_sim.toml", "--json", "--limit", "high", "--count", "4")
     assert p.returncode == 0, p.stderr
     f = np.array([m["frequency_hz"] for m in json.loads(p.stdout)["modes"]])
     assert np.all(np.abs(f / [16.70, 54.11, 112.89, 193.05] - 1) < 5e-3)
 
 
-def test_model_modes_table_and_bad_limit():
-    p = run("model", "modes", "beam_ch4_exp")
+def test_model_modes_table_and_bad_limit(gvt):
+    p = gvt("model", "modes", "beam_ch4_exp")
     assert p.returncode == 0 and "20.80" in p.stdout and "Guyan" in p.stdout
-    bad = run("model", "modes", "beam_ch4_exp", "--limit", "middle")
+    bad = gvt("model", "modes", "beam_ch4_exp", "--limit", "middle")
     assert bad.returncode == 2 and "--limit" in bad.stderr
 
 
-def test_simulate_writes_npz_with_ground_truth(tmp_path):
+def test_simulate_writes_npz_with_ground_truth(gvt, tmp_path):
     out = tmp_path / "hit.npz"
-    p = run("simulate", "beam_ch4_exp", "--force", "200", "--duration", "0.5", "--out", str(out))
+    p = gvt("simulate", "beam_ch4_exp", "--force", "200", "--duration", "0.5", "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert "wrote" in p.stdout and out.exists()
     with np.load(out) as z:
@@ -59,16 +77,16 @@ def test_simulate_writes_npz_with_ground_truth(tmp_path):
         assert err < 0.2  # m/s^2: 0.02 rms noise, 5 sigma << 0.2
 
 
-def test_simulate_rejects_bad_output_path(tmp_path):
-    p = run("simulate", "two_dof", "--out", str(tmp_path / "x.csv"))
+def test_simulate_rejects_bad_output_path(gvt, tmp_path):
+    p = gvt("simulate", "two_dof", "--out", str(tmp_path / "x.csv"))
     assert p.returncode == 2 and ".npz" in p.stderr
-    p = run("simulate", "two_dof", "--out", str(tmp_path / "missing" / "x.npz"))
+    p = gvt("simulate", "two_dof", "--out", str(tmp_path / "missing" / "x.npz"))
     assert p.returncode == 2 and "does not exist" in p.stderr
 
 
-def test_demo_runs_and_shows_nnm1_moving_with_energy_and_a_session(tmp_path):
+def test_demo_runs_and_shows_nnm1_moving_with_energy_and_a_session(gvt, tmp_path):
     out = tmp_path / "demo.mcap"
-    p = run("demo", "--duration", "2.0", "--out", str(out))
+    p = gvt("demo", "--duration", "2.0", "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert "NNM1 frequency" in p.stdout and "strong" in p.stdout and "weak" in p.stdout
     assert "hits and verdicts (10 found)" in p.stdout and "double_hit" in p.stdout and "nothing lost" in p.stdout
@@ -77,7 +95,7 @@ def test_demo_runs_and_shows_nnm1_moving_with_energy_and_a_session(tmp_path):
     assert LogReader(out).report.complete and len(LogReader(out).json_messages("/daq/hits")) == 10
     # issue 29: the demo log's modes are the linear FE modes 1-6, paired one to one, none extra and none flagged
     # (its three 30 N hits are averaged; the 150-1583 N hits, on the cubic spring, are left out and said)
-    p = run("modal", str(out), "--json")
+    p = gvt("modal", str(out), "--json")
     assert p.returncode == 0, p.stderr
     modes = json.loads(p.stdout)["modes"]
     assert [m["fe_mode"] for m in modes] == [1, 2, 3, 4, 5, 6] and not any(m["flags"] for m in modes)
@@ -99,8 +117,8 @@ def test_usage_errors_exit_2(args):
         (["frobnicate"], "No such command"),
     ],
 )
-def test_bad_values_give_one_line(args, text):
-    p = run(*args)
+def test_bad_values_give_one_line(gvt, args, text):
+    p = gvt(*args)
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and len(lines) == 1 and text in lines[0] and p.stdout == ""
 

@@ -106,7 +106,9 @@ def _samples_in_status(proc: subprocess.Popen, at_least: int, timeout: float = 9
 def test_sigterm_finalises_the_file_and_a_second_recorder_on_it_is_refused(tmp_path, capsys):
     """One real recorder for both (each cost a recorder process, ~6 CPU-s): the second, refused recorder runs in
     this process (``daq.cli.run``: the console script's line and code), the first is SIGTERMed after it."""
-    proc, out = _record(tmp_path, "30")
+    # 12 s of data (was 30): stopped at 2 s, 10 s before its end; the simulated device computes the whole
+    # session's signal at the start, so each second of --duration costs ~0.15 CPU-s (12 s: 5.1 CPU-s, 30 s: 8.1)
+    proc, out = _record(tmp_path, "12")
     seen = _samples_in_status(proc, 2 * 16384)
     capsys.readouterr()
     code = run(["record", str(CFG), "--out", str(out), "--overwrite"])
@@ -153,7 +155,9 @@ def test_sigkill_is_recoverable_losing_at_most_about_a_second_and_leaves_no_chil
     """One real recorder, with the viewer on, for both checks (each cost a recorder process, 9-12 CPU-s): the
     confirmation worker (~300 MB) and the rerun viewer server used to outlive a SIGKILLed recorder; and what it
     wrote is recoverable, losing at most about a second."""
-    proc, out = _record(tmp_path, "60", "--view")
+    # 30 s of data (was 60; ~0.15 CPU-s a second, see above): 28 s past the 2 s awaited for the viewer and the
+    # confirmation worker to appear (seconds after the first hit at 0.2 s, on a loaded host)
+    proc, out = _record(tmp_path, "30", "--view")
     try:
         seen = _samples_in_status(proc, 2 * 16384)
         until = time.monotonic() + 60

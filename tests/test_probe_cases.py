@@ -1,8 +1,9 @@
 """The reliability probe's remaining cases (issue 30, items 6 and 7): each is one line, the right exit code
 (2 bad input, 1 runtime failure, 3 data lost) and nothing lost or replaced that the user had.
 
-The live-file case runs a real ``gvt record`` (a short paced session in a child process) and points other
-verbs at the file it is writing; the rest call the verbs in this process (``daq.cli.run``), which is cheap.
+The live-file case (every verb refuses the log a real ``gvt record`` child process writes) is in
+tests/test_session.py, beside the SIGTERM check that shares its recorder; the rest call the verbs in this process
+(``daq.cli.run``), which is cheap; the two Modbus cases run a recorder process, whose stderr and signal are tested.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import pytest
 from daq.cli import run
 from daq.log.reader import LogReader
 
-from .conftest import gvt_command
 from .test_record_matrix import session_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,48 +33,9 @@ def one_error(capsys, code: int, expected: int = 2) -> str:
     return lines[0]
 
 
-def _locked(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> None:
-    """Wait until the recorder holds its output's lock (earlier than its first status line: seconds saved)."""
-    from daq.outputs import lock_holder
-
-    until = time.monotonic() + timeout
-    while time.monotonic() < until and proc.poll() is None:
-        if lock_holder(path) is not None:
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"the recorder never locked {path}: {proc.poll()}")
-
-
 # --- item 6: no verb replaces a file a running recorder holds, even with --overwrite ---------------------------
-def test_no_verb_replaces_the_log_a_running_recorder_writes(tmp_path, capsys):
-    path = session_file(tmp_path, "serial-binary", 16384, duration=6.0, forces=[300.0])  # ~3 s to start, 6 s paced
-    live = tmp_path / "live.mcap"
-    rec = subprocess.Popen([*gvt_command(), "record", str(path), "--out", str(live)], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)  # fmt: skip
-    try:
-        _locked(live, rec)
-        inode = live.stat().st_ino
-        verbs = [  # every verb that writes a file, each told to replace the live log
-            ["log", "export", str(SMALL_LOG), "--out", str(live), "--overwrite"],
-            ["log", "recover", str(SMALL_LOG), str(live), "--overwrite"],
-            ["report", str(SMALL_LOG), "--out", str(live), "--overwrite"],
-            ["confirm", str(SMALL_LOG), "--out", str(live), "--overwrite"],
-            ["export", str(SMALL_LOG), "--out", str(live), "--overwrite"],
-            ["frf", str(SMALL_LOG), "--out", str(live), "--overwrite"],
-            ["analyze", str(SMALL_LOG), "--rrd", str(live), "--overwrite"],
-            ["simulate", "two_dof", "--out", str(live), "--overwrite"],
-        ]
-        for argv in verbs:
-            line = one_error(capsys, run(argv))
-            assert f"in use by another recorder (pid {rec.pid})" in line and "--overwrite does not" in line, (argv, line)
-        assert live.stat().st_ino == inode  # the name still points at the recorder's file
-        assert rec.poll() is None  # every refusal above met a recorder still writing
-    finally:
-        rec.send_signal(signal.SIGTERM)
-        rec.communicate(timeout=60)
-    assert rec.returncode == 0
-    r = LogReader(live)
-    assert r.report.complete and r.read_stream("dev0").gaps == []  # the session is whole
+# tests/test_session.py, test_sigterm_finalises_the_file_that_no_other_writer_could_replace: the real recorder
+# there is the one its SIGTERM check runs (one recorder process for both).
 
 
 def test_the_rename_checks_again_for_a_recorder_that_started_meanwhile(tmp_path):

@@ -103,26 +103,63 @@ def _samples_in_status(proc: subprocess.Popen, at_least: int, timeout: float = 9
     return last
 
 
-def test_sigterm_finalises_the_file_and_a_second_recorder_on_it_is_refused(tmp_path, capsys):
-    """One real recorder for both (each cost a recorder process, ~6 CPU-s): the second, refused recorder runs in
-    this process (``daq.cli.run``: the console script's line and code), the first is SIGTERMed after it."""
-    # 12 s of data (was 30): stopped at 2 s, 10 s before its end; the simulated device computes the whole
-    # session's signal at the start, so each second of --duration costs ~0.15 CPU-s (12 s: 5.1 CPU-s, 30 s: 8.1)
-    proc, out = _record(tmp_path, "12")
-    seen = _samples_in_status(proc, 2 * 16384)
-    capsys.readouterr()
-    code = run(["record", str(CFG), "--out", str(out), "--overwrite"])
-    _o, err = capsys.readouterr()
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("gvt: error: ") and "in use by another recorder" in lines[0], err
-    assert proc.poll() is None  # the refusal met a recorder still writing, and left it running
+SMALL_LOG = ROOT / "replay_logs" / "two_dof_3hits.mcap"
+
+
+def _locked(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Wait until the recorder holds its output's lock (earlier than its first status line: seconds saved)."""
+    from daq.outputs import lock_holder
+
+    until = time.monotonic() + timeout
+    while time.monotonic() < until and proc.poll() is None:
+        if lock_holder(path) is not None:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"the recorder never locked {path}: {proc.poll()}")
+
+
+def test_sigterm_finalises_the_file_that_no_other_writer_could_replace(tmp_path, capsys):
+    """One real recorder for three checks that each cost a recorder process (5-8 CPU-s): a second recorder on its
+    output is refused; no verb that writes a file replaces it, even with --overwrite (issue 30 item 6); SIGTERM then
+    finalises it. The refused verbs run in this process (``daq.cli.run``: the console script's line and code)."""
+    # 15 s of data (the SIGTERM test recorded 30): the refusals and 2 s of data come well before its end; the
+    # simulated device computes the whole session's signal at the start, ~0.15 CPU-s a second of --duration
+    proc, out = _record(tmp_path, "15")
+    try:
+        _locked(out, proc)
+        inode = out.stat().st_ino
+        verbs = [  # a second recorder, then every verb that writes a file, each told to replace the live log
+            ["record", str(CFG), "--out", str(out), "--overwrite"],
+            ["log", "export", str(SMALL_LOG), "--out", str(out), "--overwrite"],
+            ["log", "recover", str(SMALL_LOG), str(out), "--overwrite"],
+            ["report", str(SMALL_LOG), "--out", str(out), "--overwrite"],
+            ["confirm", str(SMALL_LOG), "--out", str(out), "--overwrite"],
+            ["export", str(SMALL_LOG), "--out", str(out), "--overwrite"],
+            ["frf", str(SMALL_LOG), "--out", str(out), "--overwrite"],
+            ["analyze", str(SMALL_LOG), "--rrd", str(out), "--overwrite"],
+            ["simulate", "two_dof", "--out", str(out), "--overwrite"],
+        ]
+        capsys.readouterr()
+        for argv in verbs:
+            code = run(argv)
+            _o, err = capsys.readouterr()
+            lines = err.strip().splitlines()
+            assert code == 2 and len(lines) == 1 and lines[0].startswith("gvt: error: ") and "Traceback" not in err, (argv, err)
+            assert f"in use by another recorder (pid {proc.pid})" in lines[0], (argv, lines[0])
+            assert argv[0] == "record" or "--overwrite does not" in lines[0], (argv, lines[0])
+        assert out.stat().st_ino == inode  # the name still points at the recorder's file
+        assert proc.poll() is None  # every refusal above met a recorder still writing, and left it running
+        seen = _samples_in_status(proc, 2 * 16384)
+    except BaseException:
+        proc.kill()
+        raise
     proc.send_signal(signal.SIGTERM)
     _stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 0, stderr
     r = LogReader(out)
-    assert r.report.complete  # a valid, finalised file, untouched by the refused second recorder
-    n = len(r.read_stream("dev0").index)
-    assert n >= seen >= 2 * 16384
+    assert r.report.complete  # a valid, finalised file, untouched by the refused writers
+    d = r.read_stream("dev0")
+    assert d.gaps == [] and len(d.index) >= seen >= 2 * 16384  # the session is whole
 
 
 def _descendants(pid: int) -> set[int]:

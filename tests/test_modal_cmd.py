@@ -1,9 +1,10 @@
 """``gvt modal`` end to end (issue 20): simulated linear hits → ``gvt frf`` → pLSCF + LSFD → the rig's FE modes,
 and the modes file into UFF 55 through ``gvt export``, read back by pyuff.
 
-Data: the linear ``beam_ch4_exp`` session of tests/test_frf.py (five 200 N hits, 1 % noise, order-4
-stepping). Oracle: the rig's own FE model (frequencies, modal damping ratios, shapes at the sensors). The
-exponential window's added damping is removed by ``identify`` (sigma_added); what remains of the tolerance
+Data: the linear ``beam_ch4_exp`` session of tests/test_frf.py (five 200 N hits, then a 3000 N hit that
+``gvt frf`` refuses as an overload, 1 % noise, order-4 stepping; simulated once for the files that use it:
+tests/test_frf.py ``shared_session``). Oracle: the rig's own FE model (frequencies, modal damping ratios, shapes at
+the sensors). The exponential window's added damping is removed by ``identify`` (sigma_added); what remains of the tolerance
 is the estimator's, on measured (simulated and noisy) FRFs rather than the analytic ones of test_modal_id.
 """
 
@@ -16,12 +17,12 @@ import pytest
 
 from daq.cli import run as gvt
 
-from .test_frf import FORCE, session
+from .test_frf import FORCE, shared_session
 
 
 @pytest.fixture(scope="module")
 def linear(tmp_path_factory):
-    return session(tmp_path_factory.mktemp("modal"), 0.01, 0.01, (FORCE,) * 5)
+    return shared_session(tmp_path_factory, 0.01, 0.01, (FORCE,) * 5 + (3000.0,))  # tests/test_frf.py's ``clean``
 
 
 def test_gvt_modal_from_a_log_finds_the_fe_modes(linear, tmp_path, capsys):
@@ -49,7 +50,10 @@ def test_modes_file_goes_to_uff55_and_back(linear, tmp_path):
     frf, modes, uff = tmp_path / "frf.npz", tmp_path / "modes.json", tmp_path / "s.uff"
     assert gvt(["frf", str(log), "--out", str(frf)]) == 0
     assert gvt(["modal", str(frf), "--modes-out", str(modes)]) == 0  # from the FRF file: no rig needed
-    assert gvt(["export", str(log), "--format", "uff", "--out", str(uff), "--frf", str(frf), "--modes", str(modes)]) == 0
+    # --binary: datasets 58 (the hit records and FRFs) as 58b, which pyuff reads without parsing text; the 55 sets under
+    # test are ASCII either way, and the ASCII 58 encoding is tests/test_uff.py's (same sets, same numbers as 58b)
+    flags = ["--frf", str(frf), "--modes", str(modes), "--binary"]
+    assert gvt(["export", str(log), "--format", "uff", "--out", str(uff), *flags]) == 0
     sets = pyuff.UFF(str(uff)).read_sets()
     shapes = [s for s in sets if s["type"] == 55]
     m = json.loads(modes.read_text())

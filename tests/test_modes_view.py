@@ -1,6 +1,7 @@
 """Mode shapes animated on the test geometry (``gvt modal --rrd``, daq/view/modes.py).
 
-Data: the linear ``beam_ch4_exp`` session of tests/test_frf.py (five 200 N hits, 1 % noise) through ``gvt modal``.
+Data: the linear ``beam_ch4_exp`` session of tests/test_frf.py (five 200 N hits, 1 % noise, and a refused 3000 N overload) through
+``gvt modal``.
 Oracle for the drawing: the modes file that the same ``gvt modal`` call writes (``--modes-out``: the ModalRun's
 shapes, by daq/studies/modal.py) and the rig's channel table (node coordinates, directions), combined here by hand:
 at phase 0 node = xyz + scale · Re(shape) · direction, with scale = 10 % of the extent / max |shape| (one
@@ -19,7 +20,7 @@ import pytest
 
 from daq.cli import run as gvt
 
-from .test_frf import FORCE, session
+from .test_frf import FORCE, shared_session
 from .test_view import ENV, RERUN, rrd_verify
 
 pytestmark = pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed next to python")
@@ -27,7 +28,7 @@ pytestmark = pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not
 
 @pytest.fixture(scope="module")
 def linear(tmp_path_factory):
-    return session(tmp_path_factory.mktemp("modes"), 0.01, 0.01, (FORCE,) * 5)
+    return shared_session(tmp_path_factory, 0.01, 0.01, (FORCE,) * 5 + (3000.0,))  # tests/test_frf.py's ``clean``
 
 
 def rrd_frames(path) -> dict[str, dict[int, np.ndarray]]:

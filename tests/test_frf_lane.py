@@ -28,13 +28,13 @@ from daq.log.reader import LogReader
 from daq.replay_session import run_replay
 from daq.session import run_session
 from drivers.blocks import SampleBlock
-from tests.test_frf import FORCE, session
+from tests.test_frf import FORCE, shared_session
 from tests.test_view import RERUN, rrd_entity_paths, rrd_verify
 
 
 @pytest.fixture(scope="module")
 def linear(tmp_path_factory):
-    return session(tmp_path_factory.mktemp("frf_lane"), 0.01, 0.01, (FORCE,) * 3 + (3000.0,))
+    return shared_session(tmp_path_factory, 0.01, 0.01, (FORCE,) * 3 + (3000.0,))  # also tests/test_report.py's
 
 
 @pytest.fixture(scope="module")

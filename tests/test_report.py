@@ -89,11 +89,11 @@ def test_report_renders_in_headless_chromium(logs, tmp_path):
 
 # --- FRF section (issue 20, item 3) and figures drawn once ------------------------------------------------------------
 # Data: a linear beam_ch4_exp (cubic spring removed, 1 % noise: tests/test_frf.py::linear_rig) hit three times at
-# 200 N and once at 3000 N, over the hammer's 2224 N range, written by the project's simulator into a real log and
-# read back by the report. Oracle for the modes table: the rig's own FE model (frequencies, shapes at the sensors).
+# 200 N and once at 3000 N, over the hammer's 2224 N range, 10 s apart, written by the project's simulator into a real
+# log and read back by the report: the log of tests/test_frf_lane.py, simulated once for both (test_frf.py
+# ``shared_session``). Oracle for the modes table: the rig's own FE model (frequencies, shapes at the sensors).
 
 LINEAR_FORCES = (200.0, 200.0, 200.0, 3000.0)
-SPACING_S = 6.0  # the previous hit's mode 1 (decay 0.654 /s) rings at exp(-3.9) = 2 % of its amplitude: a small bias
 
 
 class DrawCounter:
@@ -117,13 +117,10 @@ class DrawCounter:
 @pytest.fixture(scope="module")
 def linear_report(tmp_path_factory):
     from daq.studies.report.build import build_report
-    from daq.studies.simulate.session import SessionPlan, simulate_session
-    from tests.test_frf import linear_rig
+    from tests.test_frf import shared_session
 
     d = tmp_path_factory.mktemp("report_frf")
-    rig = linear_rig(d, 0.01, 0.01)
-    log = d / "linear.mcap"
-    simulate_session(rig, log, SessionPlan(forces=LINEAR_FORCES, pre_trigger=0.1, spacing=SPACING_S, tail=2.0, block_size=1024))
+    rig, log = shared_session(tmp_path_factory, 0.01, 0.01, LINEAR_FORCES)  # tests/test_frf_lane.py's log
     counter = DrawCounter()
     with pytest.MonkeyPatch.context() as mp:
         counter.install(mp)
@@ -153,8 +150,9 @@ def test_report_has_the_frf_section_with_modes_against_the_fe_model(linear_repor
     first6 = {int(r[5]): r for r in rows if r[5] != "—" and int(r[5]) <= 6}
     assert sorted(first6) == [1, 2, 3, 4, 5, 6], rows
     for k, r in first6.items():
-        # tests/test_modal_cmd.py gets 0.001 % with 10 s between hits; here the 2 % ring of the previous hit and 3
-        # averages instead of 5 leave more, still far below the 1.3 % between the nearest FE modes' spacing
+        # tests/test_modal_cmd.py gets 0.001 % with 5 averages; here 3 averages leave more, still far below the
+        # 1.3 % between the nearest FE modes' spacing (0.2 % held since the log had 6 s between hits, mode 1 ringing
+        # at 2 % into the next record; now 10 s, 0.15 %)
         assert abs(float(r[1]) / fe[k - 1] - 1) < 2e-3, r
         assert float(r[9]) >= 0.99, r  # MAC against the FE shape at the 14 sensors
 

@@ -36,7 +36,17 @@ def linear_rig(tmp: Path):
     src = (ROOT / "configs/rigs/beam_ch4_exp.toml").read_text()
     txt = re.sub(r"\[\[nonlinear_springs\]\].*?(?=\n\[)", "", src, flags=re.S)
     path = tmp / "beam_linear_1s.toml"
-    path.write_text(txt.replace("record_length = 2.0", "record_length = 1.0"))
+    txt = txt.replace("record_length = 2.0", "record_length = 1.0")
+    # modes above 2 kHz (mode 9 on) simulated as the residual vectors' static part only: the checks are at modes 3-6
+    # (194-965 Hz), where a mode at 2.2 kHz or more adds an accelerance (f / f_r)^2 ~ 0.19 of its residue that the
+    # residual vector keeps, leaving ~(f / f_r)^4 ~ 4 % of a residue against a peak of residue / (2 zeta) = 100
+    # residues: < 0.05 % at the peaks. The top basis frequency (2.8 kHz) is then below 0.55 fs, so the simulated DAQ
+    # needs no oversampling, and the integrator takes fewer substeps: order 4, as tests/test_frf.py, so that mode 6
+    # is not moved by the stepping (order 2 at these substeps moved it by -0.13 %, 10 % off the model at its bin).
+    # The device's simulation costs a fifth of the 5 kHz, order-2 rig's.
+    txt = txt.replace("modal_cutoff_hz = 5000.0", "modal_cutoff_hz = 2000.0").replace("seed = 2", "seed = 2\norder = 4")
+    assert "modal_cutoff_hz = 2000.0" in txt and "record_length = 1.0" in txt and "order = 4" in txt
+    path.write_text(txt)
     return load_rig(path)
 
 
@@ -125,7 +135,7 @@ def test_the_frf_matrix_in_the_log_is_reciprocal_and_matches_the_model(roving):
     for r, pt in enumerate(pts):
         model = _modal(rig, m.freq[pk], dofs, pt.dof, m.window["sigma_added"])
         dp = m.outputs.index(pt.sensor)
-        assert np.abs(m.H[dp, r, pk]) == pytest.approx(np.abs(model[dp]), rel=0.05)  # measured <= 3.8 %
+        assert np.abs(m.H[dp, r, pk]) == pytest.approx(np.abs(model[dp]), rel=0.05)  # measured <= 3.5 % (P5, mode 3)
 
 
 def test_the_frf_matrix_goes_to_uff58_with_each_points_node_and_direction(roving, tmp_path):

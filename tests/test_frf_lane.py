@@ -134,8 +134,11 @@ def test_a_recording_logs_one_frf_record_per_hit(tmp_path):
     accepted = [r for r in logged if r["verdict"] == "accepted"]
     assert [r["averages"] for r in accepted] == list(range(1, len(accepted) + 1)) and accepted, logged
     assert len(lines) == 2
-    no = run_session(cfg, open_rig("beam_ch4_exp"), tmp_path / "off.mcap", frf=False)
-    assert no.frf == [] and LogReader(tmp_path / "off.mcap").json_messages(FRF_TOPIC) == []
+    # the lane off: one hit is enough to show that nothing is computed or logged for it (half the session above)
+    dev = cfg.device.model_copy(update={"config": {**cfg.device.config, "forces": [300.0], "physics_seconds": 3.0}})
+    one = cfg.model_copy(update={"duration": 2.8, "device": dev})
+    no = run_session(one, open_rig("beam_ch4_exp"), tmp_path / "off.mcap", frf=False)
+    assert len(no.hits) == 1 and no.frf == [] and LogReader(tmp_path / "off.mcap").json_messages(FRF_TOPIC) == []
 
 
 def _plan(fs: float = 1000.0, n: int = 500) -> FRFPlan:

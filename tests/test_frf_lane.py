@@ -1,7 +1,8 @@
 """Live FRFs after each hit (daq/lanes/frf.py): in a replay, in a recording, in the view and on the terminal.
 
 Data: a simulated log of the linear ``beam_ch4_exp`` (tests/test_frf.py's ``session()``: order-4 stepping,
-1 % noise, 10 s between hits) with three 200 N hits and one 3000 N hit that overloads the 2224 N hammer;
+1 % noise, 10 s between hits) with five 200 N hits and one 3000 N hit that overloads the 2224 N hammer
+(the log of tests/test_frf.py, test_modal_cmd.py, test_modes_view.py and test_report.py, simulated once);
 15 channels at 16384 Hz, the issue's size. Oracles: ``gvt frf`` on the same log (an independent path: it
 reads the records back with ``LogReader.read_stream``, the lane cuts them from the replayed blocks), the
 rig's modal model (peaks within one 0.5 Hz bin of its natural frequencies), and the count of hits.
@@ -34,7 +35,7 @@ from tests.test_view import RERUN, rrd_entity_paths, rrd_verify
 
 @pytest.fixture(scope="module")
 def linear(tmp_path_factory):
-    return shared_session(tmp_path_factory, 0.01, 0.01, (FORCE,) * 3 + (3000.0,))  # also tests/test_report.py's
+    return shared_session(tmp_path_factory, 0.01, 0.01, (FORCE,) * 5 + (3000.0,))  # tests/test_frf.py's ``clean``
 
 
 @pytest.fixture(scope="module")
@@ -54,16 +55,16 @@ def replayed(linear, tmp_path_factory):
 def test_one_record_per_hit_with_the_averages_and_the_refusal(replayed):
     res, lines, _ = replayed
     recs = res.frf
-    assert [r["hit"] for r in recs] == [0, 1, 2, 3]
-    assert [r["averages"] for r in recs if r["verdict"] == "accepted"] == [1, 2, 3]
+    assert [r["hit"] for r in recs] == [0, 1, 2, 3, 4, 5]
+    assert [r["averages"] for r in recs if r["verdict"] == "accepted"] == [1, 2, 3, 4, 5]
     last = recs[-1]
-    assert last["verdict"] == "refused" and last["averages"] == 3 and last["refused"] == 1
+    assert last["verdict"] == "refused" and last["averages"] == 5 and last["refused"] == 1
     assert last["reason"].startswith("overload: force reached its full scale 2224 N")
     for r in recs:  # every record is valid against the schema the log would store, and small
         jsonschema.validate(r, FRFUpdate.SCHEMA)
         assert len(json.dumps(r)) < 3000
-    assert len(lines) == 4 and "3 averages at hammer (0 refused); driving point a13: 21.0 Hz (1.000)" in lines[2]
-    assert lines[3].startswith("FRF hit 3 at 30.100 s: refused (overload")
+    assert len(lines) == 6 and "3 averages at hammer (0 refused); driving point a13: 21.0 Hz (1.000)" in lines[2]
+    assert lines[5].startswith("FRF hit 5 at 50.100 s: refused (overload")
 
 
 def test_final_peaks_equal_gvt_frf_and_the_modal_model(linear, replayed, capsys):
@@ -72,7 +73,7 @@ def test_final_peaks_equal_gvt_frf_and_the_modal_model(linear, replayed, capsys)
     assert gvt(["frf", str(log), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     final = res.frf[-1]
-    assert doc["averages"] == final["averages"] == 3
+    assert doc["averages"] == final["averages"] == 5
     assert final["peaks_hz"] == sorted({p["freq_hz"] for p in doc["peaks"]})
     assert np.all(np.abs(np.array(final["peaks_hz"]) - rig.modes.frequencies_hz[:6]) <= 0.5)  # one bin
     dp = {p["freq_hz"]: p for p in doc["peaks"] if p["response"] == final["driving_point"]}
@@ -96,7 +97,7 @@ def test_cost_per_hit_at_15_channels_16384_hz(linear, replayed):
 @pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed next to python")
 def test_the_view_draws_the_frf_entities(replayed):
     res, _, rrd = replayed
-    assert res.view_lane.view.counts.get("/frf") == 3 and res.view_lane.view.counts.get(FRF_TOPIC) == 4
+    assert res.view_lane.view.counts.get("/frf") == 5 and res.view_lane.view.counts.get(FRF_TOPIC) == 6
     assert rrd_verify(rrd).returncode == 0
     import subprocess
 
@@ -112,7 +113,7 @@ def test_gvt_replay_prints_a_line_per_hit_and_no_frf_turns_it_off(linear, capsys
     _, log = linear
     assert gvt(["replay", str(log), "--no-analysis", "--no-confirm"]) == 0
     out = capsys.readouterr().out
-    assert out.count("FRF hit ") == 4 and "FRF hit 2 at 20.100 s: 3 averages" in out
+    assert out.count("FRF hit ") == 6 and "FRF hit 2 at 20.100 s: 3 averages" in out
     assert gvt(["replay", str(log), "--no-analysis", "--no-confirm", "--no-frf"]) == 0
     assert "FRF hit" not in capsys.readouterr().out
 

@@ -19,6 +19,7 @@ from analysis.model.nonlinear import DEFAULT_V_EPS, Damper
 from analysis.model.rig import load_rig
 from analysis.model.simulate import ImpactSimulator
 from analysis.model.structure import build_lumped
+from daq.cli import run as gvt
 
 from .conftest import gvt_command
 
@@ -28,6 +29,9 @@ TRUTH = {"k": 75.0, "alpha": 9.22e8, "beta": 2.499, "d": 0.35, "mu": 0.0285 / (0
 
 
 def run(*args, timeout=300):
+    """``gvt`` as a real process: kept for the one test here about what a shell sees (exit code, one line, no
+    traceback); the rest run the verb in-process (``daq.cli.run``: the same code, exit codes and lines, without
+    ~1-2 CPU-s of imports per call)."""
     return subprocess.run([*gvt_command(), *args], capture_output=True, text=True, timeout=timeout)
 
 
@@ -118,20 +122,20 @@ def session(tmp_path_factory):
     """A simulated session on the grounded-NES rig: the seed's identification hit then its three validation hits
     (L1656-1660), with the rig's 1 % acceleration and force noise."""
     log = tmp_path_factory.mktemp("rfs") / "nes.mcap"
-    p = run("simulate", str(RIG), "--forces", "236,114.7,189.7,305.5", "--spacing", "3", "--out", str(log))
-    assert p.returncode == 0, p.stderr
+    assert gvt(["simulate", str(RIG), "--forces", "236,114.7,189.7,305.5", "--spacing", "3", "--out", str(log)]) == 0
     return log
 
 
-def test_identify_rfs_recovers_eq_511_and_validates(session, tmp_path):
+def test_identify_rfs_recovers_eq_511_and_validates(session, tmp_path, capsys):
     """From the 236 N hit through the acceleration path (1 % noise): each of k, alpha, beta, d, mu within 5 %; the
     identified model reproduces the 114.7, 189.7 and 305.5 N hits with displacement R² >= 0.95; the written rig
     loads and ``gvt simulate`` runs it."""
     png, toml = tmp_path / "rfs.png", tmp_path / "identified.toml"
-    p = run("identify", str(session), "--rig", str(RIG), "--method", "rfs", "--hit", "0", "--validate", "1,2,3",
-            "--json", "--png", str(png), "--out", str(toml))  # fmt: skip
-    assert p.returncode == 0, p.stderr
-    rep = json.loads(p.stdout)
+    code = gvt(["identify", str(session), "--rig", str(RIG), "--method", "rfs", "--hit", "0", "--validate", "1,2,3",
+                "--json", "--png", str(png), "--out", str(toml)])  # fmt: skip
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    rep = json.loads(out.out)
     got = {r["parameter"]: r["optimised"] for r in rep["parameters"]}
     for name, true in TRUTH.items():
         assert got[name] == pytest.approx(true, rel=0.05), name
@@ -141,8 +145,7 @@ def test_identify_rfs_recovers_eq_511_and_validates(session, tmp_path):
     assert png.stat().st_size > 10_000
     ident = load_rig(toml)
     assert ident.structure.dampers[0].viscous == pytest.approx(got["d"], rel=1e-5)
-    q = run("simulate", str(toml), "--out", str(tmp_path / "hit.npz"))
-    assert q.returncode == 0, q.stderr
+    assert gvt(["simulate", str(toml), "--out", str(tmp_path / "hit.npz")]) == 0, capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -154,17 +157,24 @@ def test_identify_rfs_recovers_eq_511_and_validates(session, tmp_path):
         (["--rig", "two_dof"], "one grounded DOF"),
     ],
 )
-def test_identify_rfs_bad_input_is_one_line_exit_2(session, args, message):
+def test_identify_rfs_bad_input_is_one_line_exit_2(session, args, message, capsys):
+    """In-process: run() maps each error to the line and exit code a shell sees (the real process is checked by
+    test_identify_rfs_missing_log_and_directory)."""
     base = ["identify", str(session), "--rig", str(RIG), "--method", "rfs"]
     if "--rig" in args:
         base = [*base[:3], args[1], *base[4:]]
         args = []
-    p = run(*base, *args)
-    assert p.returncode == 2, p.stderr
-    assert message in p.stderr and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
+    code = gvt([*base, *args])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
-def test_identify_rfs_missing_log_and_directory(tmp_path):
-    for src in (tmp_path / "none.mcap", tmp_path):
-        p = run("identify", str(src), "--rig", str(RIG), "--method", "rfs")
-        assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, p.stderr
+def test_identify_rfs_missing_log_and_directory(tmp_path, capsys):
+    """A missing log as a real ``gvt`` process (exit 2 seen by the shell, one line, no traceback); a directory
+    in-process, the same mapping."""
+    p = run("identify", str(tmp_path / "none.mcap"), "--rig", str(RIG), "--method", "rfs")
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert gvt(["identify", str(tmp_path), "--rig", str(RIG), "--method", "rfs"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -17,16 +16,11 @@ from analysis import nsi
 from analysis.model.loader import ConfigError
 from analysis.model.rig import load_rig
 from analysis.nsi_target import resolve_target
-
-from .conftest import gvt_command
+from daq.cli import run as gvt
 
 RIG = Path(__file__).resolve().parent.parent / "configs" / "rigs" / "store_grounded_ch6.toml"
 I_S, H = 3.37e-4, 0.08255  # kg m^2 (L2137), m (Table 6.6)
 TRUTH = {"k": 599.6, "alpha": 4.902e7, "beta": 2.090, "d": 0.361}  # L2158
-
-
-def run(*args, timeout=300):
-    return subprocess.run([*gvt_command(), *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_store_rig_linear_frequency_and_damping():
@@ -44,7 +38,7 @@ def test_store_rig_linear_frequency_and_damping():
     assert zeta == pytest.approx(0.0331, abs=5e-4)
 
 
-def test_rotational_nsi_mass_is_inertia_over_arm_squared(tmp_path):
+def test_rotational_nsi_mass_is_inertia_over_arm_squared(tmp_path, capsys):
     """``[nsi] inertia/arm`` gives eq. 5.8's m = I/h² (the rig's own [nsi], through the identify verb's target), the
     law in eq. 6.13's form (torsional k h²), and rejects mass + inertia together: ConfigError from the loader, one
     line and exit 2 from the CLI."""
@@ -64,9 +58,10 @@ def test_rotational_nsi_mass_is_inertia_over_arm_squared(tmp_path):
     bad.write_text(RIG.read_text().replace("arm = 0.08255 ", "arm = 0.08255\nmass = 0.05 "))
     with pytest.raises(ConfigError, match="not both"):
         load_rig(bad)
-    p = run("simulate", str(bad), "--out", str(tmp_path / "x.npz"))
-    assert p.returncode == 2, p.stderr
-    assert "not both" in p.stderr and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
+    code = gvt(["simulate", str(bad), "--out", str(tmp_path / "x.npz")])  # in-process: run() maps errors as a shell sees
+    err = capsys.readouterr().err  # them (gvt simulate's real process: tests/test_cli.py)
+    assert code == 2, err
+    assert "not both" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     half = tmp_path / "half.toml"
     half.write_text(RIG.read_text().replace("arm = 0.08255 ", "# arm "))
     with pytest.raises(ConfigError, match="needs both"):
@@ -78,20 +73,20 @@ def session(tmp_path_factory):
     """The seed's identification hit (387.7 N) and its three validation hits (64.8, 220.3, 497.4 N; L2152–2160) on
     the store rig with its 1 % acceleration and force noise."""
     log = tmp_path_factory.mktemp("store") / "store.mcap"
-    p = run("simulate", str(RIG), "--forces", "387.7,64.8,220.3,497.4", "--spacing", "3", "--out", str(log))
-    assert p.returncode == 0, p.stderr
+    assert gvt(["simulate", str(RIG), "--forces", "387.7,64.8,220.3,497.4", "--spacing", "3", "--out", str(log)]) == 0
     return log
 
 
-def test_identify_store_recovers_eq_613_on_velocity(session, tmp_path):
+def test_identify_store_recovers_eq_613_on_velocity(session, tmp_path, capsys):
     """From the 387.7 N hit through the acceleration path (1 % noise), with no Coulomb term (the rig has none) and the
     velocity compared (the rotational [nsi]'s default, Fig. 6.24): k_g, α, β, d_g each within 5 %; the 64.8, 220.3
     and 497.4 N hits reproduced with velocity R² >= 0.95; the written rig keeps the damper viscous-only and loads."""
     toml = tmp_path / "identified.toml"
-    p = run("identify", str(session), "--rig", str(RIG), "--method", "rfs", "--hit", "0", "--validate", "1,2,3",
-            "--json", "--out", str(toml))  # fmt: skip
-    assert p.returncode == 0, p.stderr
-    rep = json.loads(p.stdout)
+    code = gvt(["identify", str(session), "--rig", str(RIG), "--method", "rfs", "--hit", "0", "--validate", "1,2,3",
+                "--json", "--out", str(toml)])  # fmt: skip
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    rep = json.loads(out.out)
     assert rep["quantity"] == "velocity" and rep["coulomb_fitted"] is False and rep["fc_N"] == 0.0
     got = {r["parameter"]: r["optimised"] for r in rep["parameters"]}
     assert set(got) == set(TRUTH)
@@ -106,12 +101,15 @@ def test_identify_store_recovers_eq_613_on_velocity(session, tmp_path):
     assert ident.config.nsi is not None and ident.config.nsi.inertia == I_S
 
 
-def test_identify_store_quantity_option(session):
-    """``--quantity`` is checked (one line, exit 2) and is for --method rfs only."""
-    p = run("identify", str(session), "--rig", str(RIG), "--method", "rfs", "--quantity", "acceleration")
-    assert p.returncode == 2 and "--quantity" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
-    p = run("identify", str(session), "--rig", str(RIG), "--quantity", "velocity")
-    assert p.returncode == 2 and "--method rfs" in p.stderr, p.stderr
+def test_identify_store_quantity_option(session, capsys):
+    """``--quantity`` is checked (one line, exit 2) and is for --method rfs only (in-process: the identify verb's
+    real process is tests/test_rfs.py's)."""
+    code = gvt(["identify", str(session), "--rig", str(RIG), "--method", "rfs", "--quantity", "acceleration"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--quantity" in err and len(err.strip().splitlines()) == 1, err
+    code = gvt(["identify", str(session), "--rig", str(RIG), "--quantity", "velocity"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--method rfs" in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_velocity_chain_matches_highpassed_exact_velocity():

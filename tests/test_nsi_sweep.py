@@ -37,12 +37,14 @@ def test_exact_backbone_limits():
 
 
 def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
-    """A 6-run sweep of beam_nes_ch5 writes nsi.csv; its columns equal the re-simulating path's; identify reads
-    it (no simulation); an old sweep without nsi.csv is re-simulated and gives the same table."""
+    """A 6-run sweep of beam_nes_ch5 writes nsi.csv; identify reads it (no simulation); an old sweep without nsi.csv
+    is re-simulated (``simulate_runs``, the re-simulating path) and gives the same table and fit.
+
+    The re-simulated table is the oracle for the recorded columns (one simulation of the 6 runs, not a second one
+    beside it: identify_sweep's fallback is ``simulate_runs`` on the sweep.json's amplitudes, duration and order)."""
     from analysis.model.rigs import open_rig
-    from analysis.nsi_target import resolve_target
     from analysis.sweep_capture import CaptureSettings
-    from daq.studies.identify.sweep import IdentifyOptions, identify_sweep, simulate_runs
+    from daq.studies.identify.sweep import IdentifyOptions, identify_sweep
     from daq.studies.nsi_table import NSI_CSV, read_runs
     from daq.studies.sweep import SweepSpec, run_sweep, write_outputs
 
@@ -52,21 +54,19 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
     paths = write_outputs(rep, tmp_path)
     assert paths["nsi"] == tmp_path / NSI_CSV
     swept = read_runs(paths["nsi"])
-    dofs = rig.structure.translational_dofs()
-    g = rig.guyan(dofs)
-    target = resolve_target(rig, dofs, g.M, g.K)
-    again = simulate_runs(rig, spec.amplitudes, spec.duration, dofs, target, g.M, g.K, rep.spec.order)
-    for k in ("P", "energy", "dbar", "f_rq", "f_pom"):  # written with 9 significant digits
-        assert np.allclose(getattr(swept, k), getattr(again, k), rtol=1e-8, atol=0), k
-    assert np.allclose(swept.mac, again.mac, rtol=0, atol=1e-6)  # written with 6 decimals
-    assert np.array_equal(swept.capture, again.capture) and np.array_equal(swept.pom_index, again.pom_index)
     opts = IdentifyOptions(frequency="pom", law="exact", n_boot=0)
     ident = identify_sweep(rig, tmp_path, opts)
     assert ident.source.startswith(str(paths["nsi"])) and "re-simulated" not in ident.source
     paths["nsi"].unlink()  # an old sweep: no NSI columns -> re-simulated, same table
     old = identify_sweep(rig, tmp_path, opts)
     assert "re-simulated" in old.source and (tmp_path / NSI_CSV).exists()
-    assert np.allclose(old.runs.dbar, swept.dbar, rtol=1e-8) and old.fit.beta == pytest.approx(ident.fit.beta, rel=1e-9)
+    again = old.runs  # the re-simulating path's columns, straight from simulate_runs (not through the CSV)
+    assert np.allclose(again.P, spec.amplitudes, rtol=1e-12, atol=0)
+    for k in ("P", "energy", "dbar", "f_rq", "f_pom"):  # written with 9 significant digits
+        assert np.allclose(getattr(swept, k), getattr(again, k), rtol=1e-8, atol=0), k
+    assert np.allclose(swept.mac, again.mac, rtol=0, atol=1e-6)  # written with 6 decimals
+    assert np.array_equal(swept.capture, again.capture) and np.array_equal(swept.pom_index, again.pom_index)
+    assert old.fit.beta == pytest.approx(ident.fit.beta, rel=1e-9)
     _full_disk_keeps_the_previous_files(rep, tmp_path / "full")
 
 

@@ -20,16 +20,25 @@ from daq.studies.identify import validate as iv
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
+    """A 6-run beam_nes_ch5 sweep directory as ``gvt identify`` reads it: sweep.json and the NSI columns (nsi.csv)
+    from ``simulate_runs`` in this process. ``gvt sweep`` (run_sweep: a dask cluster of worker processes) writes
+    the same columns, which tests/test_nsi_sweep.py checks against this path; what is tested here is the identified
+    TOML and the validation, so the cluster's start-up (most of this fixture's CPU) is left out."""
     from analysis.model.rigs import open_rig
-    from analysis.sweep_capture import CaptureSettings
-    from daq.studies.identify.sweep import IdentifyOptions, identify_sweep
-    from daq.studies.sweep import SweepSpec, run_sweep, write_outputs
+    from analysis.nsi_target import resolve_target
+    from daq.studies.identify.sweep import IdentifyOptions, identify_sweep, simulate_runs
+    from daq.studies.nsi_table import NSI_CSV, write_runs
 
     tmp = tmp_path_factory.mktemp("val_sweep")
     rig = open_rig("beam_nes_ch5")
-    spec = SweepSpec(pmin=0.3, pmax=30.0, n=6, duration=1.0, workers=1, capture=CaptureSettings(capture=False))
-    write_outputs(run_sweep(rig, spec), tmp)
+    dofs = rig.structure.translational_dofs()
+    g = rig.guyan(dofs)
+    target = resolve_target(rig, dofs, g.M, g.K)
+    write_runs(simulate_runs(rig, np.logspace(np.log10(0.3), np.log10(30.0), 6), 1.0, dofs, target, g.M, g.K), tmp / NSI_CSV)
+    (tmp / "sweep.json").write_text(json.dumps({"rig": "beam_nes_ch5", "runs": 6, "pmin_N": 0.3, "pmax_N": 30.0,
+                                                "duration_s": 1.0, "outputs": "translational", "order": None}))  # fmt: skip
     ident = identify_sweep(rig, tmp, IdentifyOptions(frequency="pom", law="exact", n_boot=0))
+    assert "re-simulated" not in ident.source  # the columns above, read back
     return rig, tmp, ident
 
 

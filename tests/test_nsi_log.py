@@ -116,10 +116,14 @@ def test_gvt_identify_log_recovers_the_tip_spring(session, tmp_path, capsys):
     # windows start after the pulse + one window and are whole half-cycles: the δ̄ of a hit falls as it decays
     t0 = np.array([float(r["t_start_s"]) for r in rows])
     assert t0.min() >= doc["window_settings"]["skip_s"] - 1e-9
-    # never over an existing file without --overwrite
+    # never over an existing file without --overwrite; with it, both outputs pass the check and the verb goes on to
+    # the log (a rig whose sensors are not in it: the next refusal, not "exists", and no second identification)
     assert gvt(args) == 2
     assert "exists" in capsys.readouterr().err
-    assert gvt([*args, "--overwrite", "--boot", "0"]) == 0
+    other_rig = [*args[:3], "lo_store_ch6", *args[4:]]
+    assert gvt([*other_rig, "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "sensors are in the log" in err and "exists" not in err, err
 
 
 def test_gvt_identify_log_bad_input(session, tmp_path, capsys):

@@ -185,8 +185,10 @@ def test_update_from_mixed_force_levels_uses_the_linear_hits_and_names_the_dead_
     ident = rig_identity(load_rig(out))
     assert ident["rig_sha256"] == hashlib.sha256(out.read_bytes()).hexdigest()
     assert ident["rig_updated_from"] == f"{mixed_log} (eq45)"
-    # the 200 N hits alone (what the update used before): the spring and the mass come out wrong, and now it says so
-    assert gvt([*argv[:-1], "--overwrite", "--level", "2", "--json"]) == 0
+    # the 200 N hits alone (what the update used before): the spring and the mass come out wrong, and now it says so.
+    # The bias is the data's (the cubic spring's tangent stiffness), not the search's: the multi-start least-squares
+    # search (the other --optimiser, ~2/3 of DE's CPU here) lands on the same optimum, and is exercised end to end
+    assert gvt([*argv[:-1], "--overwrite", "--level", "2", "--optimiser", "multistart", "--json"]) == 0
     hi = json.loads(capsys.readouterr().out)
     k_err = next(p["value"] for p in hi["parameters"] if p["name"] == "k_att") / truth["k_att"] - 1
     assert k_err > 0.02, hi["parameters"]  # the cubic spring's stiffening, absorbed by k_att
@@ -208,7 +210,7 @@ def test_seed_table_4_2_with_e_and_k_free():
     at_seed = Problem(model, measured, res.pairs).value(np.array([190e9, 10854.0]))
     assert res.objective_value < 0.55 * at_seed
     # oracle 2: the seed's pair is (to 0.3 % and 1.3 %) the exact fit of modes 1 and 2 alone
-    two = update(cfg, measured, params, n_modes=2)
+    two = update(cfg, measured, params, n_modes=2, optimiser="multistart")  # a root of 2 equations: least squares
     assert two.objective_value < 1e-6
     assert two.values[0] == pytest.approx(190e9, rel=5e-3) and two.values[1] == pytest.approx(10854.0, rel=2e-2)
     assert two.values[1] > 10854.0 and res.values[0] < 190e9

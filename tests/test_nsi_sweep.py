@@ -42,6 +42,8 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
 
     The re-simulated table is the oracle for the recorded columns (one simulation of the 6 runs, not a second one
     beside it: identify_sweep's fallback is ``simulate_runs`` on the sweep.json's amplitudes, duration and order)."""
+    from distributed import LocalCluster
+
     from analysis.model.rigs import open_rig
     from analysis.sweep_capture import CaptureSettings
     from daq.studies.identify.sweep import IdentifyOptions, identify_sweep
@@ -49,8 +51,13 @@ def test_sweep_records_the_nsi_columns_identify_reads(tmp_path):
     from daq.studies.sweep import SweepSpec, run_sweep, write_outputs
 
     rig = open_rig("beam_nes_ch5")
-    spec = SweepSpec(pmin=0.3, pmax=30.0, n=6, duration=1.0, workers=1, capture=CaptureSettings(capture=False))
-    rep = run_sweep(rig, spec)
+    # the sweep's runs on a dask scheduler in this process (a thread worker): the same submit/gather path as gvt sweep's
+    # local cluster (SweepSpec.scheduler is its --scheduler), without a worker process's start-up and imports, which
+    # are not what is tested here (gvt sweep's own processes: tests/test_sweep_cmd.py)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster:
+        spec = SweepSpec(pmin=0.3, pmax=30.0, n=6, duration=1.0, workers=1, capture=CaptureSettings(capture=False),
+                         scheduler=cluster.scheduler_address)  # fmt: skip
+        rep = run_sweep(rig, spec)
     paths = write_outputs(rep, tmp_path)
     assert paths["nsi"] == tmp_path / NSI_CSV
     swept = read_runs(paths["nsi"])

@@ -122,8 +122,9 @@ def session(tmp_path_factory):
     """A simulated session on the grounded-NES rig: the seed's identification hit then its three validation hits
     (L1656-1660), with the rig's 1 % acceleration and force noise. 2 s apart: the friction stops the NES within each
     record, and the identification reads as with 3 s (measured: k -2.5 %, alpha -1.6 %, beta -0.1 %, d +0.1 %,
-    mu -0.8 % at 2 s; -2.3, -2.5, -0.2, +0.2, -0.8 % at 3 s; validation R² >= 0.998 both) for 60 % of the optimiser's
-    CPU; 1.5 s cut the records short (k +6.5 %)."""
+    mu -0.8 % at 2 s; -2.3, -2.5, -0.2, +0.2, -0.8 % at 3 s; validation R² >= 0.998 both): each record is the rig's
+    2 s either way (cut at the next hit's pre-trigger: 2.0 s, not 2.1 s), the session 8.1 s to simulate and read
+    instead of 11.1 s; 1.5 s apart cut the records short (k +6.5 %)."""
     log = tmp_path_factory.mktemp("rfs") / "nes.mcap"
     assert gvt(["simulate", str(RIG), "--forces", "236,114.7,189.7,305.5", "--spacing", "2", "--out", str(log)]) == 0
     return log

@@ -71,10 +71,10 @@ def test_rotational_nsi_mass_is_inertia_over_arm_squared(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     """The seed's identification hit (387.7 N) and its three validation hits (64.8, 220.3, 497.4 N; L2152–2160) on
-    the store rig with its 1 % acceleration and force noise. 1.5 s apart: zeta 0.033 at 17.5 Hz decays a hit by
-    e^-5.5 within its record (measured: k_g, alpha, beta, d_g within 0.01, 0.3, 0.03, 0.02 % of those from 3 s apart,
-    alpha +0.65 % of the truth; validation R² >= 0.997, peak forces to 2e-4; at 1.2 s the 64.8 N hit's peak read
-    0.3 % low)."""
+    the store rig with its 1 % acceleration and force noise. 1.5 s apart (each record cut at the next hit's
+    pre-trigger: 1.5 s, not the rig's 2.1 s): zeta 0.033 at 17.5 Hz decays a hit by e^-5 within it (measured:
+    k_g, alpha, beta, d_g within 0.01, 0.3, 0.03, 0.02 % of those from 3 s apart, alpha +0.65 % of the truth;
+    validation R² >= 0.997, peak forces to 2e-4; at 1.2 s the 64.8 N hit's peak read 0.3 % low)."""
     log = tmp_path_factory.mktemp("store") / "store.mcap"
     assert gvt(["simulate", str(RIG), "--forces", "387.7,64.8,220.3,497.4", "--spacing", "1.5", "--out", str(log)]) == 0
     return log

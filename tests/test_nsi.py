@@ -104,7 +104,7 @@ def test_pick_attachment_pom_flags_two_similar_poms():
 
 
 # ------------------------------------------------------------------------ computational NSI on beam_ch4_sim
-def test_computational_nsi_of_the_beam_tip_spring(tmp_path):
+def test_computational_nsi_of_the_beam_tip_spring(tmp_path, capsys):
     """One test (one ~20 s simulation; a module fixture would run once per xdist worker).
 
     14 runs, P = logspace(10, 3000 N), 1 s each, all 100 nodes (the seed's computational setup, L1251).
@@ -152,11 +152,15 @@ def test_computational_nsi_of_the_beam_tip_spring(tmp_path):
     args = ["identify", str(sweep), "--rig", "beam_ch4_sim", "--frequency", "pom", "--law", "hb", "--boot", "20"]
     assert run([*args, "--png", str(png), "--json"]) == 0
     assert png.stat().st_size > 1000
+    capsys.readouterr()
     assert run([*args, "--png", str(png)]) == 2  # exists, no --overwrite
-    assert run([*args, "--png", str(png), "--overwrite"]) == 0
+    assert "exists" in capsys.readouterr().err
     assert run([*args[:-6], "--frequency", "bogus"]) == 2
     assert run(["identify", str(tmp_path), "--rig", "beam_ch4_sim"]) == 2  # no sweep.json
-    assert run(["identify", str(sweep), "--rig", "beam_ch4_exp"]) == 2  # another rig's sweep
+    # another rig's sweep; with --overwrite the existing PNG passes its check and the refusal is the rig's, not "exists"
+    assert run(["identify", str(sweep), "--rig", "beam_ch4_exp", "--png", str(png), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "the sweep is of rig 'beam_ch4_sim'" in err and "exists" not in err, err
 
 
 # --------------------------------------------------- issue 22: the seed's rigs (NES beam, LO–store, eq. 6.4)

@@ -89,16 +89,28 @@ def log_with_events(tmp_path_factory):
 
 
 def _gvt(*args: str) -> subprocess.CompletedProcess:
+    """A real ``gvt`` process: for what a shell sees of one (its exit code, no traceback on its stderr)."""
     return subprocess.run([sys.executable, "-m", "daq.cli", *args], capture_output=True, text=True, timeout=600)
 
 
+def _run(capsys, *args: str) -> SimpleNamespace:
+    """``gvt`` in this process (``daq.cli.run``: the same verb, the same error mapping to one line and an exit code)
+    where the process itself is not under test: each ``gvt`` subprocess pays 1–2 CPU-s of imports."""
+    from daq.cli import run
+
+    capsys.readouterr()
+    code = run(list(args))
+    cap = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=cap.out, stderr=cap.err)
+
+
 @pytest.mark.slow
-def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_events, tmp_path):
+def test_gvt_confirm_writes_one_record_per_event_to_the_companion_log(log_with_events, tmp_path, capsys):
     log, res = log_with_events
     if not res.analysis_events:
         pytest.fail("the strong hit produced no IR event to confirm")  # the detector's recall is tested in test_detection
     first = res.analysis_events[0]
-    p = _gvt("confirm", str(log), "--event", str(0), "--json", "--overwrite")
+    p = _run(capsys, "confirm", str(log), "--event", str(0), "--json", "--overwrite")
     assert p.returncode == 0, p.stderr
     obj = json.loads(p.stdout)
     assert [r["event_id"] for r in obj["confirmations"]] == [0]
@@ -126,13 +138,13 @@ def test_gvt_confirm_bad_event_and_bad_log_are_one_line_errors(tmp_path):
 
 
 @pytest.mark.slow
-def test_gvt_confirm_unknown_event_id(log_with_events):
+def test_gvt_confirm_unknown_event_id(log_with_events, capsys):
     log, _res = log_with_events
-    p = _gvt("confirm", str(log), "--event", "999", "--overwrite")
+    p = _run(capsys, "confirm", str(log), "--event", "999", "--overwrite")
     assert p.returncode == 2 and "no IR event with id 999" in p.stderr and "Traceback" not in p.stderr
     before = log.read_bytes()
     for extra in ([], ["--overwrite"]):  # the session log itself: never replaced, not even with --overwrite
-        q = _gvt("confirm", str(log), "--event", "0", "--out", str(log), *extra)
+        q = _run(capsys, "confirm", str(log), "--event", "0", "--out", str(log), *extra)
         assert q.returncode == 2 and "that is the input file" in q.stderr and len(q.stderr.splitlines()) == 1
     assert log.read_bytes() == before
 
@@ -152,7 +164,7 @@ def test_the_session_confirms_its_events_in_the_background_and_logs_them(log_wit
 
 
 @pytest.mark.slow
-def test_gvt_replay_confirms_every_event_from_the_log_and_writes_the_companion(log_with_events, tmp_path):
+def test_gvt_replay_confirms_every_event_from_the_log_and_writes_the_companion(log_with_events, tmp_path, capsys):
     """A replay reads each event's samples from the log (nothing to lose, no deadline): one record per event,
     none skipped, equal to what gvt confirm computes for the same events."""
     import shutil
@@ -161,13 +173,13 @@ def test_gvt_replay_confirms_every_event_from_the_log_and_writes_the_companion(l
 
     log = tmp_path / "copy.mcap"
     shutil.copy(log_with_events[0], log)
-    p = _gvt("replay", str(log))
+    p = _run(capsys, "replay", str(log))
     assert p.returncode == 0, p.stderr
     assert "confirmations (WBEMD + slow flow" in p.stdout
     recs = LogReader(companion_path(log)).json_messages("/analysis/confirmations")
     n_events = len(LogReader(log).json_messages("/analysis/events"))
     assert len(recs) == n_events and all(r["status"] != "skipped" for r in recs)
-    q = _gvt("confirm", str(log), "--json", "--out", str(tmp_path / "batch.mcap"))
+    q = _run(capsys, "confirm", str(log), "--json", "--out", str(tmp_path / "batch.mcap"))
     batch = {r["event_id"]: r for r in json.loads(q.stdout)["confirmations"]}
     for r in recs:
         assert (r["status"], r["ratio"]) == (batch[r["event_id"]]["status"], batch[r["event_id"]]["ratio"])

@@ -17,6 +17,17 @@ from daq.session import run_session
 from daq.studies.analyze.batch import analyze_log
 
 
+def _run(capsys, *args: str) -> tuple[int, str, str]:
+    """``gvt`` in this process (``daq.cli.run``: the same verb and error mapping) where the process itself is not
+    under test; a ``gvt`` subprocess pays 1–2 CPU-s of imports. One real process per verb stays below (bad rig)."""
+    from daq.cli import run
+
+    capsys.readouterr()
+    code = run(list(args))
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
 @pytest.fixture(scope="module")
 def session_log(tmp_path_factory):
     out = tmp_path_factory.mktemp("analysis") / "live.mcap"
@@ -77,23 +88,24 @@ def test_gvt_analyze_of_the_log_reproduces_the_live_results(session_log):
 
 
 @pytest.mark.slow
-def test_gvt_analyze_cli_prints_events_and_json(session_log):
+def test_gvt_analyze_cli_prints_events_and_json(session_log, capsys):
     out, _ = session_log
-    p = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--json"], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    obj = json.loads(p.stdout)
+    code, stdout, stderr = _run(capsys, "analyze", str(out), "--json")
+    assert code == 0, stderr
+    obj = json.loads(stdout)
     assert obj["rig"] == "beam_ch4_exp" and obj["rq_windows"] >= 140 and len(obj["events"]) >= 1
-    p = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out)], capture_output=True, text=True)
-    assert p.returncode == 0 and "internal-resonance events" in p.stdout
+    code, stdout, stderr = _run(capsys, "analyze", str(out))
+    assert code == 0 and "internal-resonance events" in stdout, stderr
     # the first line says what is analysed, before the analysis libraries load (issue 30: first output < 1 s,
     # measured by bench/bench_analysis.py)
-    assert re.fullmatch(rf"analysing {re.escape(str(out))}: \w+, 15 channels at 16384 Hz, 3\.\d\d s", p.stdout.splitlines()[0])
+    assert re.fullmatch(rf"analysing {re.escape(str(out))}: \w+, 15 channels at 16384 Hz, 3\.\d\d s", stdout.splitlines()[0])
+    # a real gvt process: exit 2 seen by the shell, one line, no traceback on its stderr
     bad = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--rig", "no_such_rig"],
                          capture_output=True, text=True)  # fmt: skip
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "Traceback" not in bad.stderr
 
 
-def test_gvt_analyze_at_256_hz_keeps_the_modes_below_fs_over_2_56_and_refuses_a_rate_without_mode_2(tmp_path):
+def test_gvt_analyze_at_256_hz_keeps_the_modes_below_fs_over_2_56_and_refuses_a_rate_without_mode_2(tmp_path, capsys):
     """At 256 Hz beam_ch4_exp's modes 3-4 (194, 387 Hz) are above Nyquist: their band-passes cannot be built, and the
     operator raised "Wn[0] must be less than Wn[1]" (gvt analyze: an internal error, exit 1). Now the modal filter
     keeps the modes below fs/2.56 (1-2: 20.8, 68.4 Hz) and finds the strong hit's exchanges; at 128 Hz mode 2 is out
@@ -112,14 +124,13 @@ def test_gvt_analyze_at_256_hz_keeps_the_modes_below_fs_over_2_56_and_refuses_a_
     model = RigModel.from_rig(open_rig(rig256))
     assert AnalysisOperator(model, model.sensors, 256.0).basis.n_modes == 2
     log = tmp_path / "lo.mcap"
-    cli = [sys.executable, "-m", "daq.cli"]
-    p = subprocess.run([*cli, "simulate", str(rig256), "--hits", "2", "--out", str(log)], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    p = subprocess.run([*cli, "analyze", str(log), "--rig", str(rig256), "--json"], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    assert len(json.loads(p.stdout)["events"]) >= 1
+    code, _, stderr = _run(capsys, "simulate", str(rig256), "--hits", "2", "--out", str(log))
+    assert code == 0, stderr
+    code, stdout, stderr = _run(capsys, "analyze", str(log), "--rig", str(rig256), "--json")
+    assert code == 0, stderr
+    assert len(json.loads(stdout)["events"]) >= 1
     log128, rig128 = tmp_path / "lo128.mcap", tmp_path / "r128.toml"
-    p = subprocess.run([*cli, "simulate", str(rig128), "--hits", "1", "--out", str(log128)], capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr
-    p = subprocess.run([*cli, "analyze", str(log128), "--rig", str(rig128)], capture_output=True, text=True)
-    assert p.returncode == 2 and "sample at >= 175 Hz" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    code, _, stderr = _run(capsys, "simulate", str(rig128), "--hits", "1", "--out", str(log128))
+    assert code == 0, stderr
+    code, _, stderr = _run(capsys, "analyze", str(log128), "--rig", str(rig128))
+    assert code == 2 and "sample at >= 175 Hz" in stderr and len(stderr.strip().splitlines()) == 1, stderr

@@ -69,8 +69,15 @@ def logs(tmp_path_factory):
 
 
 def single(capsys, *argv: str) -> tuple[int, dict | None]:
+    """``gvt VERB LOG --json`` in this process, on one BLAS thread as a gvt process (analysis/__init__.py, D19) and a
+    campaign task (daq/studies/campaign/tasks.py) run it: this process's numpy, imported by test modules before
+    analysis, has one thread per core, and after test_confirm and test_sweep_cmd the FRF window's tau moved by 1e-12
+    relative (the results are compared bit for bit below)."""
+    from threadpoolctl import threadpool_limits
+
     capsys.readouterr()
-    code = gvt([*argv, "--json"])
+    with threadpool_limits(1):
+        code = gvt([*argv, "--json"])
     text = capsys.readouterr().out
     return code, json.loads(text) if code == 0 else None
 

@@ -1,4 +1,4 @@
-"""Issue 30 items 6 and 7, the last four correctness cases (helper H4): a replay of overlapping blocks, an export of
+"""Issue 30 items 6 and 7, the last four correctness cases: a replay of overlapping blocks, an export of
 a recovered log whose first chunk was damaged, samples a Modbus device holds at a stop, and a stop request during
 the confirmation drain. Each is one line and the right exit code (2 bad input, 1 runtime failure, 3 data lost),
 nothing lost without a word."""

@@ -91,6 +91,7 @@ bench: $(VENV)/.installed-dev
 	$(BIN)/python bench/bench_rfs.py
 	$(BIN)/python bench/bench_import.py
 	$(BIN)/python bench/bench_import_formats.py  # gvt import readers: TDMS, SEP005 HDF5, CSV (issue 31)
+	$(BIN)/python bench/bench_uff_write.py  # write_uff against plain pyuff: same bytes, the time
 	$(BIN)/python bench/bench_campaign.py  # issue 31: 20 logs on 2 Dask workers vs one after another
 
 fuzz: $(VENV)/.installed-dev

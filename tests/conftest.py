@@ -3,6 +3,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 from hypothesis import settings
@@ -38,6 +39,26 @@ def rigs():
 def gvt_command() -> list[str]:
     exe = Path(sys.executable).parent / "gvt"
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "daq.cli"]
+
+
+class Ran(NamedTuple):
+    """What a ``gvt`` run gave: unpacks as ``code, out, err`` and reads like a completed process."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def gvt_in_process(capture: pytest.CaptureFixture[str], *argv: str) -> Ran:
+    """``gvt ARGV`` in this process, its output read through ``capture`` (capsys or capfd): ``daq.cli.run`` is the
+    console script's body (the same verb, every error mapped to the same one line and exit code), without the 0.4-2.5
+    CPU-s of imports a child process pays. For tests where the process itself is not under test (D123)."""
+    from daq.cli import run
+
+    capture.readouterr()
+    code = run(list(argv))
+    out, err = capture.readouterr()
+    return Ran(code, out, err)
 
 
 def pytest_configure(config):

@@ -16,16 +16,10 @@ from daq.log.reader import LogReader
 from daq.session import run_session
 from daq.studies.analyze.batch import analyze_log
 
+from .conftest import gvt_in_process
 
-def _run(capsys, *args: str) -> tuple[int, str, str]:
-    """``gvt`` in this process (``daq.cli.run``: the same verb and error mapping) where the process itself is not
-    under test; a ``gvt`` subprocess pays 1–2 CPU-s of imports. One real process per verb stays below (bad rig)."""
-    from daq.cli import run
-
-    capsys.readouterr()
-    code = run(list(args))
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+_run = gvt_in_process  # gvt in this process where the process itself is not under test (D123); one real process
+# per verb stays below (bad rig)
 
 
 @pytest.fixture(scope="module")

@@ -4,15 +4,14 @@ script itself, as a shell runs it, is under test in the usage and help tests at 
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 
 import numpy as np
 import pytest
 
-from daq.cli import run as gvt_run
-
-from .conftest import gvt_command
+from .conftest import gvt_command, gvt_in_process
 
 TABLE_3_1 = [3.794, 23.78, 66.60, 130.6, 216.2, 323.9, 454.5, 608.9, 787.3, 978.7]
 
@@ -24,15 +23,8 @@ def run(*args, timeout=300):
 
 @pytest.fixture
 def gvt(capsys):
-    """``gvt`` in this process: a completed process's fields (returncode, stdout, stderr)."""
-
-    def call(*args: str) -> subprocess.CompletedProcess:
-        capsys.readouterr()
-        code = gvt_run(list(args))
-        out, err = capsys.readouterr()
-        return subprocess.CompletedProcess(list(args), code, out, err)
-
-    return call
+    """``gvt`` in this process (conftest.gvt_in_process): returncode, stdout, stderr."""
+    return functools.partial(gvt_in_process, capsys)
 
 
 def test_model_modes_json_prints_the_table_3_1_numbers(gvt):

@@ -17,6 +17,8 @@ from analysis.evaluation.grid import case_rig, default_grid, simulate_cases
 from analysis.evaluation.score import can_match
 from daq.studies.confirm import companion_path, read_confirmations
 
+from .conftest import gvt_in_process
+
 
 def test_pick_sensor_is_where_both_modes_show():
     shapes = np.array([[1.0, 0.0], [0.8, 0.9], [0.2, 1.0], [0.5, -0.5]])
@@ -93,15 +95,7 @@ def _gvt(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "daq.cli", *args], capture_output=True, text=True, timeout=600)
 
 
-def _run(capsys, *args: str) -> SimpleNamespace:
-    """``gvt`` in this process (``daq.cli.run``: the same verb, the same error mapping to one line and an exit code)
-    where the process itself is not under test: each ``gvt`` subprocess pays 1–2 CPU-s of imports."""
-    from daq.cli import run
-
-    capsys.readouterr()
-    code = run(list(args))
-    cap = capsys.readouterr()
-    return SimpleNamespace(returncode=code, stdout=cap.out, stderr=cap.err)
+_run = gvt_in_process  # gvt in this process where the process itself is not under test (D123)
 
 
 @pytest.mark.slow

@@ -28,20 +28,11 @@ from daq.log.writer import ChannelInfo, LogWriter, LogWriterError
 from daq.replay import Replayer
 from drivers.blocks import SampleBlock
 
-from .conftest import gvt_command
+from .conftest import gvt_command, gvt_in_process
 from .crash_recorder import block_data
 
-
-def gvt(capsys, *argv: str) -> tuple[int, str, str]:
-    """``gvt`` in this process (``daq.cli.run`` maps every error to the line and exit code the console script
-    gives; the imports of a child process cost 1-2 CPU-s each): (exit code, stdout, stderr). One real process
-    is left, in test_truncated_files_salvage_a_prefix, for what a shell sees."""
-    from daq.cli import run
-
-    capsys.readouterr()
-    code = run(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
+gvt = gvt_in_process  # (exit code, stdout, stderr) in this process (D123); one real process is left, in
+# test_truncated_files_salvage_a_prefix, for what a shell sees
 
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,6 +8,7 @@ a child's imports cost 1-2 CPU-s); the running recorder a second one meets and t
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 import subprocess
@@ -18,11 +19,11 @@ import pytest
 
 from analysis.model.loader import load_config
 from analysis.model.rigs import open_rig
-from daq.cli import run
 from daq.config.session import SessionConfig
 from daq.log.reader import LogReader
 from daq.session import run_session
 
+from .conftest import gvt_in_process
 from .test_record_matrix import session_file
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,15 +38,8 @@ def one_line(p: subprocess.CompletedProcess) -> str:
 
 @pytest.fixture
 def gvt_here(capfd):
-    """``gvt`` in this process: a completed process's fields (returncode, stdout, stderr), as :func:`gvt` gives."""
-
-    def call(*args: str) -> subprocess.CompletedProcess:
-        capfd.readouterr()
-        code = run(list(args))
-        out, err = capfd.readouterr()
-        return subprocess.CompletedProcess(list(args), code, out, err)
-
-    return call
+    """``gvt`` in this process (conftest.gvt_in_process), read at the file descriptors: returncode, stdout, stderr."""
+    return functools.partial(gvt_in_process, capfd)
 
 
 def test_wild_serial_frames_are_rejected_counted_and_cost_nothing_else(tmp_path):

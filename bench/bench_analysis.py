@@ -6,7 +6,8 @@
    blocks of 256 / 1024 samples fed at full speed (compute latency; a paced run adds only queueing).
    A paced run (real time) at 14 ch reports the same percentiles with the blocks arriving as from a DAQ.
 2. Replay analysis as a multiple of real time at 14 ch x 16384 Hz (target >= 100x): ``gvt analyze``'s
-   path (blocks coalesced into 0.5 s chunks) and the live block size, on the same data in the same run.
+   path (blocks coalesced into its chunks: 1 s here, daq/studies/analyze/batch.py ``replay_chunk``; 0.5 s before)
+   and the live block size, on the same data in the same run.
    Baseline in the same run: the literal batch seed method (zero-phase preprocessing + SVD POD per
    window, analysis/pod.py) over the same data.
 3. The compiled kernels beside the library calls they replace (same data, same run): the causal §4.3
@@ -116,14 +117,25 @@ def first_output_s(tree: Path, repeats: int = 5) -> dict:
             "total_s": sorted(t for _, t, _ in runs)[len(runs) // 2]}  # fmt: skip
 
 
+def replay_block(fs: float, n_channels: int) -> int:
+    """The chunk ``gvt analyze`` feeds the operator, in the tree on the path: its ``replay_chunk`` (1 s at 14 channels x
+    16384 Hz), or half a second in a tree from before it (every commit's replay row measures what its own product ran)."""
+    try:
+        from daq.studies.analyze.batch import replay_chunk
+    except ImportError:
+        return max(1, round(0.5 * fs))
+    return replay_chunk(fs, n_channels)
+
+
 def replay_rows(secs: float) -> dict:
-    """The replay rows compared across commits: gvt analyze's path (8192-sample blocks, pipelined) with sensor health
-    on (the default) and off, and the literal batch seed method, on the same data."""
+    """The replay rows compared across commits: gvt analyze's path (its chunks, :func:`replay_block`, pipelined) with
+    sensor health on (the default) and off, and the literal batch seed method, on the same data."""
     d14, ch14, fs14 = _data("beam_ch4_exp", secs)
     m14 = RigModel.from_rig(open_rig("beam_ch4_exp"))
-    _run(m14, d14[: int(fs14)], ch14, fs14, 8192)  # warm-up
-    on = _median_run(m14, d14, ch14, fs14, 8192)
-    off = _median_run(m14, d14, ch14, fs14, 8192, settings=AnalysisSettings(health=None))
+    rb = replay_block(fs14, len(ch14))
+    _run(m14, d14[: int(fs14)], ch14, fs14, rb)  # warm-up
+    on = _median_run(m14, d14, ch14, fs14, rb)
+    off = _median_run(m14, d14, ch14, fs14, rb, settings=AnalysisSettings(health=None))
     seeds = sorted((_seed_batch(m14, d14, fs14) for _ in range(3)), key=lambda r: r["wall_s"])
     return {"health_on": on, "health_off": off, "seed_batch": seeds[1], "guard": _guard_cpu(m14, d14, ch14, fs14)}
 
@@ -319,14 +331,15 @@ def main() -> None:
     d14, ch14, fs14 = _data("beam_ch4_exp", secs)
     m14 = RigModel.from_rig(open_rig("beam_ch4_exp"))
     _run(m14, d14[: int(fs14)], ch14, fs14, 256)  # warm-up (imports, caches)
-    for block in (256, 8192):
+    rb = replay_block(fs14, len(ch14))
+    for block in sorted({256, 8192, rb}):
         r = _median_run(m14, d14, ch14, fs14, block)
         rows.append({"case": "14 ch x 16384 Hz", **r})
-    rows.append({"case": "14 ch, one thread", **_median_run(m14, d14, ch14, fs14, 8192, pipelined=False)})
+    rows.append({"case": "14 ch, one thread", **_median_run(m14, d14, ch14, fs14, rb, pipelined=False)})
     one_grid = AnalysisSettings(spikes=RobustSpikeSettings(offsets=(0.0,), lengths=(1.0,), min_fraction=1.0))
-    rows.append({"case": "14 ch, 1 RQ grid", **_median_run(m14, d14, ch14, fs14, 8192, settings=one_grid)})
+    rows.append({"case": "14 ch, 1 RQ grid", **_median_run(m14, d14, ch14, fs14, rb, settings=one_grid)})
     modal_only = AnalysisSettings(seed_lane=False)
-    rows.append({"case": "14 ch, modal only", **_median_run(m14, d14, ch14, fs14, 8192, settings=modal_only)})
+    rows.append({"case": "14 ch, modal only", **_median_run(m14, d14, ch14, fs14, rb, settings=modal_only)})
     rows.append({"case": "14 ch x 16384 Hz", **_run(m14, d14[: int(min(secs, 10.0) * fs14)], ch14, fs14, 256, paced=True)})
     d64, ch64, fs64 = _data("bench_64ch", min(secs, 6.0))
     m64 = RigModel.from_rig(open_rig("bench_64ch"))
@@ -346,8 +359,9 @@ def main() -> None:
               f"{r['pipelined']!s:>5s} {r['data_s']:7.1f} {r['wall_s']:7.2f} {r['x_real_time']:7.1f} "
               f"{r['cpu_per_data_s']:6.3f} {r['windows']:5d} {r['latency_ms_p50']:7.2f} {r['latency_ms_p99']:7.2f} "
               f"{r['latency_ms_max']:7.2f}")  # fmt: skip
-    replay = next(r for r in rows if r["block"] == 8192 and r["case"] == "14 ch x 16384 Hz")
-    print(f"replay (8192) runs: {', '.join(f'{x:.1f}' for x in replay['runs_x_real_time'])}x real time (median of 3 shown)")
+    replay = next(r for r in rows if r["block"] == rb and r["case"] == "14 ch x 16384 Hz")
+    runs = ", ".join(f"{x:.1f}" for x in replay["runs_x_real_time"])
+    print(f"replay ({rb}-sample chunks, gvt analyze's) runs: {runs}x real time (median of 3 shown)")
     serial = next(r for r in rows if r["case"] == "14 ch, one thread")
     print(f"pipelined seed lane (worker thread) against one thread: {replay['x_real_time'] / serial['x_real_time']:.2f}x wall, "
           f"{replay['cpu_per_data_s'] / serial['cpu_per_data_s']:.2f}x CPU")  # fmt: skip
@@ -363,7 +377,7 @@ def main() -> None:
         now = replay_rows(secs)
         base = at_base(args.base, ["--seconds", str(secs)])
         out["replay_vs_base"] = {"rev": args.base, "this_tree": now, "base": base}
-        print(f"{'replay, 14 ch x 16384 Hz, 8192':32s} {'this tree':>18s} {'@' + args.base:>18s}   (x real time | CPU s/data s)")
+        print(f"{'replay, 14 ch x 16384 Hz':32s} {'this tree':>18s} {'@' + args.base:>18s}   (x real time | CPU s/data s)")
         for key, name in (("health_on", "health on"), ("health_off", "health off"), ("seed_batch", "seed literal batch")):
             cols = []
             for r in (now, base):

@@ -64,7 +64,7 @@ def test_gvt_analyze_of_the_log_reproduces_the_live_results(session_log):
     live_rq = r.json_messages("/analysis/rq")
     live_modal = r.json_messages("/analysis/modal")
     live_events = r.json_messages("/analysis/events")
-    run = analyze_log(out)  # rig from the log's attachment, blocks coalesced to 0.5 s chunks
+    run = analyze_log(out)  # rig from the log's attachment, blocks coalesced to 1 s chunks (replay_chunk)
     rq = run.results["/analysis/rq"]
     assert [(w["start"], w["stop"]) for w in rq] == [(w["start"], w["stop"]) for w in live_rq]
     a = np.array([w["rq_hz"] for w in rq])

@@ -3,10 +3,10 @@
 The log's blocks go through the same :class:`~analysis.operator.AnalysisOperator` a live session runs
 (architecture.md: streaming is batch applied to windows as they complete), so ``gvt analyze`` of a
 session's log reproduces what the session computed live. Consecutive blocks are coalesced into chunks
-of up to ``chunk_s`` seconds before they are fed (the operator's results do not depend on the block
-split, up to rounding), and the operator runs pipelined (its seed lane one block ahead on a worker
-thread), which is what makes replay analysis fast. The rig comes from ``--rig`` or from
-the log's own ``rig/*.toml`` attachment.
+of up to ``chunk_s`` seconds (:func:`replay_chunk`: one second where that is at most ``CHUNK_VALUES`` values) before
+they are fed (the operator's results do not depend on the block split, up to rounding), and the operator runs
+pipelined (its seed lane one block ahead on a worker thread), which is what makes replay analysis fast. The rig
+comes from ``--rig`` or from the log's own ``rig/*.toml`` attachment.
 """
 
 from __future__ import annotations
@@ -61,6 +61,19 @@ def pick_stream(reader: LogReader, model: RigModel, stream: str | None) -> str:
     return name
 
 
+#: a replay chunk holds at most this many values (samples x channels, 2 MB as float64) unless that is under half a
+#: second: the operator's per-block work (~1.5 ms a block at 14 channels: the spike rules' and health screens' calls,
+#: the pipeline's hand-offs) is paid half as often with 1 s chunks as with 0.5 s ones (bench/bench_analysis.py: 71 ->
+#: 80x real time at 14 ch x 16384 Hz), while 64 ch x 51.2 kHz keeps its 0.5 s chunks (13 MB each as float64)
+CHUNK_VALUES = 1 << 18
+
+
+def replay_chunk(fs: float, n_channels: int) -> int:
+    """Samples per replay chunk: one second of data, cut to ``CHUNK_VALUES`` values but never under half a second."""
+    seconds = min(1.0, max(0.5, CHUNK_VALUES / (fs * max(1, n_channels))))
+    return max(1, round(seconds * fs))
+
+
 def open_for_analysis(path: str | Path, rig: Rig | None, stream: str | None) -> tuple[LogReader, Rig, RigModel, str]:
     """The log, its rig (given, or attached to the log), the rig's model and the stream that carries its sensors;
     :class:`AnalyzeError` (one line) when any of them cannot be had."""
@@ -81,11 +94,12 @@ def analyze_log(
     rig: Rig | None = None,
     stream: str | None = None,
     settings: AnalysisSettings | None = None,
-    chunk_s: float = 0.5,
+    chunk_s: float | None = None,
     progress: Callable[[float], None] | None = None,
     pipelined: bool = True,
 ) -> AnalysisRun:
-    """Run the operator over ``stream`` of the log; ``progress(fraction)`` about twice a second. ``pipelined``: the
+    """Run the operator over ``stream`` of the log in chunks of ``chunk_s`` (None: :func:`replay_chunk`);
+    ``progress(fraction)`` about twice a second. ``pipelined``: the
     operator's three stages on three threads (D72), what one log alone wants; a campaign runs a log per core and its
     workers ask for one thread (``pipelined=False``: the same emits in the same order, docs/campaign.md)."""
     reader, rig, model, name = open_for_analysis(path, rig, stream)
@@ -111,7 +125,8 @@ def analyze_log(
 
     t0 = time.perf_counter()
     last = t0
-    blocks = coalesce(counted(), max(1, round(chunk_s * info.sample_rate)))
+    per = replay_chunk(info.sample_rate, len(info.channels)) if chunk_s is None else max(1, round(chunk_s * info.sample_rate))
+    blocks = coalesce(counted(), per)
     try:
         while True:
             try:

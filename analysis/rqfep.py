@@ -64,6 +64,22 @@ def rq_fep(poms: FloatArray, M: FloatArray, K: FloatArray, n_keep: int = 4) -> F
     return np.sort(rq_hz(p, M, K), axis=1)[:, :n_keep]
 
 
+def pov_gaps(povs: FloatArray, poms: FloatArray, M: FloatArray, K: FloatArray, n_keep: int = 4) -> FloatArray:
+    """The POV separation of the POM behind each of :func:`rq_fep`'s RQs: ``min_j |λ_i − λ_j| / λ_i`` over the run's
+    other POVs, (runs, n_keep), in :func:`rq_fep`'s order. Why: a POM is an eigenvector of the covariance, and an
+    eigenvector whose eigenvalue nearly equals another's is fixed only up to a mix of the two (its perturbation scales
+    as the covariance's perturbation over the gap); on a high-energy record a mix of a few per cent moves an RQ by tens
+    of per cent (docs/sweep.md). A gap of a few per cent says the RQ is one such draw, not a property of the mode."""
+    p = np.asarray(poms, dtype=float)
+    lam = np.atleast_2d(np.asarray(povs, dtype=float))
+    p = p[None] if p.ndim == 2 else p
+    order = np.argsort(rq_hz(p, M, K), axis=1, kind="stable")[:, :n_keep]
+    diff = np.abs(lam[:, :, None] - lam[:, None, :])
+    diff[:, np.arange(lam.shape[1]), np.arange(lam.shape[1])] = np.inf
+    gap = diff.min(axis=2) / np.maximum(lam, 1e-300)
+    return np.take_along_axis(gap, order, axis=1)
+
+
 @dataclass(frozen=True)
 class SpikeSettings:
     """Thresholds of the spike/partner detector (the seed gives none: method-detection.md §1.10).

@@ -8,7 +8,15 @@ import subprocess
 import numpy as np
 import pytest
 
-from analysis.rqfep import SpikeSettings, find_locks, flag_interactions, nearest_ratio, pod_from_covariance, rq_fep
+from analysis.rqfep import (
+    SpikeSettings,
+    find_locks,
+    flag_interactions,
+    nearest_ratio,
+    pod_from_covariance,
+    pov_gaps,
+    rq_fep,
+)
 from tests.conftest import gvt_command
 
 # ---------------------------------------------------------------- kernels
@@ -62,6 +70,52 @@ def _plant(e, f1, f2, target: float, width: int, up: float, down: float):
     g1[sl] += up * gap
     g2[sl] -= down * gap
     return g1, g2, i0
+
+
+def test_pov_gaps_name_the_separation_behind_each_rq():
+    """Oracle: a covariance built from chosen POVs and orthonormal shapes; the gap of each kept RQ's POM is the distance
+    of its POV to the nearest other, relative to its own, computed here by hand."""
+    n = 6
+    rng = np.random.default_rng(1)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    lam = np.array([1.0, 0.5, 0.0505, 0.05, 0.01, 0.001])  # the 3rd and 4th 1 % apart
+    C = (Q * lam) @ Q.T
+    M, K = np.eye(n), np.diag(np.arange(1.0, n + 1) ** 2)
+    poms, povs = pod_from_covariance(C)
+    gaps = pov_gaps(povs, poms, M, K, 4)
+    f = rq_fep(poms, M, K, 4)
+    from analysis.pod import rq_hz
+
+    each = rq_hz(poms, M, K)[0]
+    for j in range(4):
+        i = int(np.flatnonzero(np.isclose(each, f[0, j], rtol=0, atol=1e-12))[0])
+        others = np.delete(povs[0], i)
+        assert gaps[0, j] == pytest.approx(np.min(np.abs(others - povs[0, i])) / povs[0, i], rel=1e-9)
+    assert np.sort(gaps[0])[0] < 0.011  # the near pair (1 % apart) is behind one of the kept RQs here
+
+
+def test_an_asymptote_whose_edge_runs_disagree_is_undecided_and_says_so():
+    """The measured case (beam_ch4_sim, 24 runs, high end): NNM3's three edge runs were 120.95 / 113.12 / 112.59 Hz on
+    one BLAS thread and 181.20 / 190.86 / 112.53 Hz on two, smallest POV gaps 3.9 % and 0.9 %. The two-thread median
+    (181 Hz) is 60 % off pinned NNM3; its verdict must not stand without a warning. The one-thread runs agree (IQR 3.7 %
+    of the median, inside the 4 % pass band)."""
+    from daq.studies.sweep import asymptote_errors, asymptote_warnings
+
+    ff, fp = np.array([3.807, 23.861, 66.811, 130.923]), np.array([16.70, 54.11, 112.89, 193.05])
+    low = np.tile(ff, (3, 1))
+    one = np.vstack([low, [[19.39, 61.53, 120.95, 192.08], [17.30, 64.71, 113.12, 192.20], [16.85, 62.11, 112.59, 192.44]]])
+    two = np.vstack([low, [[17.99, 62.00, 181.20, 192.28], [17.31, 113.67, 190.86, 192.22], [19.12, 64.26, 112.53, 192.24]]])
+    gaps = np.full((6, 4), 0.5)
+    gaps[3:, 2] = [0.013, 0.0088, 0.15]
+    rows1 = asymptote_errors(one, ff, fp, 0.5, gaps)
+    rows2 = asymptote_errors(two, ff, fp, 0.5, gaps)
+    nnm3 = [next(a for a in rows if a["end"] == "high" and a["nnm"] == 3) for rows in (rows1, rows2)]
+    assert nnm3[0]["decided"] and nnm3[0]["pass"] and nnm3[0]["spread"] == pytest.approx(0.037, abs=0.001)
+    assert not nnm3[1]["decided"] and nnm3[1]["max_hz"] == 190.86 and nnm3[1]["pov_gap_min"] == 0.0088
+    assert all(a["decided"] and a["spread"] == 0 for a in rows2 if a["end"] == "low")
+    lines = asymptote_warnings(rows2)
+    assert any(ln.startswith("high-energy NNM3: its 3 edge runs' RQs span 112.53-190.86 Hz") and "0.9 %" in ln for ln in lines)
+    assert all("\n" not in ln for ln in lines) and not any("NNM3" in ln for ln in asymptote_warnings(rows1))
 
 
 def test_smooth_curves_are_not_flagged():
@@ -415,6 +469,13 @@ def test_sweep_asymptotes_and_outputs(rigs, tmp_path, capsys):
     assert js["fixed_free_hz"] == pytest.approx(list(ff)) and js["fixed_pinned_hz"] == pytest.approx(list(fp))
     low_rows = [a for a in js["asymptotes"] if a["end"] == "low"]
     assert len(low_rows) == 4 and all(a["pass"] for a in low_rows)
+    # every verdict says how far to trust it: the low end's runs agree (linear: spread ~1e-4); each undecided row is one
+    # warning line on stderr and in the JSON, with the smallest POV gap behind it
+    assert all(a["decided"] and a["spread"] < 0.01 and 0 < a["pov_gap_min"] <= 1 for a in low_rows), low_rows
+    undecided = [a for a in js["asymptotes"] if not a["decided"]]
+    assert len(js["asymptote_warnings"]) == len(undecided) and all("POV gap" in w for w in js["asymptote_warnings"])
+    warned = [ln for ln in cap.err.splitlines() if ln.startswith("gvt: warning: ")]
+    assert [ln.removeprefix("gvt: warning: ") for ln in warned] == js["asymptote_warnings"], cap.err
     for fl in js["interactions"]:
         assert fl["ratio"] in {"2:1", "5:2", "3:1", "7:2", "4:1", "9:2", "5:1"} and isinstance(fl["robust_1ppm"], bool)
         assert fl["kind"] in {"spike", "band"}

@@ -26,7 +26,7 @@ def sweep(
     json_out: Annotated[bool, typer.Option("--json", help="Print the JSON summary instead of tables.")] = False,
 ) -> None:
     """The seed's computational study: a force sweep, POD + RQ per run, the RQ-FEP and flagged interactions."""
-    from daq.studies.sweep import SweepSpec, print_report, run_sweep, summary_json, write_outputs
+    from daq.studies.sweep import SweepSpec, asymptote_warnings, print_report, run_sweep, summary_json, write_outputs
 
     spec = SweepSpec(
         pmin=pmin, pmax=pmax, n=n, duration=duration, outputs=outputs, order=order, scheduler=scheduler, workers=workers
@@ -48,3 +48,5 @@ def sweep(
         out.print_json(summary_json(rep))
     else:
         print_report(out, rep, paths)
+    for line in asymptote_warnings(rep.asymptotes):  # the asymptotes whose edge runs disagree: one line each
+        err.print(f"gvt: warning: {line}", markup=False, soft_wrap=True)

@@ -353,8 +353,17 @@ class Driver(ABC):
         stats.segments.append(Segment(stream, rs.segment, rs.stream_first, rs.device_first, gap))
         why = cause if rs.by_transport else "its index went back or jumped, and the next block continued it"
         late_ms = round(rs.old_late_s * 1e3)
+        fs = acc.item[0].sample_rate
+        # the new run's first block came as late as this link's blocks do, within their spread either way
+        longer, sooner = round(rs.usual_spread_s[0] * fs), min(gap - 1, round(rs.usual_spread_s[1] * fs))
+        spread = (
+            f"; within {sooner} fewer to {longer} more samples by how late this link's blocks arrive "
+            "(10th to 90th percentile of the old run's recent blocks)"
+            if longer or sooner > 0
+            else ""
+        )
         # the new run's first block may have waited behind the same backlog: that is the estimate's uncertainty
-        shorter = min(gap - 1, round(rs.old_late_s * acc.item[0].sample_rate))
+        shorter = min(gap - 1, round(rs.old_late_s * fs))
         backlog = (
             f"; the host read the old run's end {late_ms} ms behind that clock: if it was still behind when the new "
             f"run began, the gap is up to {shorter} samples shorter"
@@ -370,7 +379,7 @@ class Driver(ABC):
                 gap,
                 f"device restarted ({why}): its index went to {rs.device_first}; segment {rs.segment} starts at stream "
                 f"index {rs.stream_first}, after an estimated {gap} missing samples (gap length estimated from the "
-                f"host clock: the device's clock as its earliest blocks showed it{backlog})",
+                f"host clock: the device's clock as its earliest blocks showed it{spread}{backlog})",
                 device_start=rs.device_first,
                 device_end=rs.device_first + acc.n,
             )

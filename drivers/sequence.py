@@ -64,6 +64,10 @@ class Restart:
     stream_first: int  # stream index given to the new segment's first sample
     by_transport: bool = False  # the transport confirmed it (else: the next block continued the suspect)
     old_late_s: float = 0.0  # how late the old run's last block arrived behind the device clock (a backlog, not counted)
+    #: how much earlier / later than usual a block of this link arrives (the median lateness minus its 10th percentile,
+    #: the 90th minus the median, over the old run's recent blocks): the new run's first block was one of them, so the
+    #: gap may be this much longer / shorter than estimated (module docstring)
+    usual_spread_s: tuple[float, float] = (0.0, 0.0)
 
     @property
     def estimated_gap(self) -> int:
@@ -228,7 +232,11 @@ class StreamSequencer:
         gap = max(1, round((t_first - usual - self._t_end) * self.fs))
         prev_end = self.next_stream_index
         assert prev_end is not None
-        rs = Restart(self.segment + 1, blk.first, prev_end, prev_end + gap, by_transport, self._late_s)
+        spread = (0.0, 0.0)
+        if len(self._lates) >= 10:
+            q = statistics.quantiles(self._lates, n=10)  # the 10th ... 90th percentiles
+            spread = (max(0.0, usual - q[0]), max(0.0, q[-1] - usual))
+        rs = Restart(self.segment + 1, blk.first, prev_end, prev_end + gap, by_transport, self._late_s, spread)
         if rs.stream_first + blk.n > self.max_index:
             return self._reject(blk, "the new segment would end beyond the log's time range")
         self.segment += 1

@@ -241,6 +241,31 @@ def test_a_backlog_before_a_restart_does_not_shorten_the_estimated_gap():
     assert abs(rs.old_late_s - late) < 0.002  # said in the restart event, left out of the estimate
 
 
+def test_a_restart_says_how_far_either_way_the_gap_may_be_off():
+    """The new run's first block is one of this link's blocks: it may have come earlier or later than the usual
+    (median) lateness the estimate assumes. The restart carries that spread both ways (the old run's recent blocks'
+    10th and 90th percentiles about their median) and the event says it in samples; a first block read at either
+    percentile leaves the true gap inside the stated range (frames read 0-20 ms late: about 8 ms either way)."""
+    fs = 2048.0
+    for first_late in (0.002, 0.010, 0.018):  # the new run's first frame read at the 10th, 50th, 90th percentile
+        rng = random.Random(5)
+        seq = StreamSequencer(fs)
+        for k in range(256):  # 8 s of 64-sample frames, each read 0-20 ms after its last sample
+            seq.feed(64 * k, 64, 64 * (k + 1) / fs + rng.uniform(0.0, 0.02))
+        (acc,) = seq.feed(0, 64, 8.3 + 64 / fs + first_late, restart=True)  # down 0.3 s after 8.0 s
+        rs = acc.restart
+        earlier, later = rs.usual_spread_s
+        assert 0.006 < earlier < 0.010 and 0.006 < later < 0.010, rs.usual_spread_s
+        gap, truth = rs.estimated_gap, round(0.3 * fs)
+        assert gap - round(later * fs) - 2 <= truth <= gap + round(earlier * fs) + 2, (first_late, gap, rs.usual_spread_s)
+    # with fewer than 10 blocks behind it there is no spread to state
+    seq = StreamSequencer(fs)
+    for k in range(5):
+        seq.feed(64 * k, 64, 64 * (k + 1) / fs + 0.01)
+    (acc,) = seq.feed(0, 64, 1.0, restart=True)
+    assert acc.restart.usual_spread_s == (0.0, 0.0)
+
+
 def test_the_device_clock_estimate_follows_a_slow_device():
     """A device clock 200 ppm slower than the host's: its blocks come later and later on the host clock; the
     estimate, carried forward 1000 ppm fast, follows them (a pure minimum would lag by 200 ppm of the run)."""

@@ -76,6 +76,39 @@ def test_every_hit_found_with_its_verdict_and_pre_trigger(device):
     assert det.suspects() == []
 
 
+@pytest.mark.parametrize("block", [256, 8192])
+def test_hit_records_equal_pytriggers_on_the_same_samples(device, block):
+    """pyTrigger (ladisk/pyTrigger, a trigger nobody here wrote; docs/landscape.md), on the same samples with the same
+    level, pre-trigger and record length, a new instance armed once the force fell back below the level (it has no
+    re-arm of its own; bench/bench_hits.py times it so): every record it takes equals a gvtlink hit record bit for bit,
+    so the trigger sample and the pre-trigger ring agree, at a live and a replay block size of gvtlink's. pyTrigger is fed
+    64 samples at a time: it does not say how much of a block its finished record used, so the harness drops the rest
+    of that block, and 64 samples are less than the 0.19 s between one record's end and the next hit's pre-trigger.
+    The double hit at 1.204 s lies inside the 1.2 s record for both."""
+    from pyTrigger import pyTrigger
+
+    _, hits = _run(device, SETTINGS, block=block)
+    rows, pre = hits[0].data.shape[0], round(SETTINGS.pre_trigger * device.fs)
+    data = device.samples(0, int(3.1 * device.fs)).astype(np.float64)
+    theirs, wait_below = [], False
+    trig = pyTrigger(rows=rows, channels=data.shape[1], trigger_channel=0, trigger_level=SETTINGS.level, presamples=pre)
+    for s in range(0, data.shape[0], 64):
+        b = data[s : s + 64]
+        if wait_below:
+            low = np.flatnonzero(b[:, 0] < SETTINGS.level)
+            if low.size == 0:
+                continue
+            b, wait_below = b[low[0] :], False
+        if trig.add_data(b):
+            theirs.append(trig.get_data())
+            trig = pyTrigger(rows=rows, channels=data.shape[1], trigger_channel=0, trigger_level=SETTINGS.level,
+                             presamples=pre)  # fmt: skip
+            wait_below = True
+    assert len(theirs) == len(hits) == 6
+    for h, r in zip(hits, theirs, strict=True):
+        assert np.array_equal(np.asarray(h.data, np.float64), r), (h.hit, h.t_s)
+
+
 def test_block_size_does_not_change_anything(device):
     _, a = _run(device, SETTINGS, block=256)
     _, b = _run(device, SETTINGS, block=37)

@@ -161,8 +161,9 @@ def test_a_device_restart_is_a_new_segment_never_stitched(tmp_path, transport):
     restarts = [e for e in r.json_messages("/daq/events") if e["kind"] == "restart"]
     assert len(restarts) == 1 and "estimated" in restarts[0]["message"]
     # how far either way: the spread of how late the link's blocks arrive (drivers/sequence.py Restart.usual_spread_s).
-    # Modbus: when the restart is confirmed the sequencer has one block of lateness behind it (measured: the history
-    # starts again with the reconnected link), fewer than the 10 a spread needs, so none is stated there
+    # Modbus: every block is stamped with the device's own head counter at the poll, so its lateness behind the device
+    # clock is 0 (measured: 10th, 50th and 90th percentiles 0 over 24 blocks on TCP, 9 µs at the 90th on RTU) and the
+    # spread rounds to 0 samples: nothing to state
     spread = re.search(r"within \d+ fewer to \d+ more samples by how late this link's blocks arrive", restarts[0]["message"])
     assert spread or transport.startswith("modbus"), restarts[0]["message"]
     d = r.read_stream("dev0")

@@ -33,7 +33,9 @@ The new run's start has no such envelope yet: its first block is all there is wh
 that block came as late as blocks usually do behind the envelope (a serial driver reads in turns every 20 ms:
 +17 ms at 2048 Hz, systematically, on an otherwise quiet host). So the new run's start is moved back by the
 *median* lateness of the old run's recent blocks (``LATE_WINDOW`` of them): the usual delay, which a backlog at the
-old run's end (a minority of the window) does not move.
+old run's end (a minority of the window) does not move. The first block is one draw from that lateness, so the gap may
+be off either way by its spread: the 10th and 90th percentiles about the median go with the restart
+(``Restart.usual_spread_s``), and the restart event says them in samples (docs/decisions.md D128).
 """
 
 from __future__ import annotations

@@ -11,15 +11,10 @@ nearly constant, so the lower envelope of ``x`` is the device's clock offset (th
 of NTP, Mills, RFC 5905 §10). We keep one point per ``window_s`` of device time — the window's
 minimum — in a bounded deque; once the points span ``drift_min_span_s`` a least-squares line through
 them, refitted without the points far above it, gives the device clock's rate error against the host
-(drift, ppm). The offset is a low quantile (``FLOOR_QUANTILE``, the 20th percentile) of the detrended points within
-``horizon_s`` (30 s): scheduling delay on a loaded host only ever makes a block late, so a longer history can only
-bring the floor nearer the link's minimum latency (issue 30: with the minimum of the last second, a host at load 5
-put the offset at 0.78 s against the true 0.2371 s, because every block of that second arrived late). Why a quantile
-and not the lowest point: the lowest of some dozens of window minima is an extreme value, set by one lucky block; in
-24 two-device sessions at 0, 4 and 8 busy loops on 2 cores the two streams' lowest points gave offsets up to 1.07
-samples off at 16384 Hz once 0.5 s was seen (0.67 after 3 s), their 20th percentiles up to 0.46 (0.30): each
-quantile sits as far above its own stream's lowest point, and the relative offset is a difference of two floors, so
-what both streams share cancels (docs/decisions.md D127). A clock that steps later is
+(drift, ppm). The offset is the lowest detrended point within ``horizon_s`` (30 s): scheduling delay on a
+loaded host only ever makes a block late, so a longer history can only bring the floor nearer the link's
+minimum latency (issue 30: with the minimum of the last second, a host at load 5 put the offset at 0.78 s
+against the true 0.2371 s, because every block of that second arrived late). A clock that steps later is
 followed when the minima of the last ``step_s`` (5 s) sit together above the old floor (a step moves them
 all alike; delay scatters them, though a starved reader can lag steadily for a second or more). The
 uncertainty is the floor's sharpness: the lowest point to the 10th percentile of the points
@@ -57,15 +52,13 @@ from drivers.blocks import BlockStatus, SampleBlock
 
 METHOD_ESTIMATED = "host-arrival-lower-envelope"
 METHOD_CONFIGURED = "configured"
-#: the floor of a stream's window minima: this quantile of them (the module docstring says why not the lowest)
-FLOOR_QUANTILE = 0.2
 
 
 @dataclass(frozen=True)
 class ClockEstimate:
     """One device clock against the host's monotonic clock."""
 
-    x_s: float  # host time of device sample 0 at the floor latency (FLOOR_QUANTILE), as seen at device time ``at_s``
+    x_s: float  # host time of device sample 0 at minimum latency, as seen at device time ``at_s``
     at_s: float  # device time (end_index / fs) of the newest envelope point
     drift_ppm: float  # device clock rate error against the host (0 until the points span drift_min_span_s)
     uncertainty_s: float  # robust spread of the recent detrended window minima (nan with a single point)
@@ -169,8 +162,7 @@ class ClockOffsetEstimator:
         d = d[t >= t_last - self.horizon_s]
         if self._stepped(tr, d):
             d = d[-max(self.recent_windows, round(self.step_s / self.window_s)) :]
-        est = ClockEstimate(float(np.percentile(d, 100 * FLOOR_QUANTILE)), t_last, slope * 1e6, _floor_spread(d),
-                            int(t.size), span)  # fmt: skip
+        est = ClockEstimate(float(d.min()), t_last, slope * 1e6, _floor_spread(d), int(t.size), span)
         tr.cache = est
         return est
 
@@ -222,8 +214,8 @@ def _envelope_slope(t: np.ndarray, x: np.ndarray) -> float:
 def _floor_spread(d: np.ndarray) -> float:
     """How sharply the floor of the window minima is defined: the lowest one to their 10th percentile (at least
     the third lowest: the gap to the second of five windows was 6 µs in a run whose offset was 99 µs off).
-    A late arrival only ever raises a point, so this is the distance within which another window could have set
-    the floor — small on a quiet host, large when scheduling delay leaves few
+    The offset is the lowest; a late arrival only ever raises a point, so this is the distance within which
+    another window could have set the floor — small on a quiet host, large when scheduling delay leaves few
     windows at the link's minimum latency. It cannot include the links' latency asymmetry. nan with one point."""
     if d.size < 2:
         return math.nan

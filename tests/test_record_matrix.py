@@ -181,7 +181,12 @@ def test_a_device_restart_is_a_new_segment_never_stitched(tmp_path, transport):
     assert info["streams"][0]["segments"] == [(0, seg1), (seg1, round(4.0 * rate))]
     assert "segments (the device restarted" in info_text(info)
     rec = res.simulated_faults["dev0"].restarts[0]
-    assert abs(int(before[-1]) + 1 - rec.old_end) <= 256  # the old run is intact up to where it went down
+    # the old run is intact up to where the link stopped delivering it (``delivered``; equal to the recorded end on every
+    # transport on a quiet host). Not up to the device's own last sample (``old_end``): what a Modbus device still held
+    # in its FIFO when it went down was never on the link, and that grows with how far a loaded host's poller lags
+    # (456 samples at 2048 Hz beside 4 hogs and the suite's workers); the restart's gap counts it
+    end = int(before[-1]) + 1
+    assert 0 <= rec.delivered - end <= 256 and rec.delivered <= rec.old_end, (end, rec.delivered, rec.old_end)
 
 
 TWO = {

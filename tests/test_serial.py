@@ -318,7 +318,10 @@ def test_one_shot_stall_loses_nothing(device):
     faults = Faults(stall_at_s=0.5, stall_for_s=0.5)
     arrivals: list[float] = []
     srv, drv, blocks = run_link(device, faults, n_samples=int(1.5 * device.fs), arrivals=arrivals)
-    assert max(np.diff(arrivals)) >= 0.4  # the device really went quiet
+    # the device really went quiet: 0.5 s against blocks every few ms. The host stamps arrivals, and the block before the
+    # stall may be read late on a loaded host, which shortens the gap it sees (0.398 s beside 4 hogs and the suite's
+    # workers); half the stall is still ~60 frame periods (64 samples at 16384 Hz)
+    assert max(np.diff(arrivals)) >= 0.25
     assert drv.stats.gaps == [] and drv.stats.lost_samples == 0 and drv.stats.reconnects == 0
     assert blocks[0].first_index == 0 and all(b.first_index == a.end_index for a, b in itertools.pairwise(blocks))
     check_against_device(device, srv, blocks, "int24")

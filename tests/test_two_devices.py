@@ -85,7 +85,7 @@ def _loaded(arr: tuple[np.ndarray, np.ndarray], rng: np.random.Generator, lag_s:
 def test_two_devices_with_different_block_sizes_keep_the_offset_within_its_stated_uncertainty(seed):
     """The case that fools a quantile floor (tried as D127, reverted): two DAQs of different kinds deliver different
     block sizes (256 and 4096 samples at 16384 Hz), each block read 0-20 ms after its last sample (a serial driver's
-    read turns). A 0.1 s window holds ~6 blocks of one device and a quarter of one of the other, so a quantile of the
+    read turns). A 0.1 s window holds ~6 blocks of one device and 0.4 of one of the other, so a quantile of the
     window minima sits ~3 ms higher for the sparse device: the 20th percentile put the offset 36-81 samples off with an
     uncertainty of 21-45. The lowest point errs by the sparse stream's fewer draws only, within 1.5x the uncertainty
     it states (measured: 0.06-1.18x over these seeds)."""

@@ -24,6 +24,7 @@ import can
 from drivers.can.dbc_map import load_layouts
 from drivers.sim.device import SimulatedDevice
 from drivers.sim.faults import Faults, RestartRecord
+from drivers.sim.timing import precise_wakeups
 
 DEFAULT_DBC = Path(__file__).resolve().parents[2] / "configs" / "can" / "gvt_sim_node.dbc"
 
@@ -61,6 +62,7 @@ class CanSimNode:
         self._bus: can.BusABC | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.precise_wakeups: bool | None = None  # the sending thread runs with 1 ns timer slack (drivers/sim/timing.py)
         self.frames_sent = 0
         self.frames_destroyed = 0
         self.next_frame = 0  # frames [0, next_frame) were sent or destroyed
@@ -115,6 +117,7 @@ class CanSimNode:
 
     # --- the node thread ---------------------------------------------------------------------
     def _main(self) -> None:
+        self.precise_wakeups = precise_wakeups()  # sent when due, not up to a host timer's slack later (drivers/sim/timing.py)
         try:
             self._loop()
         except BaseException as exc:  # kept for the test/owner to inspect

@@ -37,6 +37,7 @@ import numpy as np
 from drivers.serial.protocol import BITS, FORMATS, encode_frame, encode_lines
 from drivers.sim.device import SimulatedDevice
 from drivers.sim.faults import Faults, RestartRecord
+from drivers.sim.timing import precise_wakeups
 
 
 class SerialSimServer:
@@ -72,6 +73,7 @@ class SerialSimServer:
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.precise_wakeups: bool | None = None  # the sending thread runs with 1 ns timer slack (drivers/sim/timing.py)
         self._master: int | None = None
         self._slave: int | None = None
         self.path = ""
@@ -136,6 +138,7 @@ class SerialSimServer:
         self._go.set()
 
     def _main(self) -> None:
+        self.precise_wakeups = precise_wakeups()  # sent when due, not up to a host timer's slack later (drivers/sim/timing.py)
         try:
             while not self._go.wait(0.1):
                 if self._stop.is_set():

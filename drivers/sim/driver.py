@@ -9,6 +9,7 @@ from pydantic import Field
 
 from drivers.base import Driver, DriverConfig, LinkBudget
 from drivers.blocks import SampleBlock
+from drivers.sim.timing import precise_wakeups
 
 
 class SimConfig(DriverConfig):
@@ -61,6 +62,8 @@ class SimDriver(Driver):
     def _run(self) -> None:
         c: SimConfig = self.config  # type: ignore[assignment]
         dev = self.device
+        if c.paced:
+            precise_wakeups()  # blocks when due, not up to a host timer's slack later (drivers/sim/timing.py)
         dev.start_clock()
         names = tuple(c.channels)
         end = None if c.duration is None else round(c.duration * dev.fs)

@@ -1,0 +1,65 @@
+"""The simulated devices send on their own schedule, not a host timer's slack later (drivers/sim/timing.py).
+
+Why it matters: the two-device clock offset is the difference of two arrival-time floors (daq/timeline.py). With the
+default 50 µs slack a quiet host woke most sends ~50 µs late and only the odd one on time, so each simulated device's
+floor was set by its luck: 3 s two-device sessions on a quiet host were off by up to 0.93 samples (10 runs, rms 0.41)
+and by 1.20 samples in a 60 s one; with 1 ns slack within 0.17 samples (10 runs, rms 0.10) (docs/decisions.md D129).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import pytest
+
+from drivers.sim.timing import SLACK_NS, precise_wakeups, timer_slack_ns
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="timer slack is a Linux prctl")
+
+
+def _in_thread(fn):
+    out: list = []
+    t = threading.Thread(target=lambda: out.append(fn()))
+    t.start()
+    t.join()
+    return out[0]
+
+
+@linux
+def test_precise_wakeups_sets_the_calling_threads_slack_and_no_other():
+    before = timer_slack_ns()
+    assert before is not None and before > SLACK_NS  # the kernel's default for a normal thread (50 µs unless changed)
+    ok, slack = _in_thread(lambda: (precise_wakeups(), timer_slack_ns()))
+    assert ok is True and slack == SLACK_NS
+    assert timer_slack_ns() == before  # per thread: the recorder's own threads keep theirs
+    assert _in_thread(timer_slack_ns) == before  # and a new thread inherits the creator's, not the device's
+
+
+@linux
+def test_the_serial_and_can_simulators_send_from_a_precise_thread(rigs):
+    from drivers.can.sim_node import CanSimNode
+    from drivers.serial.sim_server import SerialSimServer
+    from drivers.sim.device import HitSchedule, SimulatedDevice
+
+    device = SimulatedDevice(rigs("beam_ch4_exp"), HitSchedule.every(2.0, [200.0]), duration=1.0, block_size=256, seed=1)
+    srv = SerialSimServer(device, None, fmt="int24", frame_samples=64)
+    srv.start(hold=True)
+    try:
+        srv.go()
+        deadline = time.monotonic() + 10
+        while srv.precise_wakeups is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        srv.stop()
+    assert srv.precise_wakeups is True
+    node = CanSimNode(device, None, message="GVT_FD3", channel="gvt-test-sim-timing", fd=True)
+    node.start()
+    try:
+        deadline = time.monotonic() + 10
+        while node.precise_wakeups is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        node.stop()
+    assert node.precise_wakeups is True

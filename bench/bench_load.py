@@ -15,7 +15,7 @@ The hogs are busy loops at the recorder's own priority (tests/hogs.py), started 
 built (tests/test_load_matrix.py ``load_from_device_start`` says why).
 
     python bench/bench_load.py [--seconds 60] [--hogs 0,4,8,16] [--cells serial,can-fd,modbus-tcp,two-devices]
-                               [--minutes 10] [--no-matrix] [--no-long]
+                               [--repeat 1] [--minutes 10] [--no-matrix] [--no-long]
     GVT_LOAD_JSON=cells.jsonl pytest tests/test_load_matrix.py; python bench/bench_load.py --table cells.jsonl
 
 Prints a table per part; writes bench/results/bench_load.json.
@@ -105,14 +105,14 @@ HEADER = (f"{'cell':<12} {'hogs':>4} {'run-q':>6} {'load1':>6} {'samples':>10} {
           f"{'off/smp':>8} {'p50 ms':>7} {'p99 ms':>7}  verdict")  # fmt: skip
 
 
-def matrix(work: Path, rig_small: Path, cells: list[str], hogs: list[int], seconds: float) -> list[dict]:
-    print(f"\nload matrix: {seconds:g} s per cell at {FS} Hz, analysis on "
+def matrix(work: Path, rig_small: Path, cells: list[str], hogs: list[int], seconds: float, repeat: int = 1) -> list[dict]:
+    print(f"\nload matrix: {seconds:g} s per cell at {FS} Hz, analysis on, each cell {repeat}x "
           "(lost = driver + writer; shed = analysis input skipped; uncov = samples neither in a window nor shed; "
           "off/smp = two-device offset error in samples; run-q = runnable tasks, mean)")  # fmt: skip
     print(HEADER)
     out = []
     for n in hogs:
-        for cell in cells:
+        for cell in [c for c in cells for _ in range(repeat)]:
             t0 = time.perf_counter()
             c = run_cell(work, cell, Hogs(n, limit_s=seconds + 300), seconds, rig_small)
             m = c.check()
@@ -188,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="data seconds per matrix cell")
     ap.add_argument("--hogs", default="0,4,8,16", help="hog counts of the matrix")
     ap.add_argument("--cells", default=",".join(sorted(CELLS)))
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each matrix cell (the offset's scatter, a rare loss)")
     ap.add_argument("--minutes", type=float, default=10.0, help="the long session's length")
     ap.add_argument("--long-hogs", type=int, default=8)
     ap.add_argument("--rss-every", type=float, default=5.0)
@@ -213,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench_load_") as tmp:
         work = Path(tmp)
         if not a.no_matrix:
-            result["matrix"] = matrix(work, small_rig(work), cells, hogs, a.seconds)
+            result["matrix"] = matrix(work, small_rig(work), cells, hogs, a.seconds, max(1, a.repeat))
         if not a.no_long:
             result["long"] = long_session(work, a.minutes, a.long_hogs, a.rss_every)
     out = ROOT / "bench" / "results" / "bench_load.json"

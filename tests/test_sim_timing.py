@@ -27,6 +27,14 @@ def _in_thread(fn):
     return out[0]
 
 
+def _set_by_its_thread(sim, timeout_s: float = 10.0) -> bool | None:
+    """What a simulator's sending thread got from :func:`precise_wakeups` once it started (None: not started yet)."""
+    deadline = time.monotonic() + timeout_s
+    while sim.precise_wakeups is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return sim.precise_wakeups
+
+
 @linux
 def test_precise_wakeups_sets_the_calling_threads_slack_and_no_other():
     before = timer_slack_ns()
@@ -48,18 +56,12 @@ def test_the_serial_and_can_simulators_send_from_a_precise_thread(rigs):
     srv.start(hold=True)
     try:
         srv.go()
-        deadline = time.monotonic() + 10
-        while srv.precise_wakeups is None and time.monotonic() < deadline:
-            time.sleep(0.01)
+        assert _set_by_its_thread(srv) is True
     finally:
         srv.stop()
-    assert srv.precise_wakeups is True
     node = CanSimNode(device, None, message="GVT_FD3", channel="gvt-test-sim-timing", fd=True)
     node.start()
     try:
-        deadline = time.monotonic() + 10
-        while node.precise_wakeups is None and time.monotonic() < deadline:
-            time.sleep(0.01)
+        assert _set_by_its_thread(node) is True
     finally:
         node.stop()
-    assert node.precise_wakeups is True

@@ -233,7 +233,7 @@ def asymptote_warnings(rows: list[dict[str, Any]]) -> list[str]:
             f"; the smallest POV gap behind them is {100 * a['pov_gap_min']:.1f} %, and the POD mixes modes of nearly "
             "equal POVs")  # fmt: skip
         out.append(
-            f"{'low' if a['end'] == 'low' else 'high'}-energy NNM{a['nnm']}: its {a['runs']} edge runs' RQs span "
+            f"{a['end']}-energy NNM{a['nnm']}: its {a['runs']} edge runs' RQs span "
             f"{a['min_hz']:.2f}-{a['max_hz']:.2f} Hz (interquartile {100 * a['spread']:.0f} % of the median, wider than "
             f"the +-{100 * ASYMPTOTE_TOL:.0f} % check){why}: the median {a['median_hz']:.2f} Hz and its verdict are one "
             "draw, not the structure's (docs/sweep.md)"

@@ -1,0 +1,117 @@
+"""analysis/forked_worker.py: a forked child runs an object's methods in submit order, raises its errors in the parent,
+and never leaves the parent hanging when it dies or the parent stops it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from analysis.forked_worker import ForkedWorker, WorkerDied, can_fork
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the forked worker is Linux-only")
+
+
+class Counter:
+    def __init__(self) -> None:
+        self.n = 0
+        self.parent_pid = os.getpid()
+
+    def add(self, k: int) -> tuple[int, int]:
+        self.n += k
+        return self.n, os.getpid()
+
+    def total(self, a: np.ndarray) -> float:
+        return float(a.sum())
+
+    def fail(self) -> None:
+        raise ValueError("bad block at sample 7")
+
+    def sleep(self, s: float) -> None:
+        time.sleep(s)
+
+    def unpicklable(self):
+        return threading.Lock()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:  # a zombie is not alive
+        return f.read().split()[2] != "Z"
+
+
+def test_calls_run_in_a_child_in_order_on_its_own_copy():
+    c = Counter()
+    w = ForkedWorker(c, "test-worker")
+    try:
+        pend = [w.submit("add", k) for k in (1, 2, 3)]
+        total = w.submit(np.sum, np.arange(10.0))  # a module-level function, by reference
+        big = w.submit("total", np.ones((16384, 14)))  # a replay block's size crosses whole
+        assert pend[2].result() == (6, w.pid)  # reading a later reply first keeps the earlier ones
+        assert [p.result()[0] for p in pend] == [1, 3, 6]
+        assert w.pid != os.getpid()
+        assert total.result() == 45.0 and big.result() == 16384 * 14
+        assert c.n == 0  # the parent's object is untouched: the child works on its copy
+    finally:
+        w.close()
+    assert not _alive(w.pid)
+
+
+def test_an_error_in_the_child_is_raised_by_result_and_the_worker_goes_on():
+    w = ForkedWorker(Counter(), "test-worker")
+    try:
+        bad, good = w.submit("fail"), w.submit("add", 5)
+        with pytest.raises(ValueError, match="bad block at sample 7"):
+            bad.result()
+        assert good.result()[0] == 5
+        with pytest.raises(RuntimeError, match="unpicklable"):  # a reply that does not pickle says which call
+            w.submit("unpicklable").result()
+        assert w.submit("add", 1).result()[0] == 6
+    finally:
+        w.close()
+
+
+def test_a_dead_child_raises_workerdied_not_a_hang():
+    w = ForkedWorker(Counter(), "test-worker")
+    try:
+        assert w.submit("add", 1).result()[0] == 1
+        os.kill(w.pid, signal.SIGKILL)
+        t0 = time.monotonic()
+        with pytest.raises(WorkerDied, match=r"test-worker: the worker process ended \(exit code -9\)"):
+            w.submit("add", 1).result()
+        assert time.monotonic() - t0 < 5
+    finally:
+        w.close()
+
+
+def test_close_stops_a_busy_child_and_ctrl_c_is_the_parents():
+    w = ForkedWorker(Counter(), "test-worker")
+    os.kill(w.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the whole group: the child ignores it
+    assert w.submit("add", 2).result()[0] == 2
+    w.submit("sleep", 30.0)
+    t0 = time.monotonic()
+    w.close(timeout_s=0.5)  # it does not finish a 30 s call: terminated after the timeout
+    assert time.monotonic() - t0 < 3
+    assert not _alive(w.pid)
+
+
+def test_can_fork_only_with_this_thread_alone():
+    assert can_fork() == (threading.active_count() == 1)
+    stop = threading.Event()
+    t = threading.Thread(target=stop.wait)
+    t.start()
+    try:
+        assert not can_fork()
+    finally:
+        stop.set()
+        t.join()
+
+

@@ -46,6 +46,7 @@ from analysis.exchange import (
     band_noise_energy,
     with_rq_score,
 )
+from analysis.forked_worker import ForkedWorker, Pending, can_fork
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_basis
 from analysis.preprocess import CausalPreprocessor, PreprocessSettings
 from analysis.records import (
@@ -308,6 +309,23 @@ def compiled_kernels() -> list:
                    analysis.rq_spikes, analysis.sensor_health)  # fmt: skip
 
 
+_seed_kernels_loaded = False
+
+
+def _warm_seed_kernels(fs: float, n_acc: int, s: AnalysisSettings) -> None:
+    """Load the seed lane's compiled kernels into this process, once, with the argument types the lane passes them,
+    before a forked seed worker starts: a child that loaded them itself would lose them when it ends, and each
+    operator of a process (the bench's runs, a campaign's logs) would pay the load again (~10 ms a kernel)."""
+    global _seed_kernels_loaded
+    if _seed_kernels_loaded:
+        return
+    pre = CausalPreprocessor(fs, n_acc, replace(s.preprocess, causal_baseline_s=0.0))
+    disp = pre.feed(np.zeros((8, n_acc)))[1]  # preprocess._causal_chain
+    window_covariances(disp, [(0, 4), (2, 6)], np.array([0, 2, 4, 6, 8]))  # _lattice_covariances
+    CausalSpikeRule(s.spikes).feed_many(np.ones((4, max(s.spikes.curves) + 1)))  # rq_spikes._spike_flags
+    _seed_kernels_loaded = True
+
+
 #: without a hammer channel, an energy jump counts as an input only this far above the quietest window
 #: seen: the noise floor's own window-to-window fluctuations exceed ×1.5 but never ×100
 INPUT_OVER_FLOOR = 100.0
@@ -353,16 +371,20 @@ class AnalysisOperator:
 
     def __init__(
         self, model: RigModel, channels: tuple[str, ...], sample_rate: float, settings: AnalysisSettings | None = None,
-        emit: Emit | None = None, pipelined: bool = False,
+        emit: Emit | None = None, pipelined: bool = False, seed_process: bool | None = None,
     ) -> None:  # fmt: skip
         """``pipelined``: run sensor health (with the line canceller) on one worker thread and the seed lane's
         numerics (preprocessing, covariances, ``eigh``, spike rules) on another, each a block ahead of this thread,
         which emits and runs the modal lane. The compiled kernels, numpy's array passes and LAPACK release the GIL, so
         batch work (``gvt analyze``, the bench) uses a second core; the emits and their order are those of the serial
         run, one feed later (``finish`` flushes). Live sessions stay serial: there each block's results should go out
-        with it."""
+        with it. ``seed_process``: the seed lane's worker is a forked process instead of a thread (analysis/forked_worker.py,
+        D130: off the interpreter lock); None: where :func:`can_fork` says it is safe, at the first pipelined feed."""
         self.s = settings or AnalysisSettings()
         self.pipelined = pipelined
+        if seed_process and not sys.platform.startswith("linux"):
+            raise ValueError("seed_process: a forked seed-lane worker needs Linux")
+        self._seed_process = seed_process
         self.model = model
         self.fs = float(sample_rate)
         missing = [c for c in model.sensors if c not in channels]
@@ -390,7 +412,8 @@ class AnalysisOperator:
         self._warned: set[str] = set()
         self._check_assumptions()
         self._next_index: int | None = None
-        self._pool: ThreadPoolExecutor | None = None  # pipelined: the seed lane's worker ...
+        self._pool: ThreadPoolExecutor | None = None  # pipelined: the seed lane's worker thread ...
+        self._seed_proc: ForkedWorker | None = None  # ... or process (``seed_process``) ...
         self._health_pool: ThreadPoolExecutor | None = None  # ... and sensor health's
         self._inflight: tuple[Future, float] | None = None
         self._ahead: tuple | None = None  # pipelined: (health future, block, input mask, arrival) not yet through the lanes
@@ -409,6 +432,8 @@ class AnalysisOperator:
                 if self._guard is not None:
                     self._guard.restart()
             self._start(block.first_index)
+            if self._seed_proc is not None:  # the worker's copy of the seed lane restarts too (no reply needed)
+                self._seed_proc.submit("_start", block.first_index)
         self._next_index = block.first_index + n
         self.stats.blocks += 1
         self.stats.samples += n
@@ -418,14 +443,22 @@ class AnalysisOperator:
         if self._ham_col is not None:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
         if self.s.seed_lane and self.pipelined:
+            if self._health_pool is None and self._seed_proc is None:
+                self._start_workers()
+            if self._seed_proc is not None:
+                # two stages in two processes: this block's sensor health here, then its seed numerics to the worker
+                # process, the previous block's seed results out, this block's modal lane here (the events' lock fits
+                # go to the worker too). The emits and their order are the threads' below; ``finish`` flushes
+                acc, switches = self._check_health(acc, inp) if self._guard is not None else (acc, None)
+                planned = self._seed_proc.submit("_seed_compute", acc)
+                self._drain()
+                self._inflight = (planned, t_arrival)
+                self._modal_lane(acc, inp, switches)
+                return
             # three stages, one block apart: sensor health (and the line canceller) of this block on one worker, while
             # this thread hands the previous block to the seed lane's worker, emits the block before's seed results
             # and runs the previous block's modal lane. The emits and their order are the serial run's (health
             # warnings k, seed k−1, modal k, …), each block's one feed later; ``finish`` flushes
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
-                self._health_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-health")
-                _pipeline_switch(+1)
             checked = None if self._guard is None else self._health_pool.submit(self._guard.feed_clean, acc, inp)
             behind, self._ahead = self._ahead, (checked, acc, inp, t_arrival)
             if behind is not None:
@@ -449,6 +482,23 @@ class AnalysisOperator:
         self._drain()
         self._inflight = (planned, t_arrival)
         self._modal_lane(acc, inp, switches)
+
+    def _lock_submit(self, fn: Callable, *args) -> Future | Pending:
+        """Where an event's phase-lock fit runs when pipelined: the seed lane's process if there is one, else the health
+        worker thread."""
+        return self._seed_proc.submit(fn, *args) if self._seed_proc is not None else self._health_pool.submit(fn, *args)
+
+    def _start_workers(self) -> None:
+        """Pipelined: the seed lane's worker process, a copy of this operator forked at the stream's first block
+        (``seed_process``, analysis/forked_worker.py; its kernels loaded here first, so that the operators of one process
+        do not each load them again in a child), or the seed lane's and sensor health's worker threads."""
+        if self._seed_process or (self._seed_process is None and can_fork()):
+            _warm_seed_kernels(self.fs, len(self._acc_cols), self.s)
+            self._seed_proc = ForkedWorker(self, "gvt-seed-lane")
+            return
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
+        self._health_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-health")
+        _pipeline_switch(+1)
 
     def _flush_ahead(self) -> None:
         """Pipelined: run the lanes of the block still on the health worker (end of stream, a gap)."""
@@ -508,12 +558,18 @@ class AnalysisOperator:
     def close(self) -> None:
         """Emit the seed results the seed worker still holds and stop the workers (if they were started); a later
         ``feed`` starts new ones. ``finish`` calls this after running every lane; called alone (a run that broke off),
-        a block still with the health worker is dropped, not run, so a failure there is not raised a second time."""
+        a block still with the health worker is dropped, not run, so a failure there is not raised a second time; nor is a
+        seed worker process's death."""
         try:
             self._ahead = None
+            if self._seed_proc is not None and self._seed_proc.died:
+                self._inflight = None  # its worker process is gone, and that was raised once already
             self._drain()
         finally:
-            if self._pool is not None:
+            if self._seed_proc is not None:
+                self._seed_proc.close()
+                self._seed_proc = None
+            if self._health_pool is not None:
                 self._pool.shutdown(wait=True)
                 self._health_pool.shutdown(wait=True)
                 self._pool = self._health_pool = None
@@ -529,7 +585,7 @@ class AnalysisOperator:
                                        energy_bandpass=ex.band_limited_energy)  # fmt: skip
         # pipelined: the phase-lock fit of a closing event (~2 ms) runs on the health worker while this thread goes on
         # with the modal lane; the event is resolved at the next settling, before anything reads it
-        lock_submit = (lambda fn, *a: self._health_pool.submit(fn, *a)) if self.pipelined and self.s.seed_lane else None
+        lock_submit = self._lock_submit if self.pipelined and self.s.seed_lane else None
         self._detector = ExchangeDetector(ex, self.model.damping, self.basis.n_modes, self._noise_prior(), lock_submit)
         self._prev_total: float | None = None
         self._min_total = np.inf  # lowest windowed modal energy so far: the noise floor once the rig was quiet
@@ -565,7 +621,8 @@ class AnalysisOperator:
         self._drain()
         if self.s.seed_lane:
             t = time.perf_counter()
-            self._seed_emit(self._seed_compute(None), t)
+            flushed = self._seed_proc.submit("_seed_compute", None).result() if self._seed_proc else self._seed_compute(None)
+            self._seed_emit(flushed, t)
         for ev in self._detector.finish():
             self._event(ev)
         self._settle(float("inf"))
@@ -638,39 +695,41 @@ class AnalysisOperator:
     def _seed_compute(self, acc: np.ndarray | None) -> tuple | None:
         """The seed lane's numerics for one block (``None``: flush the filters at the end of the stream):
         displacement, the windows every grid completes, their covariances, POD + RQ and spike flags. Touches only
-        seed-lane state, so it may run on the worker thread while the modal lane runs (``feed``)."""
+        seed-lane state, so it may run on the worker (a thread, or a forked copy of this operator) while the modal lane
+        runs (``feed``)."""
         _, disp = self._pre.feed(acc) if acc is not None else self._pre.flush()
         if disp.shape[0] == 0:
             return None
         self._disp = np.concatenate([self._disp, disp]) if self._disp.size else disp
         self._disp_end += disp.shape[0]
-        ready: list[tuple[_Grid, int]] = []
-        runs: list[tuple[_Grid, int, int]] = []  # each grid's windows of this feed: ready[i0:i1], in order
-        for g in self._grids:
+        # grids by their index in self._grids (the result may cross to the parent process, whose grids are its own)
+        ready: list[tuple[int, int]] = []
+        runs: list[tuple[int, int, int]] = []  # each grid's windows of this feed: ready[i0:i1], in order
+        for gi, g in enumerate(self._grids):
             i0 = len(ready)
             while g.next + g.length <= self._disp_end:
-                ready.append((g, g.next))
+                ready.append((gi, g.next))
                 g.next += g.length
             if len(ready) > i0:
-                runs.append((g, i0, len(ready)))
+                runs.append((gi, i0, len(ready)))
         if not ready:
             empty = np.empty((0, self.n_keep))
             return ready, runs, empty, empty, np.zeros(0, bool), np.zeros(0, bool), self._keep_disp()
         lo = min(st for _, st in ready)
-        hi = max(st + g.length for g, st in ready)
+        hi = max(st + self._grids[gi].length for gi, st in ready)
         # every grid's edges in [lo, hi]: origin + k·length with k = ceil((lo − origin) / length) onwards
         lattice = [np.arange(g.origin + max(0, -((g.origin - lo) // g.length)) * g.length, hi + 1, g.length)
                    for g in self._grids]  # fmt: skip
         edges = np.unique(np.concatenate(lattice)) - self._disp_start
-        spans = [(st - self._disp_start, st - self._disp_start + g.length) for g, st in ready]
+        spans = [(st - self._disp_start, st - self._disp_start + self._grids[gi].length) for gi, st in ready]
         C = window_covariances(self._disp, spans, edges)
         f, pv = rq_from_covariance(C, self.model.M, self.model.K, self.n_keep)
         # the spike rules (compiled, seed-lane state only) see each grid's windows in order; the seed's literal rule the
         # base grid's
         flags, seed = np.zeros(len(ready), bool), np.zeros(0, bool)
-        for g, i0, i1 in runs:
-            flags[i0:i1] = g.rule.feed_many(f[i0:i1])
-            if g is self._base:
+        for gi, i0, i1 in runs:
+            flags[i0:i1] = self._grids[gi].rule.feed_many(f[i0:i1])
+            if gi == 0:  # self._base
                 seed = self._seed_rule.feed_many(f[i0:i1])
         return ready, runs, f, pv, flags, seed, self._keep_disp()
 
@@ -691,7 +750,8 @@ class AnalysisOperator:
             return
         ready, runs, f, pv, flags, seed, keep_from = planned
         if ready:
-            for g, i0, i1 in runs:
+            for gi, i0, i1 in runs:
+                g = self._grids[gi]
                 if g is not self._base:
                     for i in np.flatnonzero(flags[i0:i1]) + i0:
                         g.flagged.append((ready[i][1] / self.fs, (ready[i][1] + g.length) / self.fs))

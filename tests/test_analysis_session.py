@@ -128,3 +128,41 @@ def test_gvt_analyze_at_256_hz_keeps_the_modes_below_fs_over_2_56_and_refuses_a_
     assert code == 0, stderr
     code, _, stderr = _run(capsys, "analyze", str(log128), "--rig", str(rig128))
     assert code == 2 and "sample at >= 175 Hz" in stderr and len(stderr.strip().splitlines()) == 1, stderr
+
+
+@pytest.mark.slow
+def test_gvt_analyze_forks_its_seed_lane_and_gives_the_threads_results(session_log, capsys, monkeypatch):
+    """A real ``gvt analyze`` process is single-threaded when the operator starts, so its seed lane runs in a forked
+    worker process (D130); its JSON equals the worker threads' (forced here: this test process has threads). A worker
+    killed under it is one line and exit 1, not a traceback or a hang."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the forked seed-lane worker is Linux-only; elsewhere gvt analyze uses threads (tested above)")
+    import analysis.forked_worker as fw
+    import analysis.operator as op_mod
+
+    out, _ = session_log
+    real = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--json", "--windows"],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert real.returncode == 0, real.stderr
+    monkeypatch.setattr(op_mod, "can_fork", lambda: False)
+    code, stdout, stderr = _run(capsys, "analyze", str(out), "--json", "--windows")
+    assert code == 0, stderr
+    forked, threads = json.loads(real.stdout), json.loads(stdout)
+    for timing in ("wall_seconds", "speed_x_real_time"):
+        forked.pop(timing), threads.pop(timing)
+    assert forked["rq_windows"] >= 140 and len(forked["events"]) >= 1 and forked == threads
+
+    start = fw.ForkedWorker.__init__
+
+    def killed_at_once(self, *a, **kw):
+        start(self, *a, **kw)
+        import os
+        import signal
+
+        os.kill(self.pid, signal.SIGKILL)
+
+    monkeypatch.setattr(op_mod, "can_fork", lambda: True)
+    monkeypatch.setattr(fw.ForkedWorker, "__init__", killed_at_once)
+    code, stdout, stderr = _run(capsys, "analyze", str(out))
+    assert code == 1 and "Traceback" not in stderr
+    assert "gvt: error: gvt-seed-lane: the worker process ended (exit code -9) before it answered; nothing was written" in stderr

@@ -228,9 +228,10 @@ def test_operator_results_do_not_depend_on_the_block_split():
 
 def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     """Pipelined (gvt analyze), sensor health, the seed lane's numerics and the events' lock fits run on worker threads
-    (D27, D72): the emits — every topic, every value, their order — equal the single-threaded run's, across a gap
-    restart too. While it runs the interpreter's thread switch interval is lowered (analysis/operator.py
-    ``PIPELINE_SWITCH_S``); ``finish`` restores it."""
+    (D27, D72), or the seed lane and the lock fits in a forked worker process (D130): the emits — every topic, every
+    value, their order — equal the single-threaded run's, across a gap restart too (the worker's copy restarts with
+    it). With threads the interpreter's switch interval is lowered while it runs (analysis/operator.py
+    ``PIPELINE_SWITCH_S``); ``finish`` restores it and stops the workers."""
     import sys
 
     from analysis.operator import PIPELINE_SWITCH_S
@@ -241,21 +242,28 @@ def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
     chans = ("hammer", *(s.name for s in rig.sensors))
     model = RigModel.from_rig(rig)
     runs = []
-    for pipelined in (False, True):
+    kinds = [(False, False), (True, False)] + ([(True, True)] if sys.platform.startswith("linux") else [])
+    for pipelined, process in kinds:
         got: list = []
-        op = AnalysisOperator(model, chans, fs, emit=lambda t, o, got=got: got.append((t, o)), pipelined=pipelined)
+        op = AnalysisOperator(model, chans, fs, emit=lambda t, o, got=got: got.append((t, o)), pipelined=pipelined,
+                              seed_process=process)  # fmt: skip
         before = sys.getswitchinterval()
         for s in (*range(0, 16384, 4096), *range(20480, data.shape[0], 6000)):  # a 4096-sample gap at 16384
             op.feed(SampleBlock("dev0", s, fs, chans, data[s : min(s + (4096 if s < 16384 else 6000), data.shape[0])]))
-            assert sys.getswitchinterval() == (min(before, PIPELINE_SWITCH_S) if pipelined else before)
+            threads = pipelined and not process
+            assert sys.getswitchinterval() == (min(before, PIPELINE_SWITCH_S) if threads else before)
+            assert (op._seed_proc is not None) == (pipelined and process)
+        worker = op._seed_proc
         op.finish()
-        assert op._pool is None and sys.getswitchinterval() == before  # finish stops the worker and restores the interval
+        assert op._pool is None and op._seed_proc is None and sys.getswitchinterval() == before  # workers stopped
+        assert worker is None or worker._proc.exitcode == 0  # the child asked to stop, and stopped
         runs.append(got)
-    serial, pipelined = runs
+    serial, *pipelined = runs
     assert [t for t, _ in serial].count("/analysis/rq") >= 60
     assert any(t == "/analysis/warnings" and o["kind"] == "gap" for t, o in serial)
-    assert any(t == "/analysis/events" for t, _ in serial)  # pipelined, their lock fits ran on the health worker
-    assert pipelined == serial
+    assert any(t == "/analysis/events" for t, _ in serial)  # pipelined, their lock fits ran on a worker
+    for run in pipelined:
+        assert run == serial
     # the stream's channels in another order (sensors reversed, the hammer last): the sensors are gathered by name, not
     # taken as one slice as above, and the emits are the same
     order = [*range(len(chans) - 1, 0, -1), 0]

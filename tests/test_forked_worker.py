@@ -115,3 +115,31 @@ def test_can_fork_only_with_this_thread_alone():
         t.join()
 
 
+@pytest.mark.parametrize("answered_s", [0.0, 0.3])
+def test_the_operator_says_when_its_seed_worker_dies_and_closes_without_hanging(answered_s):
+    """The pipelined operator's seed-lane process killed mid-run (out of memory, a user's kill), at once or after it
+    answered a block still in flight: the next feed that needs it raises WorkerDied naming the worker, and close()
+    returns at once without raising it again; nothing waits forever (issue 30 item 3)."""
+    from analysis.model.rigs import open_rig
+    from analysis.operator import AnalysisOperator, RigModel
+    from drivers.blocks import SampleBlock
+
+    rig = open_rig("beam_ch4_exp")
+    res = rig.simulator.run(rig.hammer_force(), 1.0, rig.sample_rate)
+    fs = rig.sample_rate
+    data = np.column_stack([res.force[0], res.acceleration[0]]).astype(np.float32)
+    chans = (rig.hammer.name, *(s.name for s in rig.sensors))
+    op = AnalysisOperator(RigModel.from_rig(rig), chans, fs, pipelined=True, seed_process=True)
+    blk = 4096
+    op.feed(SampleBlock("dev0", 0, fs, chans, data[:blk]))
+    op.feed(SampleBlock("dev0", blk, fs, chans, data[blk : 2 * blk]))  # one block's results in flight
+    time.sleep(answered_s)
+    pid = op._seed_proc.pid
+    os.kill(pid, signal.SIGKILL)  # the next submit may still reach it (a race, as with a real kill): either way
+    t0 = time.monotonic()
+    with pytest.raises(WorkerDied, match="gvt-seed-lane: the worker process ended"):
+        for s in range(2 * blk, data.shape[0], blk):
+            op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + blk]))
+        op.finish()
+    op.close()
+    assert time.monotonic() - t0 < 10 and op._seed_proc is None and not _alive(pid)

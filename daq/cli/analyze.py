@@ -58,6 +58,7 @@ def analyze(
         if header:
             out.print(header, markup=False)
     r = open_rig(rig) if rig is not None else None
+    from analysis.forked_worker import WorkerDied
     from analysis.jit_cache import compile_notice
     from analysis.operator import AnalysisSettings, compiled_kernels
     from daq.studies.analyze.batch import AnalyzeError, analyze_log
@@ -71,6 +72,9 @@ def analyze(
             run = analyze_log(log, r, stream, AnalysisSettings(window_s=window), progress=lambda f: report("analysing", f))
     except AnalyzeError as exc:
         fail(str(exc))
+    except WorkerDied as exc:  # the seed lane's worker process was killed (out of memory, kill -9): a runtime failure
+        err.print(f"gvt: error: {exc}; nothing was written", markup=False)
+        raise typer.Exit(1) from None
     if run.bad_blocks:
         err.print(f"skipped {len(run.bad_blocks)} undecodable sample block(s), analysed as gaps; first: {run.bad_blocks[0]}",
                   markup=False)  # fmt: skip

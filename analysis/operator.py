@@ -444,7 +444,7 @@ class AnalysisOperator:
             inp = np.abs(block.data[:, self._ham_col]) >= self.s.input_level_n
         if self.s.seed_lane and self.pipelined:
             if self._health_pool is None and self._seed_proc is None:
-                self._start_workers()
+                self._start_workers(acc.nbytes)
             if self._seed_proc is not None:
                 # two stages in two processes: this block's sensor health here, then its seed numerics to the worker
                 # process, the previous block's seed results out, this block's modal lane here (the events' lock fits
@@ -488,13 +488,14 @@ class AnalysisOperator:
         worker thread."""
         return self._seed_proc.submit(fn, *args) if self._seed_proc is not None else self._health_pool.submit(fn, *args)
 
-    def _start_workers(self) -> None:
+    def _start_workers(self, block_bytes: int) -> None:
         """Pipelined: the seed lane's worker process, a copy of this operator forked at the stream's first block
         (``seed_process``, analysis/forked_worker.py; its kernels loaded here first, so that the operators of one process
-        do not each load them again in a child), or the seed lane's and sensor health's worker threads."""
+        do not each load them again in a child), or the seed lane's and sensor health's worker threads. The blocks cross
+        to the process in two shared slots the size of the first (at least 1 MiB); a larger block goes through the pipe."""
         if self._seed_process or (self._seed_process is None and can_fork()):
             _warm_seed_kernels(self.fs, len(self._acc_cols), self.s)
-            self._seed_proc = ForkedWorker(self, "gvt-seed-lane")
+            self._seed_proc = ForkedWorker(self, "gvt-seed-lane", slot_bytes=max(block_bytes, 1 << 20))
             return
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-seed-lane")
         self._health_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gvt-health")
@@ -566,8 +567,8 @@ class AnalysisOperator:
                 self._inflight = None  # its worker process is gone, and that was raised once already
             self._drain()
         finally:
-            if self._seed_proc is not None:
-                self._seed_proc.close()
+            if self._seed_proc is not None:  # every call was answered (or the worker died): it need not be waited for
+                self._seed_proc.close(wait=False)
                 self._seed_proc = None
             if self._health_pool is not None:
                 self._pool.shutdown(wait=True)

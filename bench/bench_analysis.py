@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.forked_worker import reap
 from analysis.model.rigs import open_rig
 from analysis.operator import AnalysisOperator, AnalysisSettings, RigModel
 from analysis.rq_spikes import RobustSpikeSettings
@@ -200,7 +201,8 @@ def _run(
         op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + block]))
     op.finish()
     wall = time.perf_counter() - t0
-    cpu = time.process_time() + _children_cpu() - c0  # with the seed lane's worker process, reaped by finish (D130)
+    reap()  # the seed lane's worker process (D130) has been told to stop: its CPU counts once it is collected
+    cpu = time.process_time() + _children_cpu() - c0
     lat = np.array(op.stats.latencies_s) * 1e3
     secs = data.shape[0] / fs
     return {

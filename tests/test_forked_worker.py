@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from analysis.forked_worker import ForkedWorker, WorkerDied, can_fork
+from analysis.forked_worker import ForkedWorker, WorkerDied, can_fork, reap
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the forked worker is Linux-only")
 
@@ -37,6 +37,9 @@ class Counter:
 
     def unpicklable(self):
         return threading.Lock()
+
+    def double_in_place(self, a: np.ndarray) -> None:
+        a *= 2
 
 
 def _alive(pid: int) -> bool:
@@ -103,6 +106,31 @@ def test_close_stops_a_busy_child_and_ctrl_c_is_the_parents():
     assert not _alive(w.pid)
 
 
+def test_arrays_cross_in_shared_slots_never_overwritten_while_a_call_reads_them():
+    """Two slots: the first two arrays wait in them, the third and a too-large one cross the pipe (the slots' calls
+    are unanswered), the fifth reuses a slot answered meanwhile; the child's view is read-only (it must not keep or
+    change what the parent will overwrite)."""
+    w = ForkedWorker(Counter(), "test-worker", slot_bytes=8 * 10000, slots=2)
+    try:
+        pend = [w.submit("total", np.full(10000, float(k))) for k in range(3)]
+        big = w.submit("total", np.ones(50000))
+        assert w._slot_user == pend[:2]  # the first two in the slots; the third and the large one through the pipe
+        assert [p.result() for p in pend] == [0.0, 10000.0, 20000.0] and big.result() == 50000.0
+        assert w.submit("total", np.full(10000, 7.0)).result() == 70000.0
+        with pytest.raises(ValueError, match="read-only"):
+            w.submit("double_in_place", np.ones(10000)).result()
+    finally:
+        w.close()
+
+
+def test_close_without_waiting_is_collected_by_reap():
+    w = ForkedWorker(Counter(), "test-worker", slot_bytes=1 << 17)
+    assert w.submit("total", np.ones(10000)).result() == 10000.0  # through a shared slot
+    w.close(wait=False)
+    reap()
+    assert w._proc.exitcode == 0 and not _alive(w.pid)
+
+
 def test_can_fork_only_with_this_thread_alone():
     assert can_fork() == (threading.active_count() == 1)
     stop = threading.Event()
@@ -142,4 +170,5 @@ def test_the_operator_says_when_its_seed_worker_dies_and_closes_without_hanging(
             op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + blk]))
         op.finish()
     op.close()
+    reap()
     assert time.monotonic() - t0 < 10 and op._seed_proc is None and not _alive(pid)

@@ -132,19 +132,21 @@ def test_streaming_holds_samples_until_the_baseline_is_known():
     assert short[0].shape == (30, 2)
 
 
+@pytest.mark.parametrize("n_ch", [4, 13, 17])
 @pytest.mark.parametrize("corners", [(18.0, 10.0), (None, 10.0), (18.0, None), (5.0, 5.0)])
-def test_fused_chain_is_the_library_filters_bit_for_bit(corners):
-    """The compiled one-pass chain (analysis.preprocess._causal_chain) must give exactly what the library
-    filters give stage by stage — ``lfilter`` trapezoids and ``sosfilt`` high-passes with carried ``zi``
-    — so that the speed-up changes no result (tolerance 0: same operations in the same order)."""
+def test_fused_chain_is_the_library_filters_bit_for_bit(corners, n_ch):
+    """The compiled one-pass chain (analysis.preprocess._causal_chain, and ``_causal_chain_8`` in groups of 8 channels
+    from 8 channels on: 13 and 17 leave a padded last group) must give exactly what the library filters give stage by
+    stage — ``lfilter`` trapezoids and ``sosfilt`` high-passes with carried ``zi`` — so that the speed-up changes no
+    result (tolerance 0: same operations in the same order)."""
     import scipy.signal
 
     from analysis.preprocess import highpass_sos
 
     rng = np.random.default_rng(3)
-    acc = rng.standard_normal((2500, 4)) * np.array([1.0, 1e-3, 50.0, 0.2]) + 0.7
+    acc = rng.standard_normal((2500, n_ch)) * np.resize([1.0, 1e-3, 50.0, 0.2], n_ch) + 0.7
     s = PreprocessSettings(vel_corner_hz=corners[0], disp_corner_hz=corners[1], mode="causal", causal_baseline_s=0.004)
-    pre = CausalPreprocessor(FS, 4, s)
+    pre = CausalPreprocessor(FS, n_ch, s)
     outs = [pre.feed(acc[a:b]) for a, b in itertools.pairwise([0, 17, 40, 41, 1300, 2500])]
     v_s, d_s = np.concatenate([o[0] for o in outs]), np.concatenate([o[1] for o in outs])
     # the reference: library calls, the record cut elsewhere (carried states make the split irrelevant)
@@ -163,7 +165,7 @@ def test_fused_chain_is_the_library_filters_bit_for_bit(corners):
             d, st[3] = scipy.signal.sosfilt(sos, d, axis=0, zi=st[3])
         return v, d
 
-    st_ = [None, np.zeros((2, 2, 4)), None, np.zeros((2, 2, 4))]
+    st_ = [None, np.zeros((2, 2, n_ch)), None, np.zeros((2, 2, n_ch))]
     ref = [chain(a[x:y], st_) for x, y in itertools.pairwise([0, 66, 1300, 2500])]
     np.testing.assert_array_equal(v_s, np.concatenate([r[0] for r in ref]))
     np.testing.assert_array_equal(d_s, np.concatenate([r[1] for r in ref]))

@@ -605,6 +605,13 @@ def test_lock_residuals_equal_a_least_squares_fit_at_every_free_frequency():
     assert abs(r0 - brute(base)) <= 1e-11 * float(y @ y)
     np.testing.assert_allclose(res, want, rtol=0, atol=1e-11 * float(y @ y))
     assert int(np.argmin(res)) == 1  # the 3:1-locked part is the one that removes most
+    # the free sinusoids come from a compiled row recurrence: numpy's cumprod of the same rows, to the last bit
+    from analysis.exchange import _rows_by_recurrence
+
+    first, step = np.exp(2j * np.pi * 1.25 * f1 * ts), np.exp(2j * np.pi * ts)
+    got = np.empty((90, ts.size), complex)
+    _rows_by_recurrence(first, step, got)
+    assert np.array_equal(got, np.cumprod(np.vstack([first, np.tile(step, (89, 1))]), axis=0))
 
 
 def test_detector_labels_the_m_n_locked_to_the_giving_phase_where_the_mean_ratio_misleads():

@@ -372,7 +372,8 @@ def main() -> None:
     runs = ", ".join(f"{x:.1f}" for x in replay["runs_x_real_time"])
     print(f"replay ({rb}-sample chunks, gvt analyze's) runs: {runs}x real time (median of 3 shown)")
     serial = next(r for r in rows if r["case"] == "14 ch, one thread")
-    print(f"pipelined seed lane (worker thread) against one thread: {replay['x_real_time'] / serial['x_real_time']:.2f}x wall, "
+    print(f"pipelined (the seed lane in a worker process where it can fork, D130) against one thread: "
+          f"{replay['x_real_time'] / serial['x_real_time']:.2f}x wall, "
           f"{replay['cpu_per_data_s'] / serial['cpu_per_data_s']:.2f}x CPU")  # fmt: skip
     print(f"seed method, literal batch (zero-phase + SVD POD, one grid): {seed['x_real_time']:.1f}x real time; "
           f"gvtlink replay (8 grids + modal lane + events): {replay['x_real_time']:.1f}x "

@@ -278,6 +278,20 @@ def test_pipelined_seed_lane_emits_exactly_what_the_serial_one_does():
         op.feed(SampleBlock("dev0", s, fs, chans_r, data_r[s : min(s + (4096 if s < 16384 else 6000), data.shape[0])]))
     op.finish()
     assert got == serial
+    # sensor health off: with the forked worker the lock fits then run in this process (the lighter side, D130)
+    if sys.platform.startswith("linux"):
+        from analysis.operator import AnalysisSettings
+
+        off = []
+        for process in (None, True):
+            got = []
+            op = AnalysisOperator(model, chans, fs, AnalysisSettings(health=None), lambda t, o, got=got: got.append((t, o)),
+                                  pipelined=process is not None, seed_process=process)  # fmt: skip
+            for s in (*range(0, 16384, 4096), *range(20480, data.shape[0], 6000)):
+                op.feed(SampleBlock("dev0", s, fs, chans, data[s : min(s + (4096 if s < 16384 else 6000), data.shape[0])]))
+            op.finish()
+            off.append(got)
+        assert any(t == "/analysis/events" for t, _ in off[0]) and off[1] == off[0]
 
 
 def test_operator_restarts_after_a_gap_and_says_so():

@@ -57,12 +57,16 @@ from daq.config.session import SessionConfig
 from daq.log.reader import LogReader
 from daq.session import SessionResult, run_session
 
-from .hogs import Hogs, LoadSeen
+from .hogs import Hogs, LoadSeen, sim_devices_wake_precisely
 
 SECONDS = float(os.environ.get("GVT_LOAD_SECONDS", 3))
 FS = 16384
 HOGS = (0, 4, 8)
-OFFSET_BAR_SAMPLES = 1  # the issue's figure (the module docstring: why it holds since D129)
+PRECISE = sim_devices_wake_precisely()
+#: the issue's one sample where the simulated devices wake on time (the module docstring: why it holds since D129); where
+#: they cannot, D129 measured the devices' own scatter up to 1.23 samples, so the bar is two and every failure says why
+OFFSET_BAR_SAMPLES = 1 if PRECISE else 2
+SLACK_NOTE = "" if PRECISE else " (bar 2 samples: this host refused the simulated devices' 1 ns timer slack, D129)"
 TRUE_DELAY_S = 0.2371  # the second device's configured start_delay
 #: the truth: the simulated view delays its clock by whole samples (round(start_delay × fs) = 3885, 0.2371216 s),
 #: so the clocks' true offset is that, not 0.2371 s (which put 0.35 samples of every error in the oracle itself)
@@ -202,10 +206,10 @@ class Cell:
         if offset is not None and not abs(offset["error_s"]) <= OFFSET_BAR_SAMPLES / FS:
             unc = float(offset["uncertainty_s"] or "nan") * FS
             fail.append(f"offset {offset['offset_s']:.7f} s vs true {TRUE_OFFSET_S:.7f} s "
-                        f"({offset['error_s'] * FS:+.2f} samples, uncertainty {unc:.2f})")  # fmt: skip
+                        f"({offset['error_s'] * FS:+.2f} samples, uncertainty {unc:.2f}){SLACK_NOTE}")  # fmt: skip
         if offset is not None and not abs((offset["applied_samples"] or 0) - offset["true_samples"]) <= OFFSET_BAR_SAMPLES:
             fail.append(f"the merged stream placed acc_daq {offset['applied_samples']} samples late, the truth is "
-                        f"{offset['true_samples']}")  # fmt: skip
+                        f"{offset['true_samples']}{SLACK_NOTE}")  # fmt: skip
         lat = np.asarray(res.analysis_latencies_s)
         return {
             "cell": self.cell, "hogs": self.hogs, "seconds": self.seconds, "load": self.load.as_dict(), "streams": streams,

@@ -65,3 +65,16 @@ def test_the_serial_and_can_simulators_send_from_a_precise_thread(rigs):
         assert _set_by_its_thread(node) is True
     finally:
         node.stop()
+
+
+def test_the_offset_tests_know_when_the_host_refuses_the_slack(monkeypatch):
+    """The one-sample offset bar of tests/test_load_matrix.py and tests/test_two_devices.py holds where the simulated
+    devices wake on time; a host whose prctl refuses (a seccomp profile, another OS) is seen, and those tests then say
+    so in their failure messages instead of failing by chance."""
+    import drivers.sim.timing as timing
+
+    from .hogs import sim_devices_wake_precisely
+
+    assert sim_devices_wake_precisely() is sys.platform.startswith("linux")
+    monkeypatch.setattr(timing, "_prctl", lambda: None)
+    assert sim_devices_wake_precisely() is False

@@ -20,6 +20,8 @@ from daq.hits import HitDetector, TriggerSettings
 from daq.timeline import ClockOffsetEstimator, StreamAligner
 from drivers.blocks import BlockStatus, SampleBlock
 
+from .hogs import sim_devices_wake_precisely
+
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ROOT / "configs" / "sessions" / "sim_two_devices.toml"
 FS = 16384.0
@@ -480,15 +482,16 @@ def test_the_offset_holds_within_one_sample_with_busy_loops_running(loaded):
     # and 14-channel links was 20-70 µs quiet; with 4 busy loops 32-131 µs, and the bar was 3 samples. Since the
     # simulated devices send with 1 ns timer slack (D129): final estimates within -0.03..+0.10 samples, the applied
     # offset exact, in 8 runs
-    assert abs(final["applied_samples"] - TRUE_DELAY) <= 1, (final, lines)
-    assert abs(final["offset_s"] - TRUE_DELAY / FS) <= 1 / FS, (final, lines)
+    bar, why = (1, "") if sim_devices_wake_precisely() else (2, "bar 2 samples: this host refused the 1 ns timer slack, D129")
+    assert abs(final["applied_samples"] - TRUE_DELAY) <= bar, (final, lines, why)
+    assert abs(final["offset_s"] - TRUE_DELAY / FS) <= bar / FS, (final, lines, why)
     assert not any("MOVED" in s for s in lines), lines
     fixed = [s for s in lines if s.startswith("timeline: acc_daq placed")]
     assert len(fixed) == 1 and "±" in fixed[0] and str(final["applied_samples"]) in fixed[0], lines
     r = LogReader(out)
     tl = r.json_messages("/daq/timeline")
     assert tl[0]["kind"] == "fixed" and tl[0]["settled_s"] >= 0.5 and "within_accept" in tl[0]
-    assert all(abs(m["offset_samples"] - TRUE_DELAY) <= 1 for m in tl), [m["offset_samples"] for m in tl]
+    assert all(abs(m["offset_samples"] - TRUE_DELAY) <= bar for m in tl), ([m["offset_samples"] for m in tl], why)
     held = [e for e in r.json_messages("/daq/events") if e["kind"] == "stream_held"]
     assert [(e["stream"], e["first_index"]) for e in held] == [("acc_daq", 0)]  # written before the offset was fixed
     info = log_info(out)

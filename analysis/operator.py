@@ -65,6 +65,7 @@ from analysis.records import (
 from analysis.rig_model import RigModel
 from analysis.rq_spikes import CausalSpikeRule, RobustSpikeSettings, robust_spike_intervals
 from analysis.sensor_health import HealthGuard, HealthSettings
+from analysis.symeig import sym_eig
 
 #: ``emit(topic, record)``: a typed record of analysis/records.py (a read-only Mapping of its JSON keys)
 Emit = Callable[[str, Record], None]
@@ -159,11 +160,12 @@ def rq_from_covariance(C: np.ndarray, M: np.ndarray, K: np.ndarray, n_keep: int)
     fractions, (k, n_keep) each.
 
     The POMs are the eigenvectors of the 1/N_t covariance (eq. 2.12 — the seed's own formulation, L251;
-    the SVD of eq. 2.13 gives the same vectors, analysis.pod.pod): one batched ``eigh`` of (k, n, n) is
-    far cheaper than batched SVDs of (k, N_t, n). RQ of every POM (eqs. 2.17–2.18), sorted ascending
-    (Ch4 L1251); POMs with a POV fraction below ``MIN_POV_FRACTION`` are never kept.
+    the SVD of eq. 2.13 gives the same vectors, analysis.pod.pod): one symmetric eigenproblem per window, (k, n, n)
+    at once, is far cheaper than batched SVDs of (k, N_t, n); solved by analysis/symeig.py (compiled, for small
+    matrices: LAPACK's ``eigh`` up to rounding, in ~55 % of its time at 14 × 14, D131). RQ of every POM (eqs.
+    2.17–2.18), sorted ascending (Ch4 L1251); POMs with a POV fraction below ``MIN_POV_FRACTION`` are never kept.
     """
-    lam, V = np.linalg.eigh(C)
+    lam, V = sym_eig(C)
     lam = np.maximum(lam, 0.0)
     frac = lam / np.maximum(lam.sum(axis=1, keepdims=True), 1e-300)
     # eqs. 2.17–2.18 as analysis.pod.rq_hz, with matmul instead of einsum: the per-window hot path
@@ -323,6 +325,7 @@ def _warm_seed_kernels(fs: float, n_acc: int, s: AnalysisSettings) -> None:
     disp = pre.feed(np.zeros((8, n_acc)))[1]  # preprocess._causal_chain
     window_covariances(disp, [(0, 4), (2, 6)], np.array([0, 2, 4, 6, 8]))  # _lattice_covariances
     CausalSpikeRule(s.spikes).feed_many(np.ones((4, max(s.spikes.curves) + 1)))  # rq_spikes._spike_flags
+    sym_eig(np.eye(n_acc)[None])  # symeig._sym_eig_stack
     _seed_kernels_loaded = True
 
 

@@ -43,6 +43,7 @@ import numpy as np
 import scipy.signal
 
 from analysis.modal_filter import ModalBasis, ModalFilterSettings, ModalStateTracker, modal_energy, modal_phase
+from analysis.preprocess import butter_sos
 
 FloatArray = np.ndarray
 
@@ -202,11 +203,11 @@ def band_noise_energy(
     # computes this at every start and sensor exclusion)
     f = np.geomspace(0.05, 0.5 * fs, 4001)
     w = 2 * np.pi * f
-    _, hp = scipy.signal.sosfreqz(scipy.signal.butter(order, highpass_hz, "highpass", fs=fs, output="sos"), worN=f, fs=fs)
+    _, hp = scipy.signal.sosfreqz(butter_sos(order, highpass_hz, "highpass", fs), worN=f, fs=fs)
     hv2, hx2 = np.abs(hp) ** 2 / w**2, np.abs(hp) ** 4 / w**4
     out = np.empty(basis.n_modes)
     for j, (lo, hi) in enumerate(phase_bands(basis.freqs_hz, fs)):
-        _, bp = scipy.signal.sosfreqz(scipy.signal.butter(2, (lo, hi), "bandpass", fs=fs, output="sos"), worN=f, fs=fs)
+        _, bp = scipy.signal.sosfreqz(butter_sos(2, (lo, hi), "bandpass", fs), worN=f, fs=fs)
         psd = 2.0 * float(np.sum(basis.projector[j] ** 2 * sig**2)) / fs
         out[j] = 0.5 * np.trapezoid(psd * np.abs(bp) ** 2 * (hv2 + basis.omega[j] ** 2 * hx2), f)
     return out
@@ -244,8 +245,7 @@ class ModalWindower:
         self._sos: FloatArray | None = None  # (modes, sections, 6): mode j's band-pass
         self._zi: FloatArray | None = None  # (modes, sections, 2 states, 2 columns q | q̇), carried
         if phase_bandpass:
-            bands = [scipy.signal.butter(2, (lo, hi), "bandpass", fs=self.fs, output="sos")
-                     for lo, hi in phase_bands(basis.freqs_hz, self.fs)]  # fmt: skip
+            bands = [butter_sos(2, (lo, hi), "bandpass", self.fs) for lo, hi in phase_bands(basis.freqs_hz, self.fs)]
             if bands:
                 self._sos = np.ascontiguousarray(np.stack(bands))
                 self._zi = np.zeros((len(bands), bands[0].shape[0], 2, 2))

@@ -27,6 +27,7 @@ whole record.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -70,7 +71,20 @@ def highpass_sos(corner_hz: float | None, fs: float, order: int) -> FloatArray |
         return None
     if not 0 < corner_hz < fs / 2:
         raise ValueError(f"corner {corner_hz} Hz must lie in (0, fs/2 = {fs / 2} Hz)")
-    return scipy.signal.butter(order, corner_hz, btype="highpass", fs=fs, output="sos")
+    return butter_sos(order, corner_hz, "highpass", fs)
+
+
+def butter_sos(order: int, corners_hz: float | tuple[float, float], btype: str, fs: float) -> FloatArray:
+    """``scipy.signal.butter(order, corners_hz, btype, fs=fs, output="sos")``, designed once per arguments in a process
+    (a copy each call). An operator's start designs ~14 such filters (the chain's high-passes, the modes' band-passes,
+    the noise prior's): 16 ms of a 20 s replay's ~0.25 s on its critical path (issue 30 item 5)."""
+    key = tuple(float(c) for c in corners_hz) if np.ndim(corners_hz) else float(corners_hz)
+    return _butter(int(order), key, str(btype), float(fs)).copy()
+
+
+@functools.lru_cache(maxsize=512)
+def _butter(order: int, corners_hz: float | tuple[float, ...], btype: str, fs: float) -> FloatArray:
+    return scipy.signal.butter(order, corners_hz, btype=btype, fs=fs, output="sos")
 
 
 def _as_2d(acc: FloatArray) -> FloatArray:

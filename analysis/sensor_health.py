@@ -49,11 +49,10 @@ from typing import Literal
 
 import numba
 import numpy as np
-import scipy.signal
 
 from analysis.lines import LineCanceller, LineFound, LineSettings
 from analysis.modal_filter import ModalBasis, modal_basis
-from analysis.preprocess import _sections
+from analysis.preprocess import _sections, butter_sos
 
 #: the fewest samples a level span holds (a stuck run: half of it), at any sample rate
 MIN_SPAN_SAMPLES = 32
@@ -344,8 +343,7 @@ class SensorHealth:
             # the high-pass corner stays below the first mode: a structure whose modes lie under band_lo_hz (the
             # seed's 2-DOF system at 0.16 and 0.28 Hz) keeps its band instead of an inverted one
             lo = min(self.s.band_lo_hz, 0.5 * float(f[0]))
-            self._sos = scipy.signal.butter(4, (lo, min(hi, 0.45 * self.fs)), "bandpass", fs=self.fs,
-                                            output="sos")  # fmt: skip
+            self._sos = butter_sos(4, (lo, min(hi, 0.45 * self.fs)), "bandpass", self.fs)
             # a drift window holds at least 20 periods of the first mode (the default's rationale, above): a mean
             # over less than a period moves with the oscillation itself (the 2-DOF log's 0.16 Hz mode)
             self._drift_n = max(self._drift_n, round(20 * self.fs / float(f[0])))

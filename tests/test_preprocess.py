@@ -169,3 +169,18 @@ def test_fused_chain_is_the_library_filters_bit_for_bit(corners, n_ch):
     ref = [chain(a[x:y], st_) for x, y in itertools.pairwise([0, 66, 1300, 2500])]
     np.testing.assert_array_equal(v_s, np.concatenate([r[0] for r in ref]))
     np.testing.assert_array_equal(d_s, np.concatenate([r[1] for r in ref]))
+
+
+def test_butter_sos_is_scipys_design_once_and_a_fresh_copy_each_call():
+    import scipy.signal
+
+    from analysis.preprocess import butter_sos
+
+    for args in ((3, 18.0, "highpass", 16384.0), (2, (20.3, 61.7), "bandpass", 16384.0), (4, (5.0, 300.0), "bandpass", 2048)):
+        want = scipy.signal.butter(args[0], args[1], btype=args[2], fs=args[3], output="sos")
+        got = butter_sos(*args)
+        assert np.array_equal(got, want)
+        got[:] = 0.0  # the caller's own copy: the next call is not spoiled
+        assert np.array_equal(butter_sos(*args), want)
+    same = butter_sos(2, (20.3, 61.7), "bandpass", 16384.0)
+    assert np.array_equal(butter_sos(2, np.array([20.3, 61.7]), "bandpass", 16384), same)

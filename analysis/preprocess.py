@@ -160,73 +160,6 @@ def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out
             d_out[k, j] = x[j]
 
 
-#: channels a pass of :func:`_causal_chain_8` holds: a constant trip count, so each stage is a few full vector operations
-_G = 8
-
-
-@numba.njit(cache=True, nogil=True)
-def _causal_chain_8(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out, d_out):  # pragma: no cover - compiled
-    """:func:`_causal_chain` for 8 channels or more, the same arithmetic channel by channel (so the same numbers): the
-    channels in groups of ``_G``, each group's states in local arrays of ``_G`` (the last group padded with zeros) for the
-    whole block. With the channel count known to the compiler every stage is a few vector operations with no remainder
-    loop: 1.75 against 2.6 ms a 16384 × 14 block (issue 30: ~18 ms of the seed lane's CPU per 20 s of replay)."""
-    n, c = a.shape
-    nv, nd = sos_v.shape[0], sos_d.shape[0]
-    x, off, ziv, zid = np.zeros(_G), np.zeros(_G), np.zeros(_G), np.zeros(_G)
-    zv, zd = np.zeros((nv, 2, _G)), np.zeros((nd, 2, _G))
-    for g0 in range(0, c, _G):
-        m = min(_G, c - g0)
-        off[:] = 0.0
-        ziv[:] = 0.0
-        zid[:] = 0.0
-        zv[:] = 0.0
-        zd[:] = 0.0
-        for j in range(m):
-            off[j], ziv[j], zid[j] = offset[g0 + j], z_iv[g0 + j], z_id[g0 + j]
-            zv[:, :, j] = z_v[:, :, g0 + j]
-            zd[:, :, j] = z_d[:, :, g0 + j]
-        x[:] = 0.0
-        for k in range(n):
-            for j in range(m):
-                x[j] = a[k, g0 + j] - off[j]
-            _trapezoid_8(x, ziv, h, first and k == 0)
-            _sections_8(x, sos_v, zv)
-            for j in range(m):
-                v_out[k, g0 + j] = x[j]
-            _trapezoid_8(x, zid, h, first and k == 0)
-            _sections_8(x, sos_d, zd)
-            for j in range(m):
-                d_out[k, g0 + j] = x[j]
-        for j in range(m):
-            z_iv[g0 + j], z_id[g0 + j] = ziv[j], zid[j]
-            z_v[:, :, g0 + j] = zv[:, :, j]
-            z_d[:, :, g0 + j] = zd[:, :, j]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _trapezoid_8(x, z, h, first):  # pragma: no cover - compiled
-    """:func:`_trapezoid` on a group of ``_G`` channels."""
-    if first:
-        for j in range(_G):
-            z[j] = -(h * x[j])
-    for j in range(_G):
-        y = z[j] + h * x[j]
-        z[j] = h * x[j] + y
-        x[j] = y
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _sections_8(x, sos, z):  # pragma: no cover - compiled
-    """:func:`_sections` on a group of ``_G`` channels."""
-    for s in range(sos.shape[0]):
-        b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
-        for j in range(_G):
-            y = b0 * x[j] + z[s, 0, j]
-            z[s, 0, j] = b1 * x[j] - a1 * y + z[s, 1, j]
-            z[s, 1, j] = b2 * x[j] - a2 * y
-            x[j] = y
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
 def _trapezoid(x, z, h, first):  # pragma: no cover - compiled
     """One sample of ``lfilter([h, h], [1, -1])`` on every channel, in place (``first``: start at y = 0)."""
@@ -294,9 +227,8 @@ class CausalPreprocessor:
         a = np.ascontiguousarray(a, dtype=np.float64)
         v, d = np.empty_like(a), np.empty_like(a)
         if a.shape[0]:
-            chain = _causal_chain_8 if a.shape[1] >= _G else _causal_chain  # the same numbers, whichever is faster
-            chain(a, np.ascontiguousarray(self.offset, dtype=np.float64), self._h, not self._started, self._z_iv,
-                  self._sos_v, self._z_v, self._z_id, self._sos_d, self._z_d, v, d)  # fmt: skip
+            _causal_chain(a, np.ascontiguousarray(self.offset, dtype=np.float64), self._h, not self._started, self._z_iv,
+                          self._sos_v, self._z_v, self._z_id, self._sos_d, self._z_d, v, d)  # fmt: skip
             self._started = True
         return v, d
 

@@ -135,10 +135,9 @@ def test_streaming_holds_samples_until_the_baseline_is_known():
 @pytest.mark.parametrize("n_ch", [4, 13, 17])
 @pytest.mark.parametrize("corners", [(18.0, 10.0), (None, 10.0), (18.0, None), (5.0, 5.0)])
 def test_fused_chain_is_the_library_filters_bit_for_bit(corners, n_ch):
-    """The compiled one-pass chain (analysis.preprocess._causal_chain, and ``_causal_chain_8`` in groups of 8 channels
-    from 8 channels on: 13 and 17 leave a padded last group) must give exactly what the library filters give stage by
-    stage — ``lfilter`` trapezoids and ``sosfilt`` high-passes with carried ``zi`` — so that the speed-up changes no
-    result (tolerance 0: same operations in the same order)."""
+    """The compiled one-pass chain (analysis.preprocess._causal_chain, at 4, 13 and 17 channels) must give exactly what
+    the library filters give stage by stage — ``lfilter`` trapezoids and ``sosfilt`` high-passes with carried ``zi`` —
+    so that the speed-up changes no result (tolerance 0: same operations in the same order)."""
     import scipy.signal
 
     from analysis.preprocess import highpass_sos

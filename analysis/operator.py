@@ -305,10 +305,11 @@ def compiled_kernels() -> list:
     import analysis.preprocess
     import analysis.rq_spikes
     import analysis.sensor_health
+    import analysis.symeig
     from analysis.jit_cache import kernels
 
     return kernels(sys.modules[__name__], analysis.exchange, analysis.modal_filter, analysis.preprocess,
-                   analysis.rq_spikes, analysis.sensor_health)  # fmt: skip
+                   analysis.rq_spikes, analysis.sensor_health, analysis.symeig)  # fmt: skip
 
 
 _seed_kernels_loaded = False

@@ -67,6 +67,20 @@ def test_the_serial_and_can_simulators_send_from_a_precise_thread(rigs):
         node.stop()
 
 
+@linux
+def test_the_paced_in_process_simulator_reads_from_a_precise_thread():
+    """The paced in-process driver (drivers/sim/driver.py) waits for each block as the pty and CAN simulators do, so
+    its reading thread asks for 1 ns slack too; unpaced, nothing waits and nothing is asked."""
+    from drivers.sim.driver import SimConfig, SimDriver
+
+    for paced, want in ((True, True), (False, False)):
+        drv = SimDriver(SimConfig(stream="dev0", block_size=256, duration=0.5, physics_seconds=0.5, paced=paced))
+        assert drv.precise_wakeups is None  # not started yet
+        with drv:
+            assert _set_by_its_thread(drv) is want
+            assert sum(b.n_samples for b in drv.blocks(timeout=10)) > 0
+
+
 def test_the_offset_tests_know_when_the_host_refuses_the_slack(monkeypatch):
     """The one-sample offset bar of tests/test_load_matrix.py and tests/test_two_devices.py holds where the simulated
     devices wake on time; a host whose prctl refuses (a seccomp profile, another OS) is seen, and those tests then say

@@ -30,6 +30,9 @@ class SimConfig(DriverConfig):
 class SimDriver(Driver):
     name = "sim"
     config_model = SimConfig
+    #: the reading thread's :func:`precise_wakeups` (paced: blocks when due; unpaced nothing waits: False); None until
+    #: it started, as the serial and CAN simulators' flags
+    precise_wakeups: bool | None = None
 
     @property
     def realtime(self) -> bool:
@@ -62,8 +65,8 @@ class SimDriver(Driver):
     def _run(self) -> None:
         c: SimConfig = self.config  # type: ignore[assignment]
         dev = self.device
-        if c.paced:
-            precise_wakeups()  # blocks when due, not up to a host timer's slack later (drivers/sim/timing.py)
+        # blocks when due, not up to a host timer's slack later (drivers/sim/timing.py)
+        self.precise_wakeups = precise_wakeups() if c.paced else False
         dev.start_clock()
         names = tuple(c.channels)
         end = None if c.duration is None else round(c.duration * dev.fs)

@@ -436,8 +436,8 @@ class AnalysisOperator:
                 if self._guard is not None:
                     self._guard.restart()
             self._start(block.first_index)
-            if self._seed_proc is not None:  # the worker's copy of the seed lane restarts too (no reply needed)
-                self._seed_proc.submit("_start", block.first_index)
+            if self._seed_proc is not None:  # the worker's copy of the seed lane restarts too; a failure there is raised
+                self._seed_proc.submit("_start", block.first_index).result()  # here (its queue is empty after the flush)
         self._next_index = block.first_index + n
         self.stats.blocks += 1
         self.stats.samples += n
@@ -575,7 +575,7 @@ class AnalysisOperator:
         """Emit the seed results the seed worker still holds and stop the workers (if they were started); a later
         ``feed`` starts new ones. ``finish`` calls this after running every lane; called alone (a run that broke off),
         a block still with the health worker is dropped, not run, so a failure there is not raised a second time; nor is a
-        seed worker process's death."""
+        seed worker process's death. With a seed worker process, the next ``feed`` starts the lanes afresh."""
         try:
             self._ahead = None
             if self._seed_proc is not None and self._seed_proc.died:
@@ -585,6 +585,9 @@ class AnalysisOperator:
             if self._seed_proc is not None:  # every call was answered (or the worker died): it need not be waited for
                 self._seed_proc.close(wait=False)
                 self._seed_proc = None
+                # the seed lane's state went with the worker (this copy never advanced): a later feed starts the lanes
+                # afresh, as at a stream's first block, instead of forking a worker from stale state
+                self._next_index = None
             if self._health_pool is not None:
                 self._pool.shutdown(wait=True)
                 self._health_pool.shutdown(wait=True)

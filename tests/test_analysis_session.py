@@ -141,9 +141,14 @@ def test_gvt_analyze_forks_its_seed_lane_and_gives_the_threads_results(session_l
     import analysis.operator as op_mod
 
     out, _ = session_log
-    real = subprocess.run([sys.executable, "-m", "daq.cli", "analyze", str(out), "--json", "--windows"],
+    # the real CLI in a real process, with a line on stderr for each worker it forks (so this compares a fork, not threads)
+    count = ("import sys, analysis.forked_worker as fw\n_init = fw.ForkedWorker.__init__\n"
+             "def init(self, *a, **k):\n    _init(self, *a, **k)\n    print('forked', file=sys.stderr)\n"
+             "fw.ForkedWorker.__init__ = init\nfrom daq.cli import main\nsys.argv[0] = 'gvt'\nmain()\n")
+    real = subprocess.run([sys.executable, "-c", count, "analyze", str(out), "--json", "--windows"],
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert real.returncode == 0, real.stderr
+    assert real.stderr.count("forked") == 1, real.stderr
     monkeypatch.setattr(op_mod, "can_fork", lambda: False)
     code, stdout, stderr = _run(capsys, "analyze", str(out), "--json", "--windows")
     assert code == 0, stderr

@@ -172,3 +172,35 @@ def test_the_operator_says_when_its_seed_worker_dies_and_closes_without_hanging(
     op.close()
     reap()
     assert time.monotonic() - t0 < 10 and op._seed_proc is None and not _alive(pid)
+
+
+def test_a_feed_after_close_starts_fresh_lanes_not_a_worker_forked_from_stale_state():
+    """The operator's seed-lane state lives in its worker process; after close the parent's copy is the one from the
+    fork. A later feed must start the lanes afresh (as a new stream would), giving what a new operator gives."""
+    from analysis.model.rigs import open_rig
+    from analysis.operator import AnalysisOperator, RigModel
+    from drivers.blocks import SampleBlock
+
+    rig = open_rig("beam_ch4_exp")
+    fs = rig.sample_rate
+    res = rig.simulator.run(rig.hammer_force(), 1.0, fs)
+    data = np.column_stack([res.force[0], res.acceleration[0]]).astype(np.float32)
+    chans = (rig.hammer.name, *(s.name for s in rig.sensors))
+    model = RigModel.from_rig(rig)
+
+    def rq_after(op: AnalysisOperator, start: int) -> list:
+        got: list = []
+        op.emit = lambda t, o: got.append((o["start"], o["rq_hz"])) if t == "/analysis/rq" else None
+        for s in range(start, data.shape[0], 4096):
+            op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + 4096]))
+        op.finish()
+        return got
+
+    op = AnalysisOperator(model, chans, fs, pipelined=True, seed_process=True)
+    for s in range(0, 8192, 4096):
+        op.feed(SampleBlock("dev0", s, fs, chans, data[s : s + 4096]))
+    op.close()
+    later = rq_after(op, 8192)
+    fresh = rq_after(AnalysisOperator(model, chans, fs), 8192)
+    reap()
+    assert len(later) > 10 and later == fresh

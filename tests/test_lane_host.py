@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 from analysis.model.rigs import open_rig
 from daq.config.session import AnalysisSpec, DeviceSpec, SessionConfig, TriggerSpec
+from daq.lanes.host import READY_TIMEOUT_S
 from daq.lanes.shm_ring import ALIGN, HEADER, ByteRing, ShedLog
 from daq.log.reader import LogReader
 from daq.priority import base_nice
@@ -158,21 +159,27 @@ def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(t
     host = session.host
 
     def killer() -> None:
-        time.sleep(1.0)
+        t0 = time.monotonic()
+        while host.ring.read_pos == 0 and time.monotonic() - t0 < READY_TIMEOUT_S:
+            time.sleep(0.05)  # the session's start (a cold numba cache: seconds) is not the worker's death
+        time.sleep(0.5)  # some way in: the lost range is not empty
         os.kill(host.pids[0], signal.SIGKILL)
         t0 = time.monotonic()
-        while (len(host.pids) < 2 or host.ring.read_pos == 0) and time.monotonic() - t0 < 20:
+        while (len(host.pids) < 2 or host.ring.read_pos == 0) and time.monotonic() - t0 < READY_TIMEOUT_S:
             time.sleep(0.05)  # the ring is reset at the restart: the new worker consumed blocks when read_pos moves
         host.alive_after_restart = host.ring.read_pos > 0
+        host.restart_s = time.monotonic() - t0
         os.kill(host.pids[-1], signal.SIGKILL)
 
     th = threading.Thread(target=killer)
-    t0 = time.monotonic()
     th.start()
     res = _run(session)
     th.join()
-    wall = time.monotonic() - t0
-    assert res.outcome.exit_code == 0 and res.lost_samples == 0 and wall < 2.6 + 15.0  # the recording is whole, on time
+    # the recording is whole and ended on its duration whatever the restart cost. How long the restart took is the
+    # host's business: a cold worker on a loaded 2-core CI host took ~19 s (stop 40), so no wall-clock bound here;
+    # the hang guard is the restart's own ready timeout (READY_TIMEOUT_S), and bench/ times the quiet case
+    assert res.outcome.exit_code == 0 and res.outcome.reason == "duration" and res.lost_samples == 0, res.outcome
+    assert 2.6 <= res.outcome.seconds < 2.6 + 30.0, (res.outcome, host.restart_s)  # a hang guard, not a speed bound
     assert host.deaths == 2 and len(host.pids) == 2 and host.alive_after_restart
     events = LogReader(tmp_path / "k.mcap").json_messages("/daq/events")
     restarted = [e for e in events if e["kind"] == "lane_restarted"]

@@ -360,7 +360,7 @@ def test_node_restart_is_a_new_segment_never_stitched(device):
     assert old[0].first_index == 0 and old[-1].end_index == rec.delivered
     seg = drv.stats.segments[-1]
     assert (seg.number, seg.device_first, seg.stream_first) == (1, 0, new[0].first_index)
-    assert abs(seg.stream_first - rec.stream_index(0, 16384)) <= 0.05 * 16384  # estimated from the host clock
+    assert abs(seg.stream_first - rec.stream_index(0, 16384)) <= 0.2 * 16384  # the host clock (as tests/test_serial.py)
     for part in (old, new):
         assert all(b.first_index == a.end_index for a, b in itertools.pairwise(part))
     assert drv.stats.gaps == [(rec.delivered, seg.stream_first)] and drv.stats.lost_samples == seg.estimated_gap

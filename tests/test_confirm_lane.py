@@ -119,7 +119,7 @@ def test_a_slow_confirmation_never_holds_up_the_publisher_and_overflow_is_said()
         lane.submit({"id": i, "start_s": 1.0 + 0.2 * i, "end_s": 1.1 + 0.2 * i})
     worst = _publish(fan, data)
     wall = time.perf_counter() - t0
-    assert worst < 0.5 and wall < 0.9 * 6  # waiting on even one 1 s confirmation would show; load alone will not
+    assert worst < 0.9 and wall < 0.9 * 6  # waiting on even one 1 s confirmation would show; load alone will not
     recs = sorted(lane.join(timeout=60), key=lambda r: r["event_id"])
     assert [r["status"] for r in recs].count("confirmed") >= 2
     behind = [r for r in recs if r["status"] == "skipped"]
@@ -228,7 +228,7 @@ def test_the_drain_after_the_data_ends_is_bounded_and_says_what_it_abandoned():
     _publish(fan, _data(2000))
     t0 = time.monotonic()
     lane.finish(time.monotonic() + 60)
-    assert time.monotonic() - t0 < 1.0 + 2.0  # the 1 s limit, and stopping the worker
+    assert time.monotonic() - t0 < 10.0  # the 1 s limit and stopping the worker (the bug: the 60 s deadline)
     (rec,) = lane.results
     assert rec["status"] == "skipped" and "still running" in rec["reason"] and lane.abandoned == 1
     assert [o["count"] for o in out if o.get("kind") == "confirm_abandoned"] == [1] and len(said) == 1
@@ -278,16 +278,17 @@ def test_a_session_whose_confirmation_worker_is_killed_marks_its_events_confirms
     finally:
         stop.set()
     wall = time.monotonic() - t0
-    # ~6 s on a quiet machine (set-up, 1.6 s of data, three confirmations); the bound leaves room for a loaded CI
-    # machine, and is half the 120 s drain limit a wait on the dead worker would run into
+    # ~6 s on a quiet machine (set-up, 1.6 s of data, three confirmations); the replacement worker imports numpy and
+    # scipy at nice +10, which beside 4 hogs took over 20 s. The bound is a hang guard under the 120 s drain limit
+    # a wait on the dead worker would run into, and no confirmation may have been abandoned at a deadline
     assert len(killed) == 1, f"no confirmation worker appeared in {wall:.1f} s (IR events: {len(res.analysis_events)})"
-    assert wall < 60.0 and res.outcome.exit_code == 0, (wall, res.outcome)
+    assert wall < 100.0 and res.outcome.exit_code == 0, (wall, res.outcome)
     recs = res.confirmations
     marked = [r for r in recs if r["status"] == "error"]
     assert marked and all(r["reason"] == RESTARTED for r in marked)
     assert len(res.analysis_events) == len(recs) and all(r["status"] not in ("error", "skipped") for r in recs if r not in marked)
     ev = [e["kind"] for e in LogReader(tmp_path / "s.mcap").json_messages("/daq/events")]
-    assert ev.count("confirm_restarted") == 1 and "confirm_off" not in ev
+    assert ev.count("confirm_restarted") == 1 and "confirm_off" not in ev and "confirm_abandoned" not in ev
 
 
 def test_a_stop_request_gives_the_confirmations_seconds_not_an_hour():

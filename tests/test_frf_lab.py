@@ -221,10 +221,12 @@ def test_a_restart_inside_a_record_refuses_that_hit_with_the_reason(restarted):
     # before the restart the device's clock places the hits (to a sample); the restarted segment is placed after
     # the old one by the gap the host clock implies (drivers/sequence.py: an estimate, the device's clock started
     # again), so hits 2-3 keep their spacing to a sample but sit where the blocks' arrival put them: within the
-    # delivery jitter of a loaded 2-core host (7 ms measured under the suite's two workers and four more busy
-    # processes; 20 ms allowed) of 2.55 s = restart at 2.0 s + 0.3 s down + the first hit 0.25 s in
+    # delivery jitter of a loaded 2-core host of 2.55 s = restart at 2.0 s + 0.3 s down + the first hit 0.25 s in
+    # (7 ms measured under the suite's two workers and four more busy processes, but the serial twin's gap was
+    # 67 ms off beside 4 hogs, tests/test_serial.py): 0.15 s allowed, which still tells a stitched segment (the
+    # hit at 2.25 s, 0.3 s off) from a placed one
     assert len(t) == 4 and abs(t[0] - 0.25) < 2 / 2048 and abs(t[1] - 1.5) < 2 / 2048, t
-    assert abs(t[3] - t[2] - PERIOD) < 2 / 2048 and abs(t[2] - 2.55) < 0.02, t
+    assert abs(t[3] - t[2] - PERIOD) < 2 / 2048 and abs(t[2] - 2.55) < 0.15, t
     assert res.restarts == 1 and not lane_errors(out)
     recs = res.frf
     hits = [h.hit for h in res.hits]

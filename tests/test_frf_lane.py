@@ -87,11 +87,12 @@ def test_cost_per_hit_at_15_channels_16384_hz(linear, replayed):
     assert rig.sample_rate == 16384.0 and 1 + len(rig.sensors) == 15
     cost = [r["elapsed_s"] for r in res.frf]
     # the budget is 50 ms a hit: measured ~10-25 ms wall clock beside the replay and view threads, but a
-    # loaded test run (xdist workers, load 4) stretched the wall clock past it once; the lane thread's own CPU
-    # time is what the lane costs, so that is what is held to the budget, the wall clock to 4x it
+    # loaded test run (xdist workers, load 4) stretched the wall clock past it once, and past 4x it since; the lane
+    # thread's own CPU time is what the lane costs, so that is what is held to the budget. The wall clock is the
+    # host's: here only a hang guard (a quiet machine's wall clock is bench/bench_frf.py's)
     cpu = res.frf_cpu_s
     assert len(cpu) == len(cost) and max(cpu) <= 0.05, cpu
-    assert max(cost) <= 0.2, cost
+    assert max(cost) <= 5.0, cost
 
 
 @pytest.mark.skipif(not RERUN.exists(), reason="the rerun CLI is not installed next to python")
@@ -166,12 +167,12 @@ def test_a_slow_frf_lane_never_holds_up_the_publisher():
 
     lane = FRFLane(fan, _plan(), sink, maxsize=4).start()
     lane.offer("/daq/hits", {"hit": 0, "index": 100, "t_s": 0.1, "verdict": "refused", "reason": "double_hit"})
-    t0 = time.perf_counter()
     fan.publish(_pulse_block(0, 100))
     time.sleep(0.3)  # the lane takes the block and the hit, and blocks in the sink
+    t0 = time.perf_counter()  # after the sleep: its oversleep on a busy host is not the publisher's
     for k in range(1, 200):
         fan.publish(_pulse_block(100 * k, 100))
-    publish_s = time.perf_counter() - t0 - 0.3
+    publish_s = time.perf_counter() - t0
     lane.offer("/daq/hits", {"hit": 1, "index": 1000, "t_s": 1.0, "verdict": "accepted", "reason": "ok"})
     gate.set()
     fan.close()

@@ -154,40 +154,47 @@ def test_the_analysis_runs_in_the_worker_and_logs_what_the_thread_mode_logs(both
 
 
 def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(tmp_path):
+    """The worker is killed once it reads blocks, its replacement once that one reads blocks, both mid-session; then
+    the session is stopped (as Ctrl-C would). The session runs until then, however long a loaded host takes to
+    start the replacement (a cold worker on a loaded 2-core host took ~19 s, beyond a short session's end)."""
     lines: list[str] = []
-    session = _session(_cfg("worker", duration=2.6), tmp_path / "k.mcap", line=lines.append)
+    stop = threading.Event()
+    session = _session(_cfg("worker", duration=60.0), tmp_path / "k.mcap", line=lines.append, stop=stop)
     host = session.host
 
+    def consumed(n_pids: int) -> bool:  # the ring is reset at a restart: a worker consumed blocks when read_pos moves
+        t0 = time.monotonic()
+        while (len(host.pids) < n_pids or host.ring.read_pos == 0) and time.monotonic() - t0 < READY_TIMEOUT_S:
+            time.sleep(0.05)
+        return len(host.pids) == n_pids and host.ring.read_pos > 0
+
     def killer() -> None:
-        t0 = time.monotonic()
-        while host.ring.read_pos == 0 and time.monotonic() - t0 < READY_TIMEOUT_S:
-            time.sleep(0.05)  # the session's start (a cold numba cache: seconds) is not the worker's death
-        time.sleep(0.5)  # some way in: the lost range is not empty
-        os.kill(host.pids[0], signal.SIGKILL)
-        t0 = time.monotonic()
-        while (len(host.pids) < 2 or host.ring.read_pos == 0) and time.monotonic() - t0 < READY_TIMEOUT_S:
-            time.sleep(0.05)  # the ring is reset at the restart: the new worker consumed blocks when read_pos moves
-        host.alive_after_restart = host.ring.read_pos > 0
-        host.restart_s = time.monotonic() - t0
-        os.kill(host.pids[-1], signal.SIGKILL)
+        try:
+            host.alive_at_start = consumed(1)
+            time.sleep(0.3)  # some way in: the lost range is not empty
+            os.kill(host.pids[0], signal.SIGKILL)
+            host.alive_after_restart = consumed(2)
+            os.kill(host.pids[-1], signal.SIGKILL)
+            t0 = time.monotonic()
+            while host.deaths < 2 and time.monotonic() - t0 < 30.0:
+                time.sleep(0.05)
+            time.sleep(0.3)
+        finally:
+            stop.set()
 
     th = threading.Thread(target=killer)
     th.start()
     res = _run(session)
     th.join()
-    # the recording is whole and ended on its duration whatever the restart cost. How long the restart took is the
-    # host's business: a cold worker on a loaded 2-core CI host took ~19 s (stop 40), so no wall-clock bound here;
-    # the hang guard is the restart's own ready timeout (READY_TIMEOUT_S), and bench/ times the quiet case
-    assert res.outcome.exit_code == 0 and res.outcome.reason == "duration" and res.lost_samples == 0, res.outcome
-    assert 2.6 <= res.outcome.seconds < 2.6 + 30.0, (res.outcome, host.restart_s)  # a hang guard, not a speed bound
-    assert host.deaths == 2 and len(host.pids) == 2 and host.alive_after_restart
+    # the recording is whole whatever the restarts cost; how long they took is the host's business (no wall clock)
+    assert res.outcome.exit_code == 0 and res.outcome.reason == "stopped" and res.lost_samples == 0, res.outcome
+    assert host.alive_at_start and host.alive_after_restart and host.deaths == 2 and len(host.pids) == 2
     events = LogReader(tmp_path / "k.mcap").json_messages("/daq/events")
     restarted = [e for e in events if e["kind"] == "lane_restarted"]
     off = [e for e in events if e["kind"] == "analysis_error"]
     assert len(restarted) == 1 and restarted[0]["from_index"] < restarted[0]["to_index"]
-    # the second kill lands mid-session, or (a loaded host: the restarted worker's start took seconds) while it finishes
     msg = off[0]["message"] if len(off) == 1 else ""
-    assert ("died a second time" in msg or "died while finishing" in msg) and lines == [msg], off
+    assert "died a second time" in msg and lines == [msg], (off, lines)  # mid-session, one line
     overrun = next(e for e in events if e["kind"] == "analysis_overrun")
     r = restarted[0]
     assert [r["from_index"], r["to_index"]] in [list(x) for x in overrun["ranges"]]  # the lost range, counted exactly
@@ -227,7 +234,8 @@ def test_finish_never_waits_past_its_deadline_on_a_hung_worker():
         fan.close()
         t0 = time.monotonic()
         host.analysis_lane().finish(t0 + 1.0)
-        assert time.monotonic() - t0 < 1.0 + 3.5  # its deadline, plus the kill and the join of a killed process
+        # its deadline, plus the kill and the joins of a killed process (5.5 s by design), with room for a busy host
+        assert time.monotonic() - t0 < 10.0
     finally:
         with contextlib.suppress(ProcessLookupError):  # killed by finish already: the normal case
             os.kill(pid, signal.SIGKILL)
@@ -265,7 +273,7 @@ def test_a_worker_behind_at_the_end_skips_what_is_left_after_its_catch_up_time(m
     threading.Timer(1.0, os.kill, (pid, signal.SIGCONT)).start()  # back after the catch-up time is over
     t0 = time.monotonic()
     host.analysis_lane().finish(t0 + 60.0)
-    assert time.monotonic() - t0 < 10.0
+    assert time.monotonic() - t0 < 30.0  # the catch-up's 5 s and a nice +10 worker's skip, well before the 60 s
     late = sum(b - a for a, b in host.late)
     assert 0 < late <= 1024 * n and all(a % 1024 == 0 and b % 1024 == 0 for a, b in host.late)  # whole blocks
     over = [obj for _t, obj, _n in got if obj.get("kind") == "analysis_overrun"]

@@ -77,18 +77,21 @@ def test_bad_crc_ignored_next_frame_answered(rtu):
         good = with_crc(struct.pack(">BBHH", 1, 3, m.address, m.n_registers))
         bad = good[:-1] + bytes([good[-1] ^ 0xFF])
         assert _exchange(fd, bad, 0.3) == b""  # silent, like a real slave
+        t0 = time.monotonic()
+        while srv.bad_crc == 0 and time.monotonic() - t0 < 10.0:  # the server thread counts it when it runs
+            time.sleep(0.01)
         assert srv.bad_crc == 1
         # garbage with an unknown function code is skipped byte by byte, then a good frame is answered
-        resp = _exchange(fd, b"\x01\x2b\x55" + good, 1.0)
+        resp = _exchange(fd, b"\x01\x2b\x55" + good, 5.0)  # (returns at the answer's end)
         assert len(resp) == 5 + 2 * m.n_registers and crc16(resp) == 0
         assert resp[:3] == bytes([1, 3, 2 * m.n_registers])
         regs = list(struct.unpack(f">{m.n_registers}H", resp[3:-2]))
         assert m.regs_to_raw(regs, srv.map.device.word_order) == FS
         # a partial frame followed by silence is dropped, the next frame stands alone
-        assert _exchange(fd, good[:5], 0.2) == b""
-        assert _exchange(fd, good, 1.0)[:3] == bytes([1, 3, 2 * m.n_registers])
+        assert _exchange(fd, good[:5], 1.0) == b""  # 1 s of silence: a loaded server thread sees it too
+        assert _exchange(fd, good, 5.0)[:3] == bytes([1, 3, 2 * m.n_registers])
         # an exception answer (FC 3 with count 200: illegal data value) comes back framed too
-        resp = _exchange(fd, with_crc(struct.pack(">BBHH", 1, 3, 0, 200)), 1.0)
+        resp = _exchange(fd, with_crc(struct.pack(">BBHH", 1, 3, 0, 200)), 5.0)
         assert resp == with_crc(bytes([1, 0x83, 3]))
     finally:
         os.close(fd)
@@ -101,7 +104,7 @@ def test_fifo_end_to_end_rtu_over_pty(device, rtu):
     # 8N2 (11 bits a character like 8E1): a pty has no parity, and Linux refuses (EINVAL) a re-configuration of
     # a pty opened with PARENB, which pymodbus does right after opening (inter_byte_timeout)
     cfg = {"transport": "rtu", "serial_port": srv.path, "baudrate": 921600, "parity": "N", "stopbits": 2}
-    cfg |= {"channels": ch, "sample_rate": FS, "timeout_s": 0.5}
+    cfg |= {"channels": ch, "sample_rate": FS, "timeout_s": 2.0}  # no timeout on a healthy link, even loaded
     drv = make_driver("modbus", cfg)
     drv.link_budget().check()  # 1 ch x 16384 Hz at 117 samples/frame = 140 req/s vs 296 req/s at 921600 baud
     blocks = []
@@ -173,7 +176,7 @@ def test_rtu_device_restart_is_a_new_segment(device, rtu):
     old, new = blocks[:k], blocks[k:]
     seg = drv.stats.segments[-1]
     assert old[0].first_index == 0 and (seg.device_first, seg.stream_first) == (0, new[0].first_index)
-    assert abs(seg.stream_first - rec.stream_index(0, FS)) <= 0.05 * FS
+    assert abs(seg.stream_first - rec.stream_index(0, FS)) <= 0.2 * FS  # the host clock: as tests/test_serial.py
     for part in (old, new):
         assert all(b.first_index == a.end_index for a, b in itertools.pairwise(part))
     _check_device(device, srv, drv, blocks)
@@ -213,7 +216,7 @@ def test_a_late_fifo_answer_is_not_taken_for_the_status_after_a_reconnect(device
     srv = _LateAnswerServer(device, None, ["hammer"])
     srv.start()
     try:
-        drv = _rtu_driver(srv)
+        drv = _rtu_driver(srv, timeout_s=2.0)  # only the injected late answer is stale, not a loaded host's slow one
         drv._connect()  # on this thread, no reading thread: the exchange below is the whole test
         time.sleep(0.05)
         for _ in range(3):

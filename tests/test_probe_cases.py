@@ -363,9 +363,9 @@ def test_sigterm_stops_a_recorder_whose_modbus_device_went_silent(tmp_path):
     finally:
         rec.kill()
     assert rec.returncode == 0, stdout + stderr
-    # 0.5-1.5 s measured (2 cores, loaded); the bug's floor is the recorder's 10 s join, so 5 s separates the two
-    # even on a busy machine
-    assert took < 5.0, took
+    # 0.5-1.5 s measured (2 cores, loaded); the bug's floor is the recorder's 10 s join, so 9 s separates the two
+    # with room for a busy machine's interpreter exit
+    assert took < 9.0, took
     r = LogReader(out)
     s = r.read_stream("dev0")
     assert r.report.complete and s.gaps == []  # finalised, nothing missing inside what was recorded

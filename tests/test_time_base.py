@@ -95,10 +95,10 @@ def _messages_safe(path: Path) -> list[tuple[str, int, bytes]]:
 
 def test_a_stream_whose_offset_never_comes_is_placed_by_its_first_arrival_and_nothing_is_lost(tmp_path):
     p = tmp_path / "late.mcap"
-    now = time.monotonic()
     with LogWriter(p, origin_ns=None, max_hold_s=0.3) as w:
         w.add_stream("ref", _chs(("x",)), FS, offset_ns=0)
         w.add_stream("b", _chs(("x",)), FS, offset_ns=None)
+        now = time.monotonic()  # read next to the origin's wall clock: the writer's start-up is not between them
         w.set_origin(time.time_ns() - 1_000_000_000)  # the reference's sample 0 was 1 s ago
         for k in range(5):  # b's block k arrived at k/10 s: its sample 0 was 0.1 s ago, i.e. 0.9 s after the origin
             w.write_block(_block("b", 100 * k, 100, t_host=now - 0.1 + 0.1 * (k + 1)), wait=True)

@@ -153,7 +153,7 @@ def test_a_slow_view_never_holds_up_the_recording(tmp_path):
     wall = time.monotonic() - t0
     target.close()
     assert res.lost_samples == 0 and res.writer_overrun_samples == 0
-    assert wall < 30.0, wall  # waiting on the view: >= 71 s
+    assert wall < 60.0, wall  # waiting on the view: >= 71 s (13 s at load 7: a hang guard with room)
     r = LogReader(out)
     # the analysis may shed on a loaded host (it runs below the recorder, by design), but only what it counts
     shed = sum(int(e["count"]) for e in r.json_messages("/daq/events") if e["kind"] == "analysis_overrun")

@@ -43,7 +43,7 @@ def test_a_stalled_disk_fills_the_memory_budget_then_overruns_exactly_and_result
     t0 = time.monotonic()
     for i in range(200):  # results while the block budget is exhausted: queued at once, never behind the blocks' bound
         w.write_json("/analysis/windows", {"i": i})
-    assert time.monotonic() - t0 < 1.0  # a control record waiting for block space would wait the 10 s control timeout
+    assert time.monotonic() - t0 < 5.0  # a control record waiting for block space would wait the 10 s control timeout
     b = w.backlog()
     assert b["bytes"] == b["peak_bytes"] == 10 * nbytes and b["seconds"] == b["peak_seconds"] == 10.0
     disk.set()

@@ -90,7 +90,14 @@ class ForkedWorker:
         self._slot_user: list[Pending | None] = [None] * (slots if self._shm is not None else 0)
         self._proc = ctx.Process(target=_serve, args=(obj, child, self._conn, self._shm, self._slot_bytes), name=name,
                                  daemon=True)  # fmt: skip
-        self._proc.start()
+        # SIGINT blocked across the fork: a Ctrl-C in the child's first moments (before it ignores SIGINT) killed it with
+        # a KeyboardInterrupt (make test beside 4 hogs). The child inherits the mask, ignores SIGINT, then unblocks
+        # (a pending one is discarded there); here it is unblocked after the fork, so a pending Ctrl-C is the parent's
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            self._proc.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         child.close()
         self._queue: deque[Pending] = deque()
         self.name = name
@@ -182,6 +189,7 @@ def _serve(obj: object, conn: Any, parent_end: Any, shm: mmap.mmap | None, slot_
     """The child's loop (runs in the child): a call at a time, its shared arguments as read-only views."""
     parent_end.close()  # so that the parent's end closing (or the parent dying) reads as EOF here
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it then closes us
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked across the fork (ForkedWorker.__init__)
     while True:
         try:
             msg = conn.recv()

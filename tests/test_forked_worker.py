@@ -106,6 +106,37 @@ def test_close_stops_a_busy_child_and_ctrl_c_is_the_parents():
     assert not _alive(w.pid)
 
 
+def test_a_ctrl_c_in_the_childs_first_moments_does_not_kill_it(tmp_path):
+    """The child ignores SIGINT from its first instruction: a Ctrl-C that reached it before its loop had set SIG_IGN
+    killed it with a KeyboardInterrupt (make test beside 4 hogs). multiprocessing's after-fork hook holds the child
+    (it says so in a file) before its loop starts, and the Ctrl-C lands there every time."""
+    import multiprocessing.util
+
+    flag = tmp_path / "held"
+
+    class Hold:
+        pass
+
+    def hold_child(_h) -> None:  # in the child, before _serve
+        flag.touch()
+        time.sleep(0.5)
+
+    hold = Hold()
+    multiprocessing.util.register_after_fork(hold, hold_child)
+    try:
+        w = ForkedWorker(Counter(), "test-worker")
+    finally:
+        del hold  # later forks (other tests) are not held
+    try:
+        t0 = time.monotonic()
+        while not flag.exists() and time.monotonic() - t0 < 30:
+            time.sleep(0.005)
+        os.kill(w.pid, signal.SIGINT)
+        assert w.submit("add", 2).result()[0] == 2 and _alive(w.pid)
+    finally:
+        w.close()
+
+
 def test_arrays_cross_in_shared_slots_never_overwritten_while_a_call_reads_them():
     """Two slots: the first two arrays wait in them, the third and a too-large one cross the pipe (the slots' calls
     are unanswered), the fifth reuses a slot answered meanwhile; the child's view is read-only (it must not keep or

@@ -60,12 +60,55 @@ class Outcome:
     seconds: float
 
 
+#: a wait of the recorder's main loop (50 ms) that ended this much later was the host's doing: a ``host_stall`` event
+STALL_S = 1.0
+#: ... and a stall this long is also one line on the console (as long as the default silence threshold: a stall that
+#: short explains no silence, and a loaded host's second is the log's business, not the user's)
+STALL_LINE_S = 2.0
+
+
+@dataclass(frozen=True)
+class Stall:
+    """A span in which the recording process's main thread did not run: ``at_s`` (session time, s) for ``seconds``."""
+
+    at_s: float
+    seconds: float
+
+    def message(self) -> str:
+        return (f"host: this process did not run for {self.seconds:.1f} s from {self.at_s:.1f} s into the session (the "
+                "host overloaded or suspended, the process stopped, or a thread holding the interpreter): a silence "
+                "or loss in that span is the host's, not the device's")  # fmt: skip
+
+
+class StallWatch:
+    """Spans in which the process was not scheduled, from the lateness of a timed wait (sans-IO: times in, stalls out).
+
+    Why: when a host freezes the whole recording process (a VM paused, SIGSTOP, swap, a C call holding the GIL), the
+    device keeps sampling, its buffer overflows and the log shows a silence and a loss that look like the link's fault
+    (make test beside 4 hogs: a 64.6 s silence of an in-process Modbus device with no timeout or reconnect, whose cause
+    the log could not tell). The recorder's main loop waits 50 ms at a time; a wait that ends more than ``threshold_s``
+    late means no thread of the process ran it, so the span is named, which a quiet link alone cannot explain."""
+
+    def __init__(self, threshold_s: float = STALL_S) -> None:
+        self.threshold_s = float(threshold_s)
+        self.stalls: list[Stall] = []
+
+    def feed(self, started_s: float, asked_s: float, ended_s: float) -> Stall | None:
+        """One wait: begun at ``started_s`` for ``asked_s``, returned at ``ended_s`` (session time, s)."""
+        late = ended_s - started_s - asked_s
+        if late <= self.threshold_s:
+            return None
+        stall = Stall(started_s + asked_s, late)
+        self.stalls.append(stall)
+        return stall
+
+
 class Recorder:
     def __init__(
         self, *, fan: FanOut, results: Results, sources: Sequence[Source], lanes: Sequence[Lane],
         log: LogLane | None = None, stop: threading.Event | None = None, duration_s: float | None = None,
         end_grace_s: float = 10.0, start_servers: Callable[[], None] | None = None,
-        stopped_finish_s: dict[str, float] | None = None,
+        stopped_finish_s: dict[str, float] | None = None, say: Callable[[str], None] | None = None,
     ) -> None:  # fmt: skip
         self.fan = fan
         self.results = results
@@ -78,6 +121,8 @@ class Recorder:
         self.start_servers = start_servers  # simulated devices hold their clocks until the links are open
         self.stopped_finish_s = {**STOPPED_FINISH_S, **(stopped_finish_s or {})}  # a session's [analysis] confirm_stop_s
         self.t0 = time.monotonic()
+        self.say = say  # one-line notices (a long host stall); None: the log only
+        self.stalls = StallWatch()
 
     # --- running --------------------------------------------------------------------------------------
     def run(self, status: Callable[[float], None] | None = None, status_every_s: float = 1.0) -> Outcome:
@@ -102,9 +147,11 @@ class Recorder:
         deadline = None if self.duration_s is None else self.t0 + self.duration_s + self.end_grace_s
         last_status = self.t0
         while True:
+            begun = time.monotonic()
             if self.stop.wait(0.05):
                 return Outcome("stopped", None, 0, 0.0)
             now = time.monotonic()
+            self._stalled(begun, now)
             if self.log is not None and self.log.failure is not None:
                 return Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code, 0.0)
             failed = [f for s in self.sources if s.done.is_set() and (f := s.failure()) is not None]
@@ -122,6 +169,15 @@ class Recorder:
             if status is not None and now - last_status >= every:
                 status(now - self.t0)
                 last_status = now
+
+    def _stalled(self, begun: float, now: float) -> None:
+        stall = self.stalls.feed(begun - self.t0, 0.05, now - self.t0)
+        if stall is None:
+            return
+        ev = {"kind": "host_stall", "at_s": round(stall.at_s, 3), "seconds": round(stall.seconds, 3), "message": stall.message()}
+        self.results.emit(layout.EVENTS_TOPIC, ev, None)
+        if self.say is not None and stall.seconds >= STALL_LINE_S:
+            self.say(stall.message())
 
     def _short_message(self, why: str) -> str:
         parts = [f"{s.name} recorded {s.report.samples} of {s.need} samples" for s in self.sources if not s.report.reached_end]

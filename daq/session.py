@@ -77,6 +77,7 @@ class SessionResult:
     stream_gaps: dict[str, list[tuple[int, int]]] = field(default_factory=dict)
     reference: str = ""  # the stream whose index the hit records use
     timeline: dict[str, dict] = field(default_factory=dict)  # final offset estimate per other stream
+    host_stalls: list[tuple[float, float]] = field(default_factory=list)  # (at s, for s): the process did not run
     aligner_dropped: dict[str, int] = field(default_factory=dict)  # samples the hit gate never saw, per stream
     analysis_events: list[dict] = field(default_factory=list)  # IR events of the near-live analysis
     analysis_dropped_samples: int = 0  # samples the analysis lane skipped because it fell behind
@@ -204,7 +205,7 @@ class Session:
         self.recorder = Recorder(
             fan=self.fan, results=self.results, sources=self.sources, lanes=lanes, log=self.log, stop=self.stop,
             duration_s=cfg.duration, end_grace_s=cfg.end_grace_s, start_servers=harness.go,
-            stopped_finish_s={"confirm": cfg.analysis.confirm_stop_s},
+            stopped_finish_s={"confirm": cfg.analysis.confirm_stop_s}, say=self.opts.line or self.opts.frf_line,
         )  # fmt: skip
 
     # --- parts ----------------------------------------------------------------------------------------
@@ -527,6 +528,7 @@ class Session:
         if self.view is not None:
             res.view_dropped_samples = self.view.sub.dropped_samples
         res.writer_overrun_samples = self.log.stats.overrun_samples
+        res.host_stalls = [(st.at_s, st.seconds) for st in self.recorder.stalls.stalls]
         res.writer_backlog = self.log.backlog()
         res.files = list(self.log.stats.files)
         return res

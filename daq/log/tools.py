@@ -188,8 +188,8 @@ def _events_record(r: LogReader) -> tuple[list[dict[str, Any]], dict[str, int]] 
 
 
 def _named_events(events: list[dict[str, Any]]) -> dict[str, list[str]]:
-    """Suspect channels, device restarts, silences, a writer that fell behind and a confirmation worker that died,
-    one line each (``gvt log info`` names them)."""
+    """Suspect channels, device restarts, silences, host stalls, a writer that fell behind and a confirmation worker
+    that died, one line each (``gvt log info`` names them)."""
     out: dict[str, list[str]] = {}
     for e in events:
         kind = e.get("kind")
@@ -200,6 +200,8 @@ def _named_events(events: list[dict[str, Any]]) -> dict[str, list[str]]:
         elif kind == "silence":
             where = f"{e.get('stream', '?')} samples [{e.get('start_index', '?')}, {e.get('end_index', '?')})"
             out.setdefault("silences", []).append(f"{where}: {e.get('message', '')}".strip())
+        elif kind == "host_stall":  # the recording process did not run (daq/recorder.py StallWatch)
+            out.setdefault("host stalls", []).append(str(e.get("message") or e))
         elif kind == "writer_backlog":  # how far the writer fell behind: what a crash then would have lost (D67)
             out.setdefault("log writer", []).append(str(e.get("message") or e))
         elif kind in ("confirm_restarted", "confirm_off", "confirm_abandoned"):  # D68

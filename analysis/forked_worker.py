@@ -38,9 +38,26 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from analysis.errors import RuntimeFailure
 
-class WorkerDied(RuntimeError):
-    """The worker process ended without answering (killed, out of memory, crashed)."""
+
+class WorkerDied(RuntimeFailure, RuntimeError):
+    """The worker process ended without answering (killed, out of memory, crashed): a runtime failure, so ``gvt``
+    says it in one line and exits 1 whatever verb ran the worker (``gvt confirm`` said "internal error")."""
+
+
+def _how_it_ended(exitcode: int | None) -> str:
+    """The child's end in words: a SIGKILL is most often the kernel's out-of-memory killer, which a user should know."""
+    if exitcode is None:
+        return "exit code unknown"
+    if exitcode == -signal.SIGKILL:
+        return "exit code -9: killed by SIGKILL, the system's out-of-memory killer or a kill -9"
+    if exitcode < 0:
+        try:
+            return f"exit code {exitcode}: killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"exit code {exitcode}"
+    return f"exit code {exitcode}"
 
 
 def can_fork() -> bool:
@@ -147,7 +164,7 @@ class ForkedWorker:
     def _died(self) -> WorkerDied:
         self.died = True
         self._proc.join(timeout=1.0)
-        return WorkerDied(f"{self.name}: the worker process ended (exit code {self._proc.exitcode}) before it answered")
+        return WorkerDied(f"{self.name}: the worker process ended ({_how_it_ended(self._proc.exitcode)}) before it answered")
 
     def close(self, timeout_s: float = 5.0, wait: bool = True) -> None:
         """Ask the child to stop (it finishes the call it is in) and wait ``timeout_s``; then terminate it. ``wait=False``:

@@ -170,4 +170,5 @@ def test_gvt_analyze_forks_its_seed_lane_and_gives_the_threads_results(session_l
     monkeypatch.setattr(fw.ForkedWorker, "__init__", killed_at_once)
     code, stdout, stderr = _run(capsys, "analyze", str(out))
     assert code == 1 and "Traceback" not in stderr
-    assert "gvt: error: gvt-seed-lane: the worker process ended (exit code -9) before it answered; nothing was written" in stderr
+    assert ("gvt: error: gvt-seed-lane: the worker process ended (exit code -9: killed by SIGKILL, the system's "
+            "out-of-memory killer or a kill -9) before it answered; nothing was written") in stderr

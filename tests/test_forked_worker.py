@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from analysis.errors import GvtError
 from analysis.forked_worker import ForkedWorker, WorkerDied, can_fork, reap
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the forked worker is Linux-only")
@@ -88,9 +89,19 @@ def test_a_dead_child_raises_workerdied_not_a_hang():
         assert w.submit("add", 1).result()[0] == 1
         os.kill(w.pid, signal.SIGKILL)
         t0 = time.monotonic()
-        with pytest.raises(WorkerDied, match=r"test-worker: the worker process ended \(exit code -9\)"):
+        with pytest.raises(WorkerDied, match=r"test-worker: the worker process ended \(exit code -9: killed by SIGKILL, "
+                                             r"the system's out-of-memory killer or a kill -9\)"):
             w.submit("add", 1).result()
         assert time.monotonic() - t0 < 5
+    finally:
+        w.close()
+    w = ForkedWorker(Counter(), "test-worker")  # another signal is named as it is
+    try:
+        os.kill(w.pid, signal.SIGTERM)
+        with pytest.raises(WorkerDied, match=r"\(exit code -15: killed by SIGTERM\)") as died:
+            w.submit("add", 1).result()
+        # one of gvt's runtime failures: any verb that ran the worker says it in one line and exits 1 (daq/cli run())
+        assert isinstance(died.value, GvtError) and died.value.exit_code == 1
     finally:
         w.close()
 

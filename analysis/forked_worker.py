@@ -179,6 +179,9 @@ class ForkedWorker:
         if self._shm is not None:
             self._shm.close()
         if not wait:
+            # the ones that ended since are collected now (exitcode polls without blocking): a long-lived process that
+            # replays log after log keeps neither zombies nor a growing list until someone calls reap()
+            _stopping[:] = [(p, t) for p, t in _stopping if p.exitcode is None]
             _stopping.append((self._proc, timeout_s))
             return
         _join(self._proc, timeout_s)

@@ -173,6 +173,27 @@ def test_close_without_waiting_is_collected_by_reap():
     assert w._proc.exitcode == 0 and not _alive(w.pid)
 
 
+def test_workers_closed_without_waiting_do_not_pile_up_between_reaps():
+    """A long-lived process (a campaign, a service replaying log after log) that never calls reap(): each close
+    collects the workers that ended since, so the list holds at most the ones still ending, and no zombie stays."""
+    import analysis.forked_worker as fw
+
+    reap()
+    ended = []
+    for _ in range(4):
+        w = ForkedWorker(Counter(), "test-worker")
+        w.close(wait=False)
+        ended.append(w._proc)
+        t0 = time.monotonic()
+        while _alive(w.pid) and time.monotonic() - t0 < 30:  # until it ended (a zombie until collected)
+            time.sleep(0.01)
+    last = ForkedWorker(Counter(), "test-worker")
+    last.close(wait=False)
+    assert [p for p, _t in fw._stopping] == [last._proc], fw._stopping
+    assert all(p.exitcode == 0 for p in ended)  # collected: not zombies
+    reap()
+
+
 def test_can_fork_only_with_this_thread_alone():
     assert can_fork() == (threading.active_count() == 1)
     stop = threading.Event()

@@ -159,8 +159,9 @@ def test_polling_slow_channels(serve):
     v = np.concatenate([b.data for b in blocks])
     assert np.allclose(v[:, 1], 24.0)
     # uptime (int32 ms on the wire, seconds decoded) at 20 Hz: 50 ms a tick (the median over the ticks: one read a busy
-    # host made late moves one step, not the median)
-    assert np.all(np.diff(v[:, 2]) > 0) and 0.035 < np.median(np.diff(v[:, 2]) / np.diff(ks)) < 0.065
+    # host made late moves one step, not the median; the bound is wide for a loaded host, and a wrong scale or word
+    # order would be off by 1000x or more)
+    assert np.all(np.diff(v[:, 2]) > 0) and 0.025 < np.median(np.diff(v[:, 2]) / np.diff(ks)) < 0.1
     assert np.allclose(v[:, 0], 21.5 + 0.01 * v[:, 2], atol=1e-3)  # float32, little word order
 
 

@@ -317,6 +317,7 @@ def test_a_stop_request_gives_the_confirmations_seconds_not_an_hour():
         lanes = [Told("hits"), Told("confirm")]
         Recorder(fan=FanOut(), results=Results(), sources=[], lanes=lanes, stop=stop).shutdown()
         want = STOPPED_FINISH_S["confirm"] if stopped else FINISH_S["confirm"]
-        assert want - 1.0 < lanes[1].seconds <= want
-        assert FINISH_S["hits"] - 1.0 < lanes[0].seconds <= FINISH_S["hits"]  # the other lanes keep theirs
+        # (the slack below is the time between the recorder's deadline and the lane's look at it: ms, more on a busy host)
+        assert want - 5.0 < lanes[1].seconds <= want
+        assert FINISH_S["hits"] - 5.0 < lanes[0].seconds <= FINISH_S["hits"]  # the other lanes keep theirs
     assert STOPPED_FINISH_S["confirm"] <= 30.0

@@ -69,15 +69,25 @@ STALL_LINE_S = 2.0
 
 @dataclass(frozen=True)
 class Stall:
-    """A span in which the recording process's main thread did not run: ``at_s`` (session time, s) for ``seconds``."""
+    """A span in which the recording process's main thread did not run: ``at_s`` (session time, s) for ``seconds``;
+    ``cpu_s`` the process's CPU time meanwhile (None: not measured), which tells the two causes apart."""
 
     at_s: float
     seconds: float
+    cpu_s: float | None = None
+
+    @property
+    def cause(self) -> str:
+        if self.cpu_s is None:
+            return "the host overloaded or suspended, the process stopped, or a thread holding the interpreter"
+        if self.cpu_s < 0.05 * self.seconds + 0.05:
+            return (f"it used {self.cpu_s:.2f} s of CPU meanwhile: the host did not run it (overloaded or suspended) or "
+                    "it was stopped")
+        return f"it used {self.cpu_s:.1f} s of CPU meanwhile: a thread of its own held the interpreter"
 
     def message(self) -> str:
-        return (f"host: this process did not run for {self.seconds:.1f} s from {self.at_s:.1f} s into the session (the "
-                "host overloaded or suspended, the process stopped, or a thread holding the interpreter): a silence "
-                "or loss in that span is the host's, not the device's")  # fmt: skip
+        return (f"host: this process did not run for {self.seconds:.1f} s from {self.at_s:.1f} s into the session "
+                f"({self.cause}): a silence or loss in that span is the host's, not the device's")  # fmt: skip
 
 
 class StallWatch:
@@ -93,12 +103,13 @@ class StallWatch:
         self.threshold_s = float(threshold_s)
         self.stalls: list[Stall] = []
 
-    def feed(self, started_s: float, asked_s: float, ended_s: float) -> Stall | None:
-        """One wait: begun at ``started_s`` for ``asked_s``, returned at ``ended_s`` (session time, s)."""
+    def feed(self, started_s: float, asked_s: float, ended_s: float, cpu_s: float | None = None) -> Stall | None:
+        """One wait: begun at ``started_s`` for ``asked_s``, returned at ``ended_s`` (session time, s); ``cpu_s`` the
+        process's CPU seconds over it."""
         late = ended_s - started_s - asked_s
         if late <= self.threshold_s:
             return None
-        stall = Stall(started_s + asked_s, late)
+        stall = Stall(started_s + asked_s, late, cpu_s)
         self.stalls.append(stall)
         return stall
 
@@ -147,11 +158,11 @@ class Recorder:
         deadline = None if self.duration_s is None else self.t0 + self.duration_s + self.end_grace_s
         last_status = self.t0
         while True:
-            begun = time.monotonic()
+            begun, cpu = time.monotonic(), time.process_time()
             if self.stop.wait(0.05):
                 return Outcome("stopped", None, 0, 0.0)
             now = time.monotonic()
-            self._stalled(begun, now)
+            self._stalled(begun, now, time.process_time() - cpu)
             if self.log is not None and self.log.failure is not None:
                 return Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code, 0.0)
             failed = [f for s in self.sources if s.done.is_set() and (f := s.failure()) is not None]
@@ -170,11 +181,12 @@ class Recorder:
                 status(now - self.t0)
                 last_status = now
 
-    def _stalled(self, begun: float, now: float) -> None:
-        stall = self.stalls.feed(begun - self.t0, 0.05, now - self.t0)
+    def _stalled(self, begun: float, now: float, cpu_s: float) -> None:
+        stall = self.stalls.feed(begun - self.t0, 0.05, now - self.t0, cpu_s)
         if stall is None:
             return
-        ev = {"kind": "host_stall", "at_s": round(stall.at_s, 3), "seconds": round(stall.seconds, 3), "message": stall.message()}
+        ev = {"kind": "host_stall", "at_s": round(stall.at_s, 3), "seconds": round(stall.seconds, 3),
+              "cpu_s": round(cpu_s, 3), "message": stall.message()}  # fmt: skip
         self.results.emit(layout.EVENTS_TOPIC, ev, None)
         if self.say is not None and stall.seconds >= STALL_LINE_S:
             self.say(stall.message())

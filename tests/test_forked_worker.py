@@ -184,8 +184,8 @@ def test_workers_closed_without_waiting_do_not_pile_up_between_reaps():
         w = ForkedWorker(Counter(), "test-worker")
         w.close(wait=False)
         ended.append(w._proc)
-        t0 = time.monotonic()
-        while _alive(w.pid) and time.monotonic() - t0 < 30:  # until it ended (a zombie until collected)
+        t0 = time.monotonic()  # until it ended: waitid with WNOWAIT sees the exit without collecting it
+        while os.waitid(os.P_PID, w.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None and time.monotonic() - t0 < 30:
             time.sleep(0.01)
     last = ForkedWorker(Counter(), "test-worker")
     last.close(wait=False)

@@ -28,6 +28,11 @@ def test_a_wait_that_ends_late_is_a_stall_and_an_ordinary_one_is_not():
     assert st == w.stalls[0] and abs(st.at_s - 2.05) < 1e-9 and abs(st.seconds - 64.6) < 1e-9
     assert "did not run for 64.6 s from 2.0 s" in st.message() and "not the device's" in st.message()
     assert len(w.stalls) == 1 and STALL_S == 1.0
+    # the process's CPU time over the stall tells a stopped or unscheduled process from one of its threads holding
+    # the interpreter
+    stopped, held = w.feed(70.0, 0.05, 73.05, cpu_s=0.01), w.feed(80.0, 0.05, 92.0, cpu_s=3.2)
+    assert "0.01 s of CPU meanwhile: the host did not run it" in stopped.message()
+    assert "3.2 s of CPU meanwhile: a thread of its own held the interpreter" in held.message()
 
 
 def test_a_stopped_recorder_names_the_span_in_the_log_and_on_the_console(tmp_path):
@@ -53,6 +58,7 @@ def test_a_stopped_recorder_names_the_span_in_the_log_and_on_the_console(tmp_pat
     text = rest + err
     stalls = [e for e in LogReader(out).json_messages("/daq/events") if e["kind"] == "host_stall"]
     assert len(stalls) == 1 and 2.5 <= stalls[0]["seconds"] <= 4.5, stalls
+    assert stalls[0]["cpu_s"] < 0.5 and "the host did not run it" in stalls[0]["message"], stalls  # stopped: no CPU
     assert 0.5 <= stalls[0]["at_s"] <= 4.0, stalls
     assert text.count("host: this process did not run for") == 1, text
     info = subprocess.run([sys.executable, "-m", "daq.cli", "log", "info", str(out), "--json"], cwd=ROOT,

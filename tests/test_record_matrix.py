@@ -171,9 +171,10 @@ def test_a_device_restart_is_a_new_segment_never_stitched(tmp_path, transport):
     assert len(flagged) == 1
     seg1 = int(d.block_first_index[flagged[0]])
     before = d.index[d.index < seg1]
-    # not stitched: the new segment starts after a gap about as long as the device was away (0.5 s, host clock)
+    # not stitched: the new segment starts after a gap about as long as the device was away (0.5 s, host clock; a
+    # loaded host's relink adds to it: 1.13 s measured over Modbus RTU beside 4 hogs), never none
     gap = seg1 - int(before[-1]) - 1
-    assert 0.3 * rate < gap < 0.9 * rate, gap
+    assert 0.3 * rate < gap < 2.5 * rate, gap
     assert d.index[0] == 0 and np.all(np.diff(before) == 1)
     from daq.log.tools import info_text, log_info
 

@@ -159,10 +159,11 @@ class Recorder:
         last_status = self.t0
         while True:
             begun, cpu = time.monotonic(), time.process_time()
-            if self.stop.wait(0.05):
-                return Outcome("stopped", None, 0, 0.0)
+            stopped = self.stop.wait(0.05)
             now = time.monotonic()
-            self._stalled(begun, now, time.process_time() - cpu)
+            self._stalled(begun, now, time.process_time() - cpu)  # a stall that a stop request ended is one too
+            if stopped:
+                return Outcome("stopped", None, 0, 0.0)
             if self.log is not None and self.log.failure is not None:
                 return Outcome("writer_failed", f"the log writer failed: {self.log.failure}", self.log.failure_exit_code, 0.0)
             failed = [f for s in self.sources if s.done.is_set() and (f := s.failure()) is not None]

@@ -96,11 +96,11 @@ def test_any_block_sizes_never_overwrite_an_unreleased_record(ops, capacity):
 
 
 # --- a session with the lanes in the worker ----------------------------------------------------------------
-def _cfg(process: str, duration: float = 1.4, confirm: bool = False) -> SessionConfig:
+def _cfg(process: str, duration: float = 1.4, confirm: bool = False, physics_s: float | None = None) -> SessionConfig:
     return SessionConfig(
         name=f"host-{process}", rig="beam_ch4_exp", duration=duration,
         device=DeviceSpec(driver="sim", config={"paced": True, "block_size": 256, "forces": [1583.0], "period": 0.6,
-                                                "physics_seconds": duration + 0.2, "seed": 3}),
+                                                "physics_seconds": physics_s or duration + 0.2, "seed": 3}),
         trigger=TriggerSpec(level=20.0, record_length=0.3), queue_seconds=30.0,
         analysis=AnalysisSpec(process=process, confirm=confirm),
     )  # fmt: skip
@@ -159,7 +159,10 @@ def test_a_killed_worker_is_restarted_once_then_the_lanes_go_off_with_one_line(t
     start the replacement (a cold worker on a loaded 2-core host took ~19 s, beyond a short session's end)."""
     lines: list[str] = []
     stop = threading.Event()
-    session = _session(_cfg("worker", duration=60.0), tmp_path / "k.mcap", line=lines.append, stop=stop)
+    # a duration beyond both waits for a worker (the test stops the session itself); the simulated physics 3 s (the
+    # device computes its whole span at the start, then serves its noise floor): 60 s of it cost seconds and 120 MB
+    duration = 2 * READY_TIMEOUT_S + 60.0
+    session = _session(_cfg("worker", duration=duration, physics_s=3.0), tmp_path / "k.mcap", line=lines.append, stop=stop)
     host = session.host
 
     def consumed(n_pids: int) -> bool:  # the ring is reset at a restart: a worker consumed blocks when read_pos moves

@@ -210,6 +210,9 @@ class Cell:
         if offset is not None and not abs((offset["applied_samples"] or 0) - offset["true_samples"]) <= OFFSET_BAR_SAMPLES:
             fail.append(f"the merged stream placed acc_daq {offset['applied_samples']} samples late, the truth is "
                         f"{offset['true_samples']}{SLACK_NOTE}")  # fmt: skip
+        if fail and res.host_stalls:  # what the process itself went through (D132): said beside the failure
+            spans = ", ".join(f"({a:.1f}, {b:.1f})" for a, b in res.host_stalls)
+            fail.append(f"the recording process stalled (at s, for s): {spans}")
         lat = np.asarray(res.analysis_latencies_s)
         return {
             "cell": self.cell, "hogs": self.hogs, "seconds": self.seconds, "load": self.load.as_dict(), "streams": streams,

@@ -96,8 +96,9 @@ class StallWatch:
     Why: when a host freezes the whole recording process (a VM paused, SIGSTOP, swap, a C call holding the GIL), the
     device keeps sampling, its buffer overflows and the log shows a silence and a loss that look like the link's fault
     (make test beside 4 hogs: a 64.6 s silence of an in-process Modbus device with no timeout or reconnect, whose cause
-    the log could not tell). The recorder's main loop waits 50 ms at a time; a wait that ends more than ``threshold_s``
-    late means no thread of the process ran it, so the span is named, which a quiet link alone cannot explain."""
+    the log could not tell). The recorder's main loop waits 50 ms at a time; a tick that comes more than ``threshold_s``
+    after the last one plus its wait means no thread of the process ran the loop, so the span is named, which a quiet
+    link alone cannot explain."""
 
     def __init__(self, threshold_s: float = STALL_S) -> None:
         self.threshold_s = float(threshold_s)
@@ -157,11 +158,14 @@ class Recorder:
     def _wait(self, status: Callable[[float], None] | None, every: float) -> Outcome:
         deadline = None if self.duration_s is None else self.t0 + self.duration_s + self.end_grace_s
         last_status = self.t0
+        # a stall is timed from one tick to the next, not over the wait alone: a host that stops the process just
+        # after a status line (the reader of that line woken, the writer preempted) stopped it outside the wait
+        tick, cpu = time.monotonic(), time.process_time()
         while True:
-            begun, cpu = time.monotonic(), time.process_time()
             stopped = self.stop.wait(0.05)
-            now = time.monotonic()
-            self._stalled(begun, now, time.process_time() - cpu)  # a stall that a stop request ended is one too
+            now, cpu_now = time.monotonic(), time.process_time()
+            self._stalled(tick, now, cpu_now - cpu)  # a stall that a stop request ended is one too
+            tick, cpu = now, cpu_now
             if stopped:
                 return Outcome("stopped", None, 0, 0.0)
             if self.log is not None and self.log.failure is not None:

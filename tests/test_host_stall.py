@@ -35,6 +35,31 @@ def test_a_wait_that_ends_late_is_a_stall_and_an_ordinary_one_is_not():
     assert "3.2 s of CPU meanwhile: a thread of its own held the interpreter" in held.message()
 
 
+def test_a_loop_held_outside_its_wait_is_a_stall_too():
+    """A host that stops the process just after it printed a status line (the line's reader woken, the writer
+    preempted) holds the main loop outside its 50 ms wait; the CI run at ae35b7a missed a 3 s SIGSTOP that way,
+    because only the wait was timed. Here the status call itself holds the loop 1.5 s (a sleep: no CPU, as a
+    stopped process): the stall is timed from tick to tick, so it is named."""
+    from daq.fanout import FanOut
+    from daq.lanes import Results
+    from daq.recorder import Recorder
+
+    held: list[float] = []
+
+    def status(t: float) -> None:
+        if not held:
+            held.append(t)
+            time.sleep(1.5)
+
+    events: list[dict] = []
+    results = Results(log=lambda topic, obj, t: events.append(obj))
+    rec = Recorder(fan=FanOut(), results=results, sources=[], lanes=[], duration_s=2.2, end_grace_s=0.0)
+    rec.run(status=status, status_every_s=0.2)
+    stalls = [e for e in events if e["kind"] == "host_stall"]
+    assert held and len(stalls) == 1 and 1.3 <= stalls[0]["seconds"] <= 4.0, stalls  # 1.5 s less the 50 ms wait
+    assert stalls[0]["cpu_s"] < 0.5 and abs(stalls[0]["at_s"] - held[0]) < 0.5, (stalls, held)
+
+
 def test_a_stopped_recorder_names_the_span_in_the_log_and_on_the_console(tmp_path):
     """``gvt record`` stopped (SIGSTOP) for 3 s a second into its data, then continued: one ``host_stall`` event of
     3 s (give or take the host's scheduling: 2.5-4.5 s), one console line, and ``gvt log info`` names it. The

@@ -190,6 +190,14 @@ def _kill_worker_holding(lane, feed) -> None:
     os.kill(next(iter(lane._pool._processes)), signal.SIGKILL)
 
 
+def _near(feed: _Feed, i: int, **kw) -> dict:
+    """Event ``i`` half a second behind the data fed so far: inside the lane's 8 s ring however long a loaded host took
+    to get there (the feed goes on while a replacement worker starts; make test-loaded at 4e1dc7e fed past an event set
+    at a fixed 3.0 s, which had left the ring and was skipped, so no worker ever held it)."""
+    t = feed.end / FS - 0.5
+    return {"id": i, "start_s": t, "end_s": t + 0.1, **kw}
+
+
 def test_a_killed_worker_is_restarted_once_then_the_lane_is_switched_off_with_one_line():
     """Issue 30: at load 15 the pool broke and every later event became `error`. Now: the first death marks the event
     in hand and a new worker confirms the next; the second switches the lane off with one line and later events are
@@ -199,15 +207,15 @@ def test_a_killed_worker_is_restarted_once_then_the_lane_is_switched_off_with_on
                        confirm=sleepy_confirm, say=said.append).start()  # fmt: skip
     feed = _Feed(fan)
     feed.until(lambda: feed.end >= 2000)
-    lane.submit({"id": 0, "start_s": 1.0, "end_s": 1.1, "sleep_s": 60.0})
+    lane.submit(_near(feed, 0, sleep_s=60.0))
     _kill_worker_holding(lane, feed)
     feed.until(lambda: lane.worker_deaths == 1)
-    lane.submit({"id": 1, "start_s": 2.0, "end_s": 2.1})
+    lane.submit(_near(feed, 1))
     feed.until(lambda: any(r["event_id"] == 1 for r in lane.results))
-    lane.submit({"id": 2, "start_s": 3.0, "end_s": 3.1, "sleep_s": 60.0})
+    lane.submit(_near(feed, 2, sleep_s=60.0))
     _kill_worker_holding(lane, feed)
     feed.until(lambda: lane.off is not None)
-    lane.submit({"id": 3, "start_s": 4.0, "end_s": 4.1})
+    lane.submit(_near(feed, 3))
     feed.until(lambda: len(lane.results) == 4)
     fan.close()
     t0 = time.monotonic()

@@ -121,18 +121,15 @@ def lock_residuals(
     nf = fb.size
     # the free sinusoids exp(i 2π f t) on the frequency grid by one complex recurrence along it (×exp(i 2π step t) a row:
     # ~280 rows of rounding, 1e-13, against 2 transcendental calls per element, ~1.5 ms an event)
-    ez = np.empty((nf, t.size), complex)
-    _rows_by_recurrence(np.exp(2j * np.pi * fb[0] * t), np.exp(2j * np.pi * step_hz * t), ez)
-    # every locked column (θ's own pair, then each candidate's) and y: their projections on the free sinusoids (cos
-    # the real part, sin the imaginary) in one complex BLAS product; a real product needed cos and sin rows copied
-    # out of ``ez`` first, which took longer than the product (issue 30: 0.9 of ~3 ms an event)
+    cos_f, sin_f = np.empty((nf, t.size)), np.empty((nf, t.size))
+    _rows_by_recurrence(np.exp(2j * np.pi * fb[0] * t), np.exp(2j * np.pi * step_hz * t), cos_f, sin_f)
+    # every locked column (θ's own pair, then each candidate's) and y: their projections on the free sinusoids, two
+    # real BLAS products (the recurrence writes the cos and sin rows apart: half the flops of the complex product of
+    # the rows with a complex copy of Z, issue 30)
     Z = np.column_stack([np.cos(th), np.sin(th), *(f(m / n * th) for m, n in cands for f in (np.cos, np.sin)), y])
-    FZ = ez @ Z.astype(complex)
-    P, b_f = np.stack([FZ.real[:, :-1], FZ.imag[:, :-1]], axis=1), np.stack([FZ.real[:, -1], FZ.imag[:, -1]], axis=1)
-    g = np.empty((nf, 2, 2))
-    c, s = ez.real, ez.imag
-    g[:, 0, 0], g[:, 1, 1] = np.einsum("fn,fn->f", c, c), np.einsum("fn,fn->f", s, s)
-    g[:, 0, 1] = g[:, 1, 0] = np.einsum("fn,fn->f", c, s)
+    FC, FS = cos_f @ Z, sin_f @ Z
+    P, b_f = np.stack([FC[:, :-1], FS[:, :-1]], axis=1), np.stack([FC[:, -1], FS[:, -1]], axis=1)
+    g = _free_gram(t, fb, cos_f, sin_f)
     Zl = Z[:, :-1]
     ZZ, Zy = Zl.T @ Zl, Zl.T @ y
     yy, eps = float(y @ y), 1e-12 * float(y @ y)
@@ -141,16 +138,49 @@ def lock_residuals(
     return r0, _schur_min(yy, ZZ, Zy, P, b_f, g, sets, eps)
 
 
+def _free_gram(t: FloatArray, fb: FloatArray, c: FloatArray, s: FloatArray) -> FloatArray:
+    """The free pair's Gram matrix at every free frequency, ``(f, 2, 2)``: ``Σcos²``, ``Σcos·sin``, ``Σsin²`` of
+    ``2πft`` over the samples (``c``, ``s``: their cos and sin rows).
+
+    With ``cos² = (1 + cos 2x)/2``, ``sin² = (1 − cos 2x)/2`` and ``cos·sin = (sin 2x)/2`` all three come from
+    ``S = Σ exp(i4πf t_n)``, and on a uniform lattice (the detector's lock tiles always are one: every ``stride``-th
+    stream sample) that sum is a geometric series, ``S = exp(i4πf t_0) (1 − zᴺ)/(1 − z)`` with ``z = exp(i4πf Δt)``:
+    O(1) a frequency where the three sums over ``ez`` were three strided passes (0.38 of ~1.4 ms an event, issue 30).
+    Equal to the sums within rounding (~1e-13 of N; tests/test_detection.py's least-squares oracle). Samples off a
+    lattice, and the frequencies where ``z`` is within 1e-6 of 1 (2f Δt an integer: the series' 0/0), take the sums."""
+    n = t.size
+    dt = (t[-1] - t[0]) / (n - 1) if n > 1 else 0.0
+    lattice = n > 1 and dt > 0 and bool(np.all(np.abs(np.diff(t) - dt) <= 1e-9 * dt))
+    g = np.empty((fb.size, 2, 2))
+    if lattice:
+        z = np.exp(4j * np.pi * fb * dt)
+        near = np.abs(1.0 - z) < 1e-6
+        S = np.exp(4j * np.pi * fb * t[0]) * (1.0 - np.exp(4j * np.pi * fb * dt * n)) / np.where(near, 1.0, 1.0 - z)
+        if near.any():  # Σ exp(i2x) = Σ (cos² − sin²) + i Σ 2 cos·sin
+            cn, sn = c[near], s[near]
+            S[near] = np.einsum("fn,fn->f", cn, cn) - np.einsum("fn,fn->f", sn, sn) + 2j * np.einsum("fn,fn->f", cn, sn)
+        g[:, 0, 0], g[:, 1, 1] = 0.5 * (n + S.real), 0.5 * (n - S.real)
+        g[:, 0, 1] = g[:, 1, 0] = 0.5 * S.imag
+        return g
+    g[:, 0, 0], g[:, 1, 1] = np.einsum("fn,fn->f", c, c), np.einsum("fn,fn->f", s, s)
+    g[:, 0, 1] = g[:, 1, 0] = np.einsum("fn,fn->f", c, s)
+    return g
+
+
 @numba.njit(cache=True, nogil=True)
-def _rows_by_recurrence(first, step, out):  # pragma: no cover - compiled
-    """``out[0] = first``, ``out[k] = out[k-1] * step``: ``np.cumprod`` of ``[first, step, step, ...]`` along the rows,
-    one complex product an element as numpy's, in one pass without numpy's strided accumulate (0.36 of ~1.35 ms an
-    event's lock fit)."""
-    for j in range(first.shape[0]):
-        out[0, j] = first[j]
-    for k in range(1, out.shape[0]):
-        for j in range(first.shape[0]):
-            out[k, j] = out[k - 1, j] * step[j]
+def _rows_by_recurrence(first, step, re, im):  # pragma: no cover - compiled
+    """``z[0] = first``, ``z[k] = z[k-1] * step``: ``np.cumprod`` of ``[first, step, step, ...]`` along the rows, one
+    complex product an element as numpy's, in one pass without numpy's strided accumulate (0.36 of ~1.35 ms an event's
+    lock fit); the real parts into ``re``, the imaginary into ``im`` (the rows the lock fit's real products read)."""
+    n = first.shape[0]
+    row = first.copy()
+    for k in range(re.shape[0]):
+        if k:
+            for j in range(n):
+                row[j] = row[j] * step[j]
+        for j in range(n):
+            re[k, j] = row[j].real
+            im[k, j] = row[j].imag
 
 
 def _schur_min(
@@ -262,44 +292,16 @@ class ModalWindower:
         self._count = 0
 
     def feed(self, q: FloatArray, qdot: FloatArray, input_active: FloatArray | None = None) -> list[WindowFeatures]:
-        w = self.basis.omega
         q, qdot = np.asarray(q), np.asarray(qdot)
-        if self._sos is not None and q.shape[0] and q.dtype == qdot.dtype == w.dtype == np.float64:
-            # the band-pass and the energies (band-limited, then raw) in one compiled pass: the arithmetic of
-            # _bandpass_pairs and modal_energy, so the same numbers (three passes and a concatenation before)
-            q64, qd64 = np.ascontiguousarray(q), np.ascontiguousarray(qdot)
-            qf, qdf = np.empty_like(q64), np.empty_like(qd64)
-            e = np.empty((q.shape[0], 2 * q.shape[1] if self.energy_bandpass else q.shape[1]))
-            _bandpass_energies(q64, qd64, self._sos, self._zi, w, qf, qdf, e, self.energy_bandpass)
-            theta = modal_phase(qf, qdf, w)  # numpy's atan2 (its SIMD one differs from libm's by an ulp: kept)
-            qb = qf
-        elif self._sos is not None and q.shape[0]:
-            e = modal_energy(q, qdot, w)
-            q64, qd64 = np.ascontiguousarray(q, np.float64), np.ascontiguousarray(qdot, np.float64)
-            qf, qdf = np.empty_like(q64), np.empty_like(qd64)
-            _bandpass_pairs(q64, qd64, self._sos, self._zi, qf, qdf)
-            theta = modal_phase(qf, qdf, w)
-            qb = qf
-            if self.energy_bandpass:
-                e = np.concatenate([modal_energy(qf, qdf, w), e], axis=1)  # band-limited, then raw
-        else:
-            e = modal_energy(q, qdot, w)
-            theta = modal_phase(q, qdot, w)
-            qb = np.asarray(q, float)
-        prev = theta[:1] if self._last_theta is None else self._last_theta[None, :]
-        if theta.dtype == np.float64 and theta.ndim == 2:
-            dphi = np.empty_like(theta)
-            _phase_steps(theta, prev[0] if theta.shape[0] else np.zeros(theta.shape[1]), dphi)
-        else:
-            dphi = np.diff(np.concatenate([prev, theta]), axis=0)
-            dphi -= (2 * np.pi) * np.round(dphi / (2 * np.pi))
-        self._last_theta = theta[-1].copy() if theta.shape[0] else self._last_theta
-        inp = np.zeros(q.shape[0], bool) if input_active is None else np.asarray(input_active, bool)
-        self._e = np.concatenate([self._e, e])
-        self._dphi = np.concatenate([self._dphi, dphi])
-        self._inp = np.concatenate([self._inp, inp])
-        self._th = np.concatenate([self._th, theta])
-        self._qb = np.concatenate([self._qb, qb])
+        n, tail = q.shape[0], self._e.shape[0]
+        # the block's features go straight into buffers that already hold the samples kept from the block before (a
+        # block's worth of copies fewer: five concatenations, ~1 ms a 1 s block at 14 ch x 16384 Hz, issue 30)
+        bufs = [np.empty((tail + n, *b.shape[1:]), b.dtype) for b in (self._e, self._dphi, self._th, self._qb, self._inp)]
+        for buf, old in zip(bufs, (self._e, self._dphi, self._th, self._qb, self._inp), strict=True):
+            buf[:tail] = old
+        self._e, self._dphi, self._th, self._qb, self._inp = bufs
+        self._features(q, qdot, tail)
+        self._inp[tail:] = False if input_active is None else np.asarray(input_active, bool)
         starts = []
         while self._next_start + self.length <= self._buf_start + self._e.shape[0]:
             starts.append(self._next_start)
@@ -309,9 +311,11 @@ class ModalWindower:
             # per-window sums by one reduceat over interleaved (a, b) pairs: sequential, so the numbers do
             # not depend on how the stream was cut into blocks
             idx = np.array([(st - self._buf_start, st - self._buf_start + self.length) for st in starts]).ravel()
-            e_sum = np.add.reduceat(np.concatenate([self._e, np.zeros((1, self._e.shape[1]))]), idx, axis=0)[::2]
-            d_sum = np.add.reduceat(np.concatenate([self._dphi, np.zeros((1, self._dphi.shape[1]))]), idx, axis=0)[::2]
-            inp_any = np.add.reduceat(np.concatenate([self._inp, [False]]).astype(np.int64), idx)[::2] > 0
+            # (a window ending at the buffer's end: its last index dropped, so its sum runs to the end; no padded copy)
+            cut = idx if idx[-1] < self._e.shape[0] else idx[:-1]
+            e_sum = np.add.reduceat(self._e, cut, axis=0)[::2]
+            d_sum = np.add.reduceat(self._dphi, cut, axis=0)[::2]
+            inp_any = np.logical_or.reduceat(self._inp, cut)[::2]
             r = self._dphi.shape[1]
             energy, freq = e_sum[:, :r] / self.length, d_sum * self.fs / (2 * np.pi * self.length)
             raw = e_sum[:, r:] / self.length if e_sum.shape[1] > r else None
@@ -331,6 +335,34 @@ class ModalWindower:
             self._th, self._qb = self._th[drop:], self._qb[drop:]
             self._buf_start += drop
         return out
+
+    def _features(self, q: FloatArray, qdot: FloatArray, at: int) -> None:
+        """The block's energies, phase steps, phases and band-passed ``q`` into the buffers from row ``at`` on."""
+        w = self.basis.omega
+        e, dphi, theta, qb = self._e[at:], self._dphi[at:], self._th[at:], self._qb[at:]
+        if self._sos is not None and q.shape[0] and q.dtype == qdot.dtype == w.dtype == np.float64:
+            # the band-pass and the energies (band-limited, then raw) in one compiled pass: the arithmetic of
+            # _bandpass_pairs and modal_energy, so the same numbers (three passes and a concatenation before)
+            qdf = np.empty(qdot.shape)
+            _bandpass_energies(np.ascontiguousarray(q), np.ascontiguousarray(qdot), self._sos, self._zi, w, qb, qdf, e,
+                               self.energy_bandpass)  # fmt: skip
+            np.arctan2(-qdf / w, qb, out=theta)  # modal_phase: numpy's atan2 (its SIMD one differs from libm's by an ulp)
+        elif self._sos is not None and q.shape[0]:
+            raw = modal_energy(q, qdot, w)
+            q64, qd64 = np.ascontiguousarray(q, np.float64), np.ascontiguousarray(qdot, np.float64)
+            qdf = np.empty_like(qd64)
+            _bandpass_pairs(q64, qd64, self._sos, self._zi, qb, qdf)
+            theta[:] = modal_phase(qb, qdf, w)
+            e[:] = np.concatenate([modal_energy(qb, qdf, w), raw], axis=1) if self.energy_bandpass else raw
+        else:
+            e[:] = modal_energy(q, qdot, w)
+            theta[:] = modal_phase(q, qdot, w)
+            qb[:] = q
+        if not theta.shape[0]:
+            return
+        prev = theta[0] if self._last_theta is None else self._last_theta
+        _phase_steps(theta, prev, dphi)
+        self._last_theta = theta[-1].copy()
 
     def _lock_tiles(self, starts: list[int]) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
         """Each window's first hop (stream samples ``[st, st + hop)``), every ``stride``-th stream index: the tiles do

@@ -716,11 +716,15 @@ class AnalysisOperator:
         displacement, the windows every grid completes, their covariances, POD + RQ and spike flags. Touches only
         seed-lane state, so it may run on the worker (a thread, or a forked copy of this operator) while the modal lane
         runs (``feed``)."""
-        _, disp = self._pre.feed(acc) if acc is not None else self._pre.flush()
-        if disp.shape[0] == 0:
+        if acc is not None:  # the block's displacement written after the kept tail: one buffer, no concatenation
+            joined, new = self._pre.feed_after(self._disp, acc)
+        else:
+            flushed = self._pre.flush()[1]
+            joined, new = np.concatenate([self._disp, flushed]), flushed.shape[0]
+        if new == 0:
             return None
-        self._disp = np.concatenate([self._disp, disp]) if self._disp.size else disp
-        self._disp_end += disp.shape[0]
+        self._disp = joined
+        self._disp_end += new
         # grids by their index in self._grids (the result may cross to the parent process, whose grids are its own)
         ready: list[tuple[int, int]] = []
         runs: list[tuple[int, int, int]] = []  # each grid's windows of this feed: ready[i0:i1], in order

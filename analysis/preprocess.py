@@ -132,7 +132,7 @@ def acc_to_disp(acc: FloatArray, fs: float, settings: PreprocessSettings = Prepr
 
 
 @numba.njit(cache=True, nogil=True)
-def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out, d_out):  # pragma: no cover - compiled
+def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, keep_v, v_out, d_out):  # pragma: no cover - compiled
     """The whole causal §4.3 chain in one pass over ``a`` (n, c): states ``z_*`` are updated in place.
 
     Per sample and channel: baseline removal, trapezoid ``y[k] = y[k-1] + h (x[k-1] + x[k])`` (h = dt/2),
@@ -143,7 +143,8 @@ def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out
     applied stage after stage with carried ``zi`` (tests/test_preprocess.py checks it). ``first``:
     the integrators start at y[0] = 0 (their state becomes ``−h·x[0]``). One pass with the channels
     innermost instead of four library calls each copying the block to channel-major order: ~6× faster
-    (docs/preprocessing.md, bench/bench_analysis.py).
+    (docs/preprocessing.md, bench/bench_analysis.py). ``keep_v`` False: the velocity is not stored (``v_out`` is not
+    touched), for a caller that uses the displacement alone (the seed lane: a block-sized array less to write).
     """
     n, c = a.shape
     x = np.empty(c)  # the current sample of every channel, through the stages in turn
@@ -152,8 +153,9 @@ def _causal_chain(a, offset, h, first, z_iv, sos_v, z_v, z_id, sos_d, z_d, v_out
             x[j] = a[k, j] - offset[j]
         _trapezoid(x, z_iv, h, first and k == 0)
         _sections(x, sos_v, z_v)
-        for j in range(c):
-            v_out[k, j] = x[j]
+        if keep_v:
+            for j in range(c):
+                v_out[k, j] = x[j]
         _trapezoid(x, z_id, h, first and k == 0)
         _sections(x, sos_d, z_d)
         for j in range(c):
@@ -222,15 +224,30 @@ class CausalPreprocessor:
         """Samples held back while the baseline is incomplete."""
         return self._n_buf
 
-    def _run(self, a: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _run(self, a: FloatArray, head: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
         assert self.offset is not None
         a = np.ascontiguousarray(a, dtype=np.float64)
-        v, d = np.empty_like(a), np.empty_like(a)
+        v = np.empty_like(a) if head is None else np.empty((0, a.shape[1]))
+        at = 0 if head is None else head.shape[0]
+        d = np.empty((at + a.shape[0], a.shape[1]))
+        if head is not None:
+            d[:at] = head
         if a.shape[0]:
             _causal_chain(a, np.ascontiguousarray(self.offset, dtype=np.float64), self._h, not self._started, self._z_iv,
-                          self._sos_v, self._z_v, self._z_id, self._sos_d, self._z_d, v, d)  # fmt: skip
+                          self._sos_v, self._z_v, self._z_id, self._sos_d, self._z_d, head is None, v, d[at:])  # fmt: skip
             self._started = True
         return v, d
+
+    def feed_after(self, head: FloatArray, acc_block: FloatArray) -> tuple[FloatArray, int]:
+        """The displacement of ``acc_block`` written after ``head`` (earlier displacement the caller keeps) in one new
+        array, and how many rows are new; the velocity is not computed. For the seed lane, which keeps a tail of
+        displacement for its windows and uses no velocity: the chain writes into the joined buffer, where ``feed`` and a
+        concatenation wrote a block twice and a velocity nobody read (issue 30). The same numbers as ``feed``."""
+        a = _as_2d(acc_block)
+        if self.offset is None or a.shape[1] != self.n_channels:  # holding a baseline, or a bad block: feed's path
+            d = self.feed(a)[1]
+            return (np.concatenate([head, d]) if head.size else d), d.shape[0]
+        return self._run(a, np.asarray(head, dtype=np.float64))[1], a.shape[0]
 
     def feed(self, acc_block: FloatArray) -> tuple[FloatArray, FloatArray]:
         a = _as_2d(acc_block)

@@ -234,6 +234,27 @@ def _span_sums(x, L, s1, s2):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _span_sums_repeats(x, L, last, s1, s2, rep):  # pragma: no cover - compiled
+    """:func:`_span_sums` and, in the same pass, ``rep[k, j]``: whether any sample of channel j in span k equals the
+    one before it (``last`` before the first row), as ``np.equal`` of the block against itself shifted and ``any`` per
+    span did in two more passes over a block-sized mask (issue 30). NaN equals nothing, as in ``np.equal``."""
+    c = x.shape[1]
+    prev = last.copy()
+    for k in range(s1.shape[0]):
+        for j in range(c):
+            s1[k, j] = 0.0
+            s2[k, j] = 0.0
+            rep[k, j] = False
+        for i in range(k * L, (k + 1) * L):
+            for j in range(c):
+                v = x[i, j]
+                s1[k, j] += v
+                s2[k, j] += v * v
+                rep[k, j] |= v == prev[j]
+                prev[j] = v
+
+
+@numba.njit(cache=True, nogil=True)
 def _bandpass_rows(sos, x, z, y):  # pragma: no cover - compiled
     """``y, z = scipy.signal.sosfilt(sos, x, axis=0, zi=z)`` (``z`` updated in place), bit for bit: the sections of
     the causal §4.3 chain (analysis/preprocess.py ``_sections``, the library's arithmetic operation for operation),
@@ -267,7 +288,9 @@ class _SpanStats:
         k, L, c = spans.shape
         x = spans.reshape(k * L, c)
         self.at = at
-        self.s1, self.s2 = span_sums(x, L)
+        self.s1, self.s2, self.repeats = np.empty((k, c)), np.empty((k, c)), np.empty((k, c), bool)
+        _span_sums_repeats(np.ascontiguousarray(x, dtype=np.float64), L, np.asarray(last, np.float64), self.s1, self.s2,
+                           self.repeats)  # fmt: skip
         self.inp = np.zeros(k, bool) if inp is None else inp[at : at + k * L].reshape(k, L).any(axis=1)
         if np.isfinite(ranges).any() and _near_range(x, ranges):  # a block far from every range clips nowhere
             a = np.abs(spans)
@@ -275,15 +298,14 @@ class _SpanStats:
             self.beyond = np.count_nonzero(a > OVER_RANGE * ranges, axis=1)
         else:
             self.clips = self.beyond = np.zeros((k, c), np.int64)
-        same = np.empty(x.shape, bool)
-        same[0] = x[0] == last
-        np.equal(x[1:], x[:-1], out=same[1:])
-        self.repeats = same.reshape(k, L, c).any(axis=1)
         self.runs = np.zeros((k, c), np.int64)
         self.carry = np.zeros((k + 1, c), np.int64)
         self.carry[0] = carry0
         cols = np.flatnonzero(self.repeats.any(axis=0))
         if cols.size:  # run length at each sample: equal pairs since the last sample that differed (or the carry)
+            same = np.empty(x.shape, bool)
+            same[0] = x[0] == last
+            np.equal(x[1:], x[:-1], out=same[1:])
             sc = same[:, cols]
             idx = np.arange(k * L)[:, None]
             brk = np.maximum.accumulate(np.where(sc, -1, idx), axis=0)

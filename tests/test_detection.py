@@ -619,13 +619,26 @@ def test_lock_residuals_equal_a_least_squares_fit_at_every_free_frequency():
     assert abs(r0 - brute(base)) <= 1e-11 * float(y @ y)
     np.testing.assert_allclose(res, want, rtol=0, atol=1e-11 * float(y @ y))
     assert int(np.argmin(res)) == 1  # the 3:1-locked part is the one that removes most
+    # the free pair's Gram matrix comes in closed form on a lattice (a geometric series): the direct sums are its
+    # oracle, on the lattice, at a grid frequency where the series is 0/0 (2 f dt = 1: 512 Hz at 1024 samples/s) and
+    # off a lattice (jittered times: the sums themselves)
+    from analysis.exchange import _free_gram
+
+    for times, fb in ((ts + 3.0, np.arange(1.25 * f1, 4.75 * f1, 0.25)), (ts, np.arange(160.0, 608.0, 1.0)),
+                      (ts + 1e-5 * rng.standard_normal(ts.size), np.arange(1.25 * f1, 4.75 * f1, 0.25))):  # fmt: skip
+        c, s = np.cos(2 * np.pi * fb[:, None] * times), np.sin(2 * np.pi * fb[:, None] * times)
+        want_g = np.stack([np.stack([(c * c).sum(1), (c * s).sum(1)], 1), np.stack([(c * s).sum(1), (s * s).sum(1)], 1)], 1)
+        np.testing.assert_allclose(_free_gram(times, fb, c, s), want_g, rtol=0, atol=1e-12 * ts.size)
+    r0j, resj = lock_residuals(ts + 1e-5 * rng.standard_normal(ts.size), y, th, f1, cands, 1.0)  # off a lattice
+    assert abs(r0j - r0) <= 1e-3 * float(y @ y) and int(np.argmin(resj)) == 1
     # the free sinusoids come from a compiled row recurrence: numpy's cumprod of the same rows, to the last bit
     from analysis.exchange import _rows_by_recurrence
 
     first, step = np.exp(2j * np.pi * 1.25 * f1 * ts), np.exp(2j * np.pi * ts)
-    got = np.empty((90, ts.size), complex)
-    _rows_by_recurrence(first, step, got)
-    assert np.array_equal(got, np.cumprod(np.vstack([first, np.tile(step, (89, 1))]), axis=0))
+    re, im = np.empty((90, ts.size)), np.empty((90, ts.size))
+    _rows_by_recurrence(first, step, re, im)
+    want = np.cumprod(np.vstack([first, np.tile(step, (89, 1))]), axis=0)
+    assert np.array_equal(re, want.real) and np.array_equal(im, want.imag)
 
 
 def test_detector_labels_the_m_n_locked_to_the_giving_phase_where_the_mean_ratio_misleads():

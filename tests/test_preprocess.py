@@ -168,6 +168,14 @@ def test_fused_chain_is_the_library_filters_bit_for_bit(corners, n_ch):
     ref = [chain(a[x:y], st_) for x, y in itertools.pairwise([0, 66, 1300, 2500])]
     np.testing.assert_array_equal(v_s, np.concatenate([r[0] for r in ref]))
     np.testing.assert_array_equal(d_s, np.concatenate([r[1] for r in ref]))
+    # feed_after (the seed lane's: displacement only, written after a kept tail, held baseline included): the same
+    pre2, kept, new_rows = CausalPreprocessor(FS, n_ch, s), np.full((3, n_ch), 7.0), []
+    for a_, b_ in itertools.pairwise([0, 17, 40, 41, 1300, 2500]):
+        joined, new = pre2.feed_after(kept, acc[a_:b_])
+        assert np.array_equal(joined[: kept.shape[0]], kept) and joined.shape[0] == kept.shape[0] + new
+        new_rows.append(joined[kept.shape[0] :])
+        kept = joined[-3:] if joined.shape[0] >= 3 else joined
+    np.testing.assert_array_equal(np.concatenate(new_rows), d_s)
 
 
 def test_butter_sos_is_scipys_design_once_and_a_fresh_copy_each_call():

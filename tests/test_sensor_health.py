@@ -19,6 +19,7 @@ from analysis.sensor_health import (
     HealthSettings,
     SensorHealth,
     _bandpass_rows,
+    _span_sums_repeats,
     guyan_condense,
     reduced_basis,
     span_sums,
@@ -96,6 +97,20 @@ def test_whole_block_screen_judges_as_span_by_span():
     s1, s2 = span_sums(x[:, :5], 246 * 4)  # spans of 4 level spans, on 5 channels: numpy's sums to the last bit
     spans = x[: s1.shape[0] * 984, :5].reshape(-1, 984, 5)
     assert np.array_equal(s1, spans.sum(axis=1)) and np.array_equal(s2, np.einsum("kij,kij->kj", spans, spans))
+    # ... and with the repeats per span in the same pass: np.equal against the sample before, any per span (a stuck run
+    # and a NaN planted: NaN equals nothing)
+    xr = np.random.default_rng(3).standard_normal((8000, 5))
+    xr[3000:3100, 2], xr[5000, 4], xr[5001, 4] = xr[2999, 2], np.nan, np.nan
+    last = xr[0] + 1.0
+    k = 8000 // 984
+    r1, r2, rep = np.empty((k, 5)), np.empty((k, 5)), np.empty((k, 5), bool)
+    _span_sums_repeats(xr, 984, last, r1, r2, rep)
+    same = np.vstack([xr[:1] == last, xr[1:] == xr[:-1]])[: k * 984].reshape(k, 984, 5).any(axis=1)
+    sr = xr[: k * 984].reshape(k, 984, 5)
+    assert np.array_equal(rep, same) and rep[3000 // 984, 2] and rep.sum() == 1
+    assert np.array_equal(r1, sr.sum(axis=1), equal_nan=True)
+    assert np.array_equal(r2, np.einsum("kij,kij->kj", sr, sr), equal_nan=True)
+    assert np.array_equal(r2, np.einsum("kij,kij->kj", sr, sr), equal_nan=True)
 
 
 def test_healthy_noise_and_unknown_range_flag_nothing():

@@ -255,19 +255,22 @@ def _span_sums_repeats(x, L, last, s1, s2, rep):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _bandpass_rows(sos, x, z, y):  # pragma: no cover - compiled
-    """``y, z = scipy.signal.sosfilt(sos, x, axis=0, zi=z)`` (``z`` updated in place), bit for bit: the sections of
-    the causal §4.3 chain (analysis/preprocess.py ``_sections``, the library's arithmetic operation for operation),
-    with the channels innermost. The library copies an ``(n, channels)`` block to channel-major order and back
-    (~1.9 ms a 0.5 s block of 14 channels); this runs in place (~0.4 ms)."""
+def _bandpass_rows(sos, x, z, y, lo, hi):  # pragma: no cover - compiled
+    """``out, z = scipy.signal.sosfilt(sos, x, axis=0, zi=z)`` (``z`` updated in place), bit for bit, with only the
+    rows ``out[lo:hi]`` kept (in ``y``, ``hi − lo`` rows): the sections of the causal §4.3 chain (analysis/preprocess.py
+    ``_sections``, the library's arithmetic operation for operation), with the channels innermost. The library copies
+    an ``(n, channels)`` block to channel-major order and back (~1.9 ms a 0.5 s block of 14 channels); this runs in
+    place (~0.4 ms). Every row goes through the filter (its state must), but the hit check reads only the rows of its
+    spans, a few hundred ms after each input: the rest are not written (a block-sized array fewer, issue 30)."""
     n, c = x.shape
     buf = np.empty(c)
     for k in range(n):
         for j in range(c):
             buf[j] = x[k, j]
         _sections(buf, sos, z)
-        for j in range(c):
-            y[k, j] = buf[j]
+        if lo <= k < hi:
+            for j in range(c):
+                y[k - lo, j] = buf[j]
 
 
 def _row_median(a: np.ndarray) -> np.ndarray:
@@ -634,8 +637,6 @@ class SensorHealth:
     def _hit_feed(self, x: np.ndarray, inp: np.ndarray) -> list[Verdict]:
         """The band-passed response after each input, over two spans: the first ``polarity_span_s`` (polarity, judged
         at once) and ``hit_span_s`` after ``hit_settle_s`` (consistency with the model)."""
-        y = np.empty_like(x)
-        _bandpass_rows(self._sos, x, self._zi, y)
         out: list[Verdict] = []
         on = np.flatnonzero(inp)
         if on.size:
@@ -645,12 +646,19 @@ class SensorHealth:
             zero = np.zeros((x.shape[1],) * 2)
             self._hit = [last + settle, last + settle + round(self.s.hit_span_s * self.fs), 0, zero.copy()]
             self._pol = [last + pol, last + pol + max(2, round(self.s.polarity_span_s * self.fs)), 0, zero.copy()]
+        # the block's rows the spans read: the band-passed response is kept for those alone
+        rows = [(max(sp[0] - self._index, 0), min(sp[1] - self._index, x.shape[0])) for sp in (self._pol, self._hit)
+                if sp is not None]  # fmt: skip
+        rows = [(a, b) for a, b in rows if b > a]
+        lo, hi = (min(a for a, _ in rows), max(b for _, b in rows)) if rows else (0, 0)
+        y = np.empty((hi - lo, x.shape[1]))
+        _bandpass_rows(self._sos, x, self._zi, y, lo, hi)
         for span, judge in ((self._pol, self._judge_polarity), (self._hit, self._judge_hit)):
             if span is None:
                 continue
             a, b = max(span[0] - self._index, 0), min(span[1] - self._index, x.shape[0])
             if b > a:
-                seg = y[a:b]
+                seg = y[a - lo : b - lo]
                 span[2] += b - a
                 span[3] += seg.T @ seg
             if self._index + x.shape[0] >= span[1]:

@@ -92,8 +92,12 @@ def test_whole_block_screen_judges_as_span_by_span():
     z = np.random.default_rng(5).standard_normal((sos.shape[0], 2, 3))
     want, zw = scipy.signal.sosfilt(sos, x[:2000, :3], axis=0, zi=z)
     got = np.empty_like(want)
-    _bandpass_rows(sos, np.ascontiguousarray(x[:2000, :3]), z, got)
+    z2 = z.copy()
+    _bandpass_rows(sos, np.ascontiguousarray(x[:2000, :3]), z, got, 0, 2000)
     assert np.array_equal(got, want) and np.array_equal(z, zw)
+    part = np.empty((300, 3))  # only rows 700..999 kept: the same rows, the same end state
+    _bandpass_rows(sos, np.ascontiguousarray(x[:2000, :3]), z2, part, 700, 1000)
+    assert np.array_equal(part, want[700:1000]) and np.array_equal(z2, zw)
     s1, s2 = span_sums(x[:, :5], 246 * 4)  # spans of 4 level spans, on 5 channels: numpy's sums to the last bit
     spans = x[: s1.shape[0] * 984, :5].reshape(-1, 984, 5)
     assert np.array_equal(s1, spans.sum(axis=1)) and np.array_equal(s2, np.einsum("kij,kij->kj", spans, spans))

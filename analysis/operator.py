@@ -453,8 +453,11 @@ class AnalysisOperator:
                 # two stages in two processes: this block's sensor health here, then its seed numerics to the worker
                 # process, the previous block's seed results out, this block's modal lane here (the events' lock fits
                 # go to the worker too). The emits and their order are the threads' below; ``finish`` flushes
-                acc, switches = self._check_health(acc, inp) if self._guard is not None else (acc, None)
+                # (the cleaned block goes to the worker before sensor health judges it: the seed lane does not wait on
+                # the judgments, which it does not use, so the worker starts sooner, first block included)
+                acc = self._guard.clean(acc) if self._guard is not None else acc
                 planned = self._seed_proc.submit("_seed_compute", acc)
+                acc, switches = self._check_health(acc, inp, cleaned=True) if self._guard is not None else (acc, None)
                 self._drain()
                 self._inflight = (planned, t_arrival)
                 self._modal_lane(acc, inp, switches)
@@ -522,14 +525,14 @@ class AnalysisOperator:
             behind, self._ahead = self._ahead, None
             self._lanes_behind(behind)
 
-    def _check_health(self, acc: np.ndarray, inp: np.ndarray | None) -> tuple[np.ndarray, list]:
+    def _check_health(self, acc: np.ndarray, inp: np.ndarray | None, cleaned: bool = False) -> tuple[np.ndarray, list]:
         """Sensor health on the block before the modal lane sees it (analysis/sensor_health.py): a channel judged bad
         leaves the modal filter, whose basis is rebuilt on the rest with its filter state carried, at the stream
         sample where it was judged; a warning each, and a "blind" one for the sensor at a nonlinear element (L69).
         The seed lane keeps every sensor (its RQ needs the model's DOFs, assumption 7, L65). Stationary lines (mains hum)
         are removed from the block first, for both lanes (analysis/lines.py); the block returned is the cleaned one."""
         assert self._guard is not None
-        acc, switches = self._guard.feed_clean(acc, inp)
+        acc, switches = self._guard.check(acc, inp) if cleaned else self._guard.feed_clean(acc, inp)
         self._health_warnings(switches)
         return acc, switches
 

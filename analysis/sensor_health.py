@@ -770,8 +770,16 @@ class HealthGuard:
     def feed_clean(self, block: np.ndarray, input_active: np.ndarray | None = None) -> tuple[np.ndarray, list[Switch]]:
         """One block: its samples with the stationary lines removed (what the modal filter and the seed lane should
         read), and the switches of :meth:`feed` on them, with a ``hum`` warning where lines were newly found."""
+        return self.check(self.clean(block), input_active)
+
+    def clean(self, block: np.ndarray) -> np.ndarray:
+        """:meth:`feed_clean`'s first half: the block with the stationary lines removed. A caller that hands the cleaned
+        block on (the seed lane's worker process) can do so before :meth:`check` judges it."""
+        return block if self.lines is None else self.lines.feed(block)
+
+    def check(self, x: np.ndarray, input_active: np.ndarray | None = None) -> tuple[np.ndarray, list[Switch]]:
+        """:meth:`feed_clean`'s second half, on the block :meth:`clean` returned."""
         start = self.health._index
-        x = block if self.lines is None else self.lines.feed(block)
         switches = self.feed(x, input_active)
         if self.lines is not None and self.lines.found:
             hum = self._hum_switch(self.lines.found, start, x.shape[0])

@@ -32,6 +32,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -119,6 +120,16 @@ class ForkedWorker:
         self._queue: deque[Pending] = deque()
         self.name = name
         self.died = False  # a call found the child gone (WorkerDied raised): what it still owed is lost
+        # CPU seconds each side has used since the fork: the child's as of its last answer (each answer carries it),
+        # this process's from here (its process_time, every thread). balance() compares them
+        self._cpu_child, self._cpu_child_at, self._cpu_here0 = 0.0, time.monotonic(), time.process_time()
+
+    def balance(self) -> float:
+        """CPU seconds the child has used since the fork minus this process's: positive, the child is the busier side.
+        The child's is its last answer's figure plus the wall time since (a worker is given its next call before it
+        answers, so it is computing meanwhile). For placing work that may run on either side (the events' lock fits)."""
+        child = self._cpu_child + (time.monotonic() - self._cpu_child_at if self._queue else 0.0)
+        return child - (time.process_time() - self._cpu_here0)
 
     @property
     def pid(self) -> int | None:
@@ -155,9 +166,10 @@ class ForkedWorker:
 
     def _receive_one(self) -> None:
         try:
-            ok, value = self._conn.recv()
+            ok, value, self._cpu_child = self._conn.recv()
         except (EOFError, OSError):
             raise self._died() from None
+        self._cpu_child_at = time.monotonic()
         p = self._queue.popleft()
         p._done, p._ok, p._value = True, ok, value
 
@@ -222,15 +234,15 @@ def _serve(obj: object, conn: Any, parent_end: Any, shm: mmap.mmap | None, slot_
             args = tuple(_view(a, shm, slot_bytes) if isinstance(a, _Shared) else a for a in args)
         try:
             fn = method if callable(method) else getattr(obj, method)
-            reply = (True, fn(*args))
+            reply = (True, fn(*args), time.process_time())
         except Exception as exc:  # raised again by the parent's result()
-            reply = (False, exc)
+            reply = (False, exc, time.process_time())
         try:
             conn.send(reply)
         except OSError:
             return
         except Exception as exc:  # a result or exception that does not pickle
-            conn.send((False, RuntimeError(f"{method}: {type(exc).__name__}: {exc}")))
+            conn.send((False, RuntimeError(f"{method}: {type(exc).__name__}: {exc}"), time.process_time()))
 
 
 def _view(a: _Shared, shm: mmap.mmap, slot_bytes: int) -> np.ndarray:  # pragma: no cover - runs in the child

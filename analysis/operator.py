@@ -491,13 +491,15 @@ class AnalysisOperator:
         self._modal_lane(acc, inp, switches)
 
     def _lock_submit(self, fn: Callable, *args) -> Future | Pending:
-        """Where an event's phase-lock fit runs when pipelined: on the lighter side. With the seed lane's process, in it
-        while this process runs sensor health (the two sides even, D130), here at once without health (the modal lane
-        alone is the lighter side: 0.12 against the seed lane's ~0.2 s of CPU per 20 s); with the threads, on the health
-        worker."""
+        """Where an event's phase-lock fit runs when pipelined: on the lighter side. With the seed lane's process and
+        sensor health on, on whichever process has used less CPU since the fork (``ForkedWorker.balance``: the two
+        sides are within a few per cent of each other, and which is heavier depends on the rig and the data; a fixed
+        place left one side ~10 ms per 20 s idle, issue 30); the fit is the same computation either side, so the
+        results do not depend on where it ran. Here at once without health (the modal lane alone is the lighter side:
+        0.12 against the seed lane's ~0.2 s of CPU per 20 s); with the threads, on the health worker."""
         if self._seed_proc is None:
             return self._health_pool.submit(fn, *args)
-        if self._guard is not None:
+        if self._guard is not None and self._seed_proc.balance() < 0:  # the worker has used less CPU: it takes the fit
             return self._seed_proc.submit(fn, *args)
         done: Future = Future()
         try:

@@ -42,6 +42,11 @@ class Counter:
     def double_in_place(self, a: np.ndarray) -> None:
         a *= 2
 
+    def burn(self, s: float) -> None:
+        t = time.process_time()
+        while time.process_time() - t < s:
+            pass
+
 
 def _alive(pid: int) -> bool:
     try:
@@ -267,3 +272,18 @@ def test_a_feed_after_close_starts_fresh_lanes_not_a_worker_forked_from_stale_st
     fresh = rq_after(AnalysisOperator(model, chans, fs), 8192)
     reap()
     assert len(later) > 10 and later == fresh
+
+
+def test_balance_says_which_side_used_more_cpu_since_the_fork():
+    """ForkedWorker.balance (where the operator places an event's lock fit): the child's CPU as its answers report it
+    minus this process's. Oracle: the test burns CPU on one side, then the other (0.3 s each; a sleep costs none)."""
+    w = ForkedWorker(Counter(), "test-worker")
+    try:
+        w.submit("burn", 0.3).result()
+        assert w.balance() > 0.15  # the child burnt 0.3 s, this side only waited
+        Counter().burn(0.6)
+        assert w.balance() < -0.15  # now this side has burnt 0.6 s against the child's 0.3 s
+        w.submit("sleep", 0.2).result()
+        assert w.balance() < -0.15  # a sleeping child uses no CPU
+    finally:
+        w.close()

@@ -24,6 +24,7 @@ emitted as a warning.
 
 from __future__ import annotations
 
+import math
 import sys
 import threading
 import time
@@ -652,16 +653,17 @@ class AnalysisOperator:
         self._settle(float("inf"))
 
     def _modal_window(self, w: WindowFeatures) -> None:
-        total = float((w.energy if w.energy_raw is None else w.energy_raw).sum())
-        if (self._ham_col is None and self._prev_total is not None and total > self.s.input_jump * self._prev_total
-                and total > INPUT_OVER_FLOOR * self._min_total):  # fmt: skip
-            w = replace(w, input_active=True)
-        self._prev_total = total
-        self._min_total = min(self._min_total, total) if total > 0 else self._min_total
+        if self._ham_col is None:  # no hammer: an input is a jump of the total energy (with one, its channel says so)
+            total = float((w.energy if w.energy_raw is None else w.energy_raw).sum())
+            if (self._prev_total is not None and total > self.s.input_jump * self._prev_total
+                    and total > INPUT_OVER_FLOOR * self._min_total):  # fmt: skip
+                w = replace(w, input_active=True)
+            self._prev_total = total
+            self._min_total = min(self._min_total, total) if total > 0 else self._min_total
         if w.input_active:
             self._last_input_s = w.t_end_s
             self._f1_hist.clear()
-        elif np.isfinite(self._last_input_s) and w.t_start_s - self._last_input_s > DRIFT_SETTLE_S:  # a hit's decay
+        elif math.isfinite(self._last_input_s) and w.t_start_s - self._last_input_s > DRIFT_SETTLE_S:  # a hit's decay
             # the seed's "< 10 % frequency change within one half cycle" (assumption 10, L68), on NNM1's
             # measured frequency: medians of 5 windows (robust to one noisy phase estimate), two hops = one
             # window apart

@@ -176,6 +176,20 @@ def test_fuzz_config_mutations_never_escape_as_other_exceptions(edits):
         pass
 
 
+def test_a_beam_beyond_floating_point_is_one_line_not_an_overflow(tmp_path):
+    """Found by the fuzz test beside 4 hogs (make test-loaded at 017033b): a height of 5.6e102 m passed the schema
+    (positive) and the beam's assembly raised OverflowError (a float power past 1e308), which no caller expects; now a
+    ValueError, so load_rig's one-line ConfigError. A beam whose matrices overflow to inf (1e100 m: the power is
+    finite, the stiffness is not) says the same."""
+    from analysis.model.rig import build_rig
+
+    for field, value in (("height", 5.643803094122362e102), ("height", 1e100)):
+        data = _base()
+        data["structure"][field] = value
+        with pytest.raises(ValueError, match="beyond floating point"):
+            build_rig(validate(RigConfig, data, "fuzz.toml"))
+
+
 def test_sensor_on_the_clamp_is_a_config_error(tmp_path):
     data = _base()
     data["sensors"][0]["x"] = 0.001

@@ -172,7 +172,13 @@ def build_beam(
     node (an error beyond half an element off the beam).
     """
     mesh = BeamMesh(length=length, n_elements=n_elements)
-    M, K = assemble_beam(E, rho, width, height, mesh)
+    try:
+        M, K = assemble_beam(E, rho, width, height, mesh)
+    except OverflowError:  # a float power past 1e308 (a height of 1e103 m): raised, not inf
+        M = K = None
+    if M is None or not (np.isfinite(M).all() and np.isfinite(K).all()):
+        raise ValueError(f"the beam ({length:g} x {width:g} x {height:g} m, E {E:g} Pa, density {rho:g} kg/m^3) gives a "
+                         "mass or stiffness beyond floating point: check the structure's dimensions and material")  # fmt: skip
     nb = M.shape[0]
     if oscillators:
         n_all = nb + len(oscillators)

@@ -17,7 +17,10 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 RIGS = ROOT / "configs" / "rigs"
 
-settings.register_profile("default", max_examples=200, deadline=None)
+# make test draws the same 200 examples every run (derandomize): a gate that fails by chance is no gate, and make test
+# beside 4 hogs at 017033b failed on a config no earlier run had drawn (a 5.6e102 m beam height: a real bug, mended
+# and kept as its own test). Exploring is make fuzz's job (the "fuzz" profile: 20,000 random examples).
+settings.register_profile("default", max_examples=200, deadline=None, derandomize=True)
 settings.register_profile("fuzz", max_examples=20000, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 

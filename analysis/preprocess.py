@@ -240,7 +240,7 @@ class CausalPreprocessor:
 
     def feed_after(self, head: FloatArray, acc_block: FloatArray) -> tuple[FloatArray, int]:
         """The displacement of ``acc_block`` written after ``head`` (earlier displacement the caller keeps) in one new
-        array, and how many rows are new; the velocity is not computed. For the seed lane, which keeps a tail of
+        array, and how many rows are new; the velocity is not stored. For the seed lane, which keeps a tail of
         displacement for its windows and uses no velocity: the chain writes into the joined buffer, where ``feed`` and a
         concatenation wrote a block twice and a velocity nobody read (issue 30). The same numbers as ``feed``."""
         a = _as_2d(acc_block)
